@@ -1,0 +1,7 @@
+"""additive_rsrivc_ros: online tracking and fault diagnosis of mechanical resonances.
+
+The numerics live in the ROS-free :mod:`additive_rsrivc_ros.core`; the ROS 2 node, the bag tools and
+the command-line programs are thin shells around it.
+"""
+
+__version__ = "0.1.0"

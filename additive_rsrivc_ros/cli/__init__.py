@@ -1,0 +1,1 @@
+"""Command-line programs (console scripts listed in ../shared/CONTRACT.md)."""

@@ -1,0 +1,349 @@
+"""Parameters of the monitor: one declarative table shared by the ROS node and the offline tools.
+
+The same params YAML (``additive_rsrivc_monitor: ros__parameters: ...``, ../shared/CONTRACT.md) drives
+``rsrivc_monitor``, ``rsrivc_diagnose`` and ``rsrivc_identify``. Every parameter is a :class:`Param`
+row: the node declares each with a descriptor built from it; :func:`load_params_file` and
+:func:`validate_params` apply the same types, ranges and cross-checks offline.
+
+Sections are separate lists so that each owner edits only its own: ``CORE_PARAMS`` (plant, modes,
+estimator), ``SIGNAL_PARAMS`` (topics), ``FAULT_PARAMS`` (diagnosis), ``NODE_PARAMS`` (node only).
+"""
+
+from __future__ import annotations
+
+import math
+from collections.abc import Mapping
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+import yaml
+
+from .core.controller import DiscreteController
+from .core.model import SubmodelStructure, theta_from_modal
+
+DEFAULT_NODE_NAME = "additive_rsrivc_monitor"
+PARAM_TYPES = ("bool", "int", "double", "string", "bool[]", "int[]", "double[]", "string[]")
+
+
+class ParamError(ValueError):
+    """A parameter file or value that cannot be used; the message names the parameter."""
+
+
+@dataclass(frozen=True)
+class Param:
+    """One parameter: name (dotted), type, default, description and validity range."""
+
+    name: str
+    type: str
+    default: Any
+    description: str
+    min: float | None = None
+    max: float | None = None
+    read_only: bool = False  # True: changing it needs a restart (re-initialization)
+    choices: tuple[str, ...] = ()
+
+    def __post_init__(self) -> None:
+        if self.type not in PARAM_TYPES:
+            raise ValueError(f"{self.name}: unknown type {self.type}")
+
+
+CORE_PARAMS: list[Param] = [
+    Param("loop_rate_hz", "double", 0.0, "Sample rate of r, u, y in Hz (required).", 0.1, 1e6, True),
+    Param("closed_loop", "bool", True, "Closed-loop instrument z = S_uo(q) r (000 eq. 33); false: z = u.",
+          read_only=True),
+    Param("controller.numerator", "double[]", [], "Discrete controller C_d numerator, ascending powers of q^-1.",
+          read_only=True),
+    Param("controller.denominator", "double[]", [1.0], "Discrete controller C_d denominator, ascending q^-1.",
+          read_only=True),
+    Param("input_delay_samples", "int", 0, "Known input delay in samples.", 0, 10000, True),
+    Param("modes.natural_frequency_hz", "double[]", [], "Initial guess of each mode's natural frequency (Hz); "
+          "its length defines K. 0 for a pure rigid-body mode b0/p^l.", 0.0, None, True),
+    Param("modes.damping_ratio", "double[]", [], "Initial guess of each mode's damping ratio.", 0.0, 10.0, True),
+    Param("modes.gain", "double[]", [], "Initial guess of each mode's DC gain b0.", None, None, True),
+    Param("modes.integrators", "int[]", [], "Poles at the origin per mode (rigid body: 2); default 0.", 0, 2,
+          True),
+    Param("modes.memory_s", "double[]", [], "Forgetting memory per mode in s: "
+          "lambda = 1 - 1/(memory_s * loop_rate_hz).", 1e-3, 1e7),
+    Param("init_duration_s", "double", 5.0, "Data used for the offline initialization before the recursion "
+          "starts (000 Algorithm 2 step 1).", 0.0, 1e5, True),
+    Param("publish_rate_hz", "double", 10.0, "Output rate of estimates and diagnostics.", 0.01, 1000.0),
+    Param("estimator.block_sweeps", "int", 1, "M_l: block-coordinate sweeps over the modes per sample.", 1, 20,
+          True),
+    Param("estimator.refinements", "int", 0, "M_s: SRIVC refinements per mode and sweep.", 0, 20, True),
+    Param("estimator.stability_projection", "bool", True, "Reflect right-half-plane roots of A_i (000 §4.7).",
+          read_only=True),
+    Param("estimator.output_subsampling", "int", 1, "Update the estimate every n-th sample; all inputs are "
+          "still filtered (000 §4.7).", 1, 1000, True),
+    Param("estimator.p0_relative_a", "double", 0.016, "P(0) of a denominator coefficient relative to its "
+          "square (../shared/NOTES.md: 1e-3/0.25^2).", 1e-12, 1e3, True),
+    Param("estimator.p0_relative_b", "double", 1.1e-6, "P(0) of a numerator coefficient relative to its "
+          "square (../shared/NOTES.md: 1e-5/3^2).", 1e-12, 1e3, True),
+    Param("estimator.init_method", "string", "auto", "Offline initialization: auto (additive-clsrivc in closed "
+          "loop, additive-srivc in open loop), or one of the rsrivc_identify methods, or none (use the "
+          "guesses as they are).", read_only=True,
+          choices=("auto", "none", "additive-clsrivc", "additive-srivc", "bcd-srivc", "srivc", "clsrivc")),
+    Param("estimator.init_max_iterations", "int", 30, "Iteration limit of the offline initialization.", 1, 1000,
+          True),
+]
+
+SIGNAL_PARAMS: list[Param] = []
+for _sig, _topic in (("reference", "/reference"), ("input", "/plant_input"), ("output", "/plant_output")):
+    SIGNAL_PARAMS += [
+        Param(f"{_sig}.topic", "string", _topic, f"Topic of the {_sig} signal.", read_only=True),
+        Param(f"{_sig}.type", "string", "std_msgs/msg/Float64", f"Message type of the {_sig} signal.",
+              read_only=True, choices=("std_msgs/msg/Float64", "sensor_msgs/msg/JointState")),
+        Param(f"{_sig}.joint", "string", "", f"JointState joint name of the {_sig} signal (empty: first joint).",
+              read_only=True),
+        Param(f"{_sig}.field", "string", "position", f"JointState field of the {_sig} signal.", read_only=True,
+              choices=("position", "velocity", "effort")),
+    ]
+
+# Fault-diagnosis parameters: owned by core/faults.py (appended there or here by its owner).
+FAULT_PARAMS: list[Param] = []
+
+# Node-only parameters (autostart, state_file, ...): owned by node.py.
+NODE_PARAMS: list[Param] = []
+
+
+def all_params() -> list[Param]:
+    """Every parameter row, in declaration order."""
+    return [*CORE_PARAMS, *SIGNAL_PARAMS, *FAULT_PARAMS, *NODE_PARAMS]
+
+
+def param_table() -> dict[str, Param]:
+    return {p.name: p for p in all_params()}
+
+
+def _flatten(d: Mapping[str, Any], prefix: str = "") -> dict[str, Any]:
+    out: dict[str, Any] = {}
+    for k, v in d.items():
+        key = f"{prefix}{k}"
+        if isinstance(v, Mapping):
+            out.update(_flatten(v, key + "."))
+        else:
+            out[key] = v
+    return out
+
+
+def _coerce(p: Param, value: Any) -> Any:
+    """Check and convert one value to the parameter's type (ints are accepted for doubles)."""
+    def scalar(t: str, v: Any) -> Any:
+        if t == "bool":
+            if isinstance(v, bool):
+                return v
+        elif t == "int":
+            if isinstance(v, int | np.integer) and not isinstance(v, bool):
+                return int(v)
+        elif t == "double":
+            if isinstance(v, int | float | np.integer | np.floating) and not isinstance(v, bool):
+                return float(v)
+        elif t == "string":
+            if isinstance(v, str):
+                return v
+        raise ParamError(f"parameter '{p.name}' must be of type {p.type}, got {v!r}")
+
+    if p.type.endswith("[]"):
+        if not isinstance(value, list | tuple | np.ndarray):
+            raise ParamError(f"parameter '{p.name}' must be a list ({p.type}), got {value!r}")
+        out = [scalar(p.type[:-2], v) for v in value]
+    else:
+        out = scalar(p.type, value)
+    vals = out if isinstance(out, list) else [out]
+    for v in vals:
+        if isinstance(v, float) and not math.isfinite(v):
+            raise ParamError(f"parameter '{p.name}' must be finite, got {v!r}")
+        if isinstance(v, int | float) and not isinstance(v, bool):
+            if p.min is not None and v < p.min:
+                raise ParamError(f"parameter '{p.name}' = {v!r} is below its minimum {p.min}")
+            if p.max is not None and v > p.max:
+                raise ParamError(f"parameter '{p.name}' = {v!r} is above its maximum {p.max}")
+        if p.choices and isinstance(v, str) and v not in p.choices:
+            raise ParamError(f"parameter '{p.name}' = {v!r} is not one of {', '.join(p.choices)}")
+    return out
+
+
+def validate_params(values: Mapping[str, Any], *, strict: bool = True) -> dict[str, Any]:
+    """Apply defaults, types and ranges to a flat ``{dotted name: value}`` mapping.
+
+    Unknown names raise :class:`ParamError` when ``strict`` (a misspelt parameter should not be silently
+    ignored). Cross-parameter checks are done by :meth:`MonitorConfig.from_params`.
+    """
+    table = param_table()
+    unknown = sorted(set(values) - set(table) - {"use_sim_time"})
+    if unknown and strict:
+        raise ParamError(f"unknown parameter(s): {', '.join(unknown)}")
+    out = {name: (list(p.default) if isinstance(p.default, list) else p.default) for name, p in table.items()}
+    for name, value in values.items():
+        if name in table:
+            out[name] = _coerce(table[name], value)
+    return out
+
+
+def load_params_file(path: str | Path, node_name: str = DEFAULT_NODE_NAME) -> dict[str, Any]:
+    """Read a ROS 2 params YAML and return the flat validated parameters for ``node_name``.
+
+    Accepts the node's name (with or without a leading ``/`` or namespace) or the ``/**`` wildcard as
+    top-level key, each with a ``ros__parameters`` mapping; later keys override earlier ones.
+    """
+    path = Path(path)
+    try:
+        doc = yaml.safe_load(path.read_text())
+    except FileNotFoundError:
+        raise ParamError(f"params file not found: {path}") from None
+    except yaml.YAMLError as exc:
+        raise ParamError(f"params file {path} is not valid YAML: {str(exc).splitlines()[0]}") from None
+    if not isinstance(doc, Mapping):
+        raise ParamError(f"params file {path} must map node names to 'ros__parameters'")
+    merged: dict[str, Any] = {}
+    found = False
+    for key, section in doc.items():
+        name = str(key).strip("/")
+        base = name.rsplit("/", 1)[-1]
+        if name in ("**", "*") or base == node_name.strip("/").rsplit("/", 1)[-1]:
+            if not isinstance(section, Mapping) or "ros__parameters" not in section:
+                raise ParamError(f"params file {path}: section '{key}' has no 'ros__parameters'")
+            merged.update(_flatten(section["ros__parameters"] or {}))
+            found = True
+    if not found:
+        raise ParamError(f"params file {path} has no section for node '{node_name}' (or '/**')")
+    return validate_params(merged)
+
+
+@dataclass(frozen=True)
+class ModeConfig:
+    """Initial guess and forgetting memory of one mode."""
+
+    natural_frequency_hz: float
+    damping_ratio: float
+    gain: float
+    integrators: int = 0
+    memory_s: float = 10.0
+
+    @property
+    def structure(self) -> SubmodelStructure:
+        """Rigid body ``b0/p^l`` when the frequency is 0, otherwise a second-order mode."""
+        if self.natural_frequency_hz == 0.0:
+            return SubmodelStructure(n=0, m=0, integrators=self.integrators)
+        return SubmodelStructure(n=2, m=0, integrators=self.integrators)
+
+    def theta0(self) -> np.ndarray:
+        if self.natural_frequency_hz == 0.0:
+            return np.array([float(self.gain)])
+        return theta_from_modal(self.natural_frequency_hz, self.damping_ratio, self.gain)
+
+
+@dataclass(frozen=True)
+class SignalConfig:
+    topic: str
+    type: str = "std_msgs/msg/Float64"
+    joint: str = ""
+    field: str = "position"
+
+
+@dataclass(frozen=True)
+class EstimatorOptions:
+    block_sweeps: int = 1
+    refinements: int = 0
+    stability_projection: bool = True
+    output_subsampling: int = 1
+    p0_relative_a: float = 0.016
+    p0_relative_b: float = 1.1e-6
+    init_method: str = "auto"
+    init_max_iterations: int = 30
+
+
+@dataclass(frozen=True)
+class MonitorConfig:
+    """Typed view of the validated parameters (built by :meth:`from_params`)."""
+
+    loop_rate_hz: float
+    closed_loop: bool
+    controller: DiscreteController | None
+    input_delay_samples: int
+    modes: tuple[ModeConfig, ...]
+    init_duration_s: float
+    publish_rate_hz: float
+    estimator: EstimatorOptions
+    signals: dict[str, SignalConfig]
+    params: dict[str, Any] = field(repr=False)
+
+    @property
+    def K(self) -> int:
+        return len(self.modes)
+
+    @property
+    def structures(self) -> list[SubmodelStructure]:
+        return [m.structure for m in self.modes]
+
+    @property
+    def forgetting_factors(self) -> np.ndarray:
+        """``lambda_i = 1 - 1/(memory_s_i * loop_rate_hz)`` (../shared/NOTES.md)."""
+        return np.array([1.0 - 1.0 / (m.memory_s * self.loop_rate_hz) for m in self.modes])
+
+    @classmethod
+    def from_params(cls, p: Mapping[str, Any]) -> MonitorConfig:
+        """Cross-check validated parameters and build the typed configuration."""
+        p = validate_params(p, strict=False) if set(param_table()) - set(p) else dict(p)
+        rate = p["loop_rate_hz"]
+        if not rate > 0.0:
+            raise ParamError("parameter 'loop_rate_hz' is required and must be > 0")
+        f = p["modes.natural_frequency_hz"]
+        k = len(f)
+        if k == 0:
+            raise ParamError("parameter 'modes.natural_frequency_hz' must list at least one mode")
+        lists = {
+            "modes.damping_ratio": p["modes.damping_ratio"],
+            "modes.gain": p["modes.gain"],
+            "modes.integrators": p["modes.integrators"] or [0] * k,
+            "modes.memory_s": p["modes.memory_s"] or [10.0] * k,
+        }
+        for name, vals in lists.items():
+            if len(vals) != k:
+                raise ParamError(f"parameter '{name}' has {len(vals)} entries, 'modes.natural_frequency_hz' has {k}")
+        modes = []
+        for i in range(k):
+            fi, zi, gi = f[i], lists["modes.damping_ratio"][i], lists["modes.gain"][i]
+            li, mi = lists["modes.integrators"][i], lists["modes.memory_s"][i]
+            if fi == 0.0 and li == 0:
+                raise ParamError(f"mode {i + 1}: natural frequency 0 needs modes.integrators > 0 (rigid body)")
+            if fi >= rate / 2.0:
+                raise ParamError(f"mode {i + 1}: natural frequency {fi} Hz is not below Nyquist ({rate / 2} Hz)")
+            if gi == 0.0:
+                raise ParamError(f"mode {i + 1}: gain guess must be non-zero")
+            if mi * rate < 2.0:
+                raise ParamError(f"mode {i + 1}: memory_s {mi} s is shorter than two samples")
+            modes.append(ModeConfig(fi, zi, gi, li, mi))
+        if sum(m.integrators > 0 for m in modes) > 1:
+            raise ParamError("at most one mode may have integrators (000 §4.6)")
+        controller = None
+        if p["closed_loop"]:
+            if not p["controller.numerator"]:
+                raise ParamError("closed_loop is true but 'controller.numerator' is empty")
+            try:
+                controller = DiscreteController(tuple(p["controller.numerator"]), tuple(p["controller.denominator"]))
+            except ValueError as exc:
+                raise ParamError(f"controller: {exc}") from None
+        est = EstimatorOptions(
+            block_sweeps=p["estimator.block_sweeps"], refinements=p["estimator.refinements"],
+            stability_projection=p["estimator.stability_projection"],
+            output_subsampling=p["estimator.output_subsampling"],
+            p0_relative_a=p["estimator.p0_relative_a"], p0_relative_b=p["estimator.p0_relative_b"],
+            init_method=p["estimator.init_method"], init_max_iterations=p["estimator.init_max_iterations"],
+        )
+        signals = {
+            s: SignalConfig(p[f"{s}.topic"], p[f"{s}.type"], p[f"{s}.joint"], p[f"{s}.field"])
+            for s in ("reference", "input", "output")
+        }
+        return cls(
+            loop_rate_hz=rate, closed_loop=p["closed_loop"], controller=controller,
+            input_delay_samples=p["input_delay_samples"], modes=tuple(modes),
+            init_duration_s=p["init_duration_s"], publish_rate_hz=p["publish_rate_hz"], estimator=est,
+            signals=signals, params=dict(p),
+        )
+
+
+def load_config(path: str | Path, node_name: str = DEFAULT_NODE_NAME) -> MonitorConfig:
+    """:func:`load_params_file` followed by :meth:`MonitorConfig.from_params`."""
+    return MonitorConfig.from_params(load_params_file(path, node_name))

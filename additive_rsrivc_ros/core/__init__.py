@@ -1,0 +1,1 @@
+"""ROS-free numerical core (numpy, scipy, numba): models, filters, estimators, simulator, faults."""

@@ -1,0 +1,29 @@
+"""Shared test fixtures: isolated ROS 2 discovery, repo paths."""
+import os
+from pathlib import Path
+
+import pytest
+
+REPO = Path(__file__).resolve().parents[1]
+
+# Every test process discovers only on this host and gets its own DDS domain (../shared/NOTES.md).
+os.environ.setdefault("ROS_AUTOMATIC_DISCOVERY_RANGE", "LOCALHOST")
+os.environ.setdefault("ROS_DOMAIN_ID", str(1 + os.getpid() % 100))
+for _var in ("OPENBLAS_NUM_THREADS", "OMP_NUM_THREADS", "MKL_NUM_THREADS"):
+    os.environ.setdefault(_var, "1")
+os.environ.setdefault("NUMBA_CACHE_DIR", str(REPO / ".numba_cache"))
+
+
+@pytest.fixture
+def repo() -> Path:
+    return REPO
+
+
+@pytest.fixture
+def ros_env(tmp_path) -> dict:
+    """Environment for a subprocess that uses ROS 2: localhost discovery, a fresh domain id."""
+    env = dict(os.environ)
+    env["ROS_AUTOMATIC_DISCOVERY_RANGE"] = "LOCALHOST"
+    env["ROS_DOMAIN_ID"] = str(101 + (os.getpid() + hash(str(tmp_path))) % 100)
+    env["PYTHONUNBUFFERED"] = "1"
+    return env

@@ -1,0 +1,53 @@
+"""Parameter table, YAML loading and cross-checks (config.py)."""
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from additive_rsrivc_ros.config import MonitorConfig, ParamError, load_config, load_params_file, validate_params
+
+CONFIG_DIR = Path(__file__).resolve().parents[1] / "config"
+
+
+def test_paper_example_loads_with_truth_modes():
+    cfg = load_config(CONFIG_DIR / "paper_example.yaml")
+    assert cfg.K == 3 and cfg.closed_loop and cfg.loop_rate_hz == 20.0
+    # modal guess -> theta reproduces the paper's a2 = [0.25, 0.04, 0.0025], a1 = [0.25, 0.01, 0.01]
+    thetas = np.array([m.theta0() for m in cfg.modes])
+    np.testing.assert_allclose(thetas[:, 1], [0.25, 0.04, 0.0025], rtol=1e-6)
+    np.testing.assert_allclose(thetas[:, 0], [0.25, 0.01, 0.01], rtol=1e-6)
+    np.testing.assert_allclose(cfg.forgetting_factors, 0.999)
+    assert cfg.controller.numerator == (0.02329, -0.02058, 0.00454)
+
+
+@pytest.mark.parametrize("path", sorted(CONFIG_DIR.glob("*.yaml")))
+def test_every_bundled_config_is_valid(path):
+    if path.name.startswith("diagnostic_aggregator"):
+        pytest.skip("aggregator analyzer file, not a monitor params file")
+    load_config(path)
+
+
+def test_int_for_double_is_accepted_and_bad_values_are_rejected(tmp_path):
+    p = validate_params({"loop_rate_hz": 100, "modes.natural_frequency_hz": [3, 30]})
+    assert isinstance(p["loop_rate_hz"], float)
+    with pytest.raises(ParamError, match="loop_rate_hz"):
+        validate_params({"loop_rate_hz": -5.0})
+    with pytest.raises(ParamError, match="unknown parameter"):
+        validate_params({"loop_rate": 5.0})
+    with pytest.raises(ParamError, match="finite"):
+        validate_params({"publish_rate_hz": float("nan")})
+    base = {"loop_rate_hz": 100.0, "closed_loop": False, "modes.natural_frequency_hz": [3.0, 30.0],
+            "modes.damping_ratio": [0.1], "modes.gain": [1.0, 1.0]}
+    with pytest.raises(ParamError, match="damping_ratio"):
+        MonitorConfig.from_params(validate_params(base))
+    base["modes.damping_ratio"] = [0.1, 0.1]
+    base["modes.natural_frequency_hz"] = [3.0, 60.0]
+    with pytest.raises(ParamError, match="Nyquist"):
+        MonitorConfig.from_params(validate_params(base))
+    bad = tmp_path / "bad.yaml"
+    bad.write_text("other_node:\n  ros__parameters: {loop_rate_hz: 1.0}\n")
+    with pytest.raises(ParamError, match="no section"):
+        load_params_file(bad)
+    bad.write_text("a: [1, 2\n")
+    with pytest.raises(ParamError, match="not valid YAML"):
+        load_params_file(bad)
