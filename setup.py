@@ -28,11 +28,15 @@ setup(
         (os.path.join(share, "config"), sorted(glob("config/*.yaml"))),
         *_tree("bags", os.path.join(share, "bags")),
     ],
-    install_requires=["setuptools"],
+    install_requires=[
+        # third-party Python modules imported by the package (ROS interfaces: see package.xml)
+        "setuptools", "numpy", "scipy", "numba", "pyyaml", "matplotlib", "rosbags", "mcap", "mcap-ros2-support",
+    ],
     zip_safe=True,
     maintainer="additive_rsrivc_ros developers",
     maintainer_email="dev@additive-rsrivc.invalid",
-    description="Online tracking and fault diagnosis of mechanical resonances with closed-loop additive recursive SRIVC.",
+    description=("Online tracking and fault diagnosis of mechanical resonances with closed-loop additive "
+                 "recursive SRIVC."),
     license="Apache-2.0",
     tests_require=["pytest"],
     entry_points={
