@@ -12,7 +12,6 @@ from __future__ import annotations
 from dataclasses import dataclass, field
 
 import numpy as np
-from scipy import signal
 
 
 @dataclass(frozen=True)
@@ -48,10 +47,14 @@ class DiscreteController:
 
     def apply(self, error: np.ndarray) -> np.ndarray:
         """``u = C_d(q) e`` from rest (scipy.signal.lfilter)."""
+        from scipy import signal  # lazy: scipy.signal costs ~1 s at import, the node needs a fast start
+
         return signal.lfilter(self.num, self.den, np.asarray(error, dtype=float))
 
     def frequency_response(self, freqs_hz: np.ndarray, rate_hz: float) -> np.ndarray:
         """``C_d(e^{j w h})`` at the given frequencies."""
+        from scipy import signal
+
         w = 2.0 * np.pi * np.asarray(freqs_hz, dtype=float) / rate_hz
         _, h = signal.freqz(self.num, self.den, worN=w)
         return h

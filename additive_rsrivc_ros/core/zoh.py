@@ -24,7 +24,6 @@ import math
 
 import numpy as np
 from numba import njit
-from scipy.linalg import expm
 
 
 @njit(cache=True)
@@ -77,6 +76,8 @@ def integrator_chain_zoh(l: int, h: float, phi: np.ndarray, gamma: np.ndarray) -
 
 def zoh_matrices(a: np.ndarray, b: np.ndarray, h: float) -> tuple[np.ndarray, np.ndarray]:
     """Generic exact ZOH of ``x' = a x + b v`` via the augmented matrix exponential (any order)."""
+    from scipy.linalg import expm  # lazy: keeps the kernel's import (and the node's start) fast
+
     a = np.atleast_2d(np.asarray(a, dtype=float))
     b = np.asarray(b, dtype=float).reshape(a.shape[0], -1)
     n, m = b.shape
