@@ -1,0 +1,156 @@
+"""``rsrivc_bench [--json]``: speed of the recursive estimator core (issue 4 item 5, CONTRACT "Benchmark").
+
+Cases (closed loop, instrument 000 eq. 33): K = 3 at 20 Hz (000 §5 plant, corrected PID of NOTES
+erratum 1) with (M_l, M_s) = (1, 0); K = 4 at 4096 Hz (the beam truth of NOTES, modes at about 3, 33,
+172, 183 Hz, 4-sample delay) with (1, 0) and (3, 2). Each prints microseconds per sample and the real-time
+factor ``(1/rate) / time per sample``. ``start_to_first_estimate_s`` is measured in a fresh Python process
+(import, build, one update) with a warm numba cache. BLAS threads are set to 1 before numpy is imported.
+"""
+
+from __future__ import annotations
+
+import os
+
+for _v in ("OPENBLAS_NUM_THREADS", "OMP_NUM_THREADS", "MKL_NUM_THREADS"):
+    os.environ.setdefault(_v, "1")
+
+import argparse  # noqa: E402
+import json  # noqa: E402
+import subprocess  # noqa: E402
+import sys  # noqa: E402
+import time  # noqa: E402
+
+import numpy as np  # noqa: E402
+
+from ..core.controller import DiscreteController  # noqa: E402
+from ..core.model import SubmodelStructure  # noqa: E402
+
+PAPER_PID = DiscreteController((0.02329, -0.02058, 0.00454), (1.0, -1.0, 0.0))
+PAPER_THETAS = [np.array([0.25, 0.25, 3.0]), np.array([0.01, 0.04, 0.5]), np.array([0.01, 0.0025, 1.0])]
+# NOTES lists the beam truth as [a2, a1, b0] (3.25 Hz / zeta 0.235, 33 Hz / 0.017, 171.7 Hz / 0.0056,
+# 183 Hz / 0.002, as in test_zoh.py); here in 000 eq. 7 order [a1, a2, b0].
+BEAM_THETAS = [np.array([0.023, 0.0024, 11.81]), np.array([1.65e-4, 2.33e-5, 0.159]),
+               np.array([1.03e-5, 8.59e-7, 3.19e-4]), np.array([3.55e-6, 7.55e-7, 1.27e-4])]
+
+
+def beam_controller(rate_hz: float = 4096.0) -> DiscreteController:
+    """A stabilizing PID for the beam truth of NOTES (4 modes, delay 4): modulus margin 0.52 (0.60 with the
+    second mode's stiffness -30 %), slowest closed-loop pole 0.99948.
+
+    ``C = kp + ki h/(1 - q^-1) + kd (1 - q^-1)/(tf + h - tf q^-1)`` (backward Euler, derivative filtered at
+    50 Hz), kp = 0.3, ki = 3, kd = 0.01.
+    """
+    h = 1.0 / rate_hz
+    kp, ki, kd, tf = 0.3, 3.0, 0.01, 1.0 / (2 * np.pi * 50.0)
+    a = tf + h
+    num_pd = np.array([kp * a + kd, -kp * tf - kd]) / a
+    den_pd = np.array([1.0, -tf / a])
+    num = np.convolve(num_pd, [1.0, -1.0]) + np.convolve([ki * h, 0.0], den_pd)
+    den = np.convolve(den_pd, [1.0, -1.0])
+    return DiscreteController(tuple(num), tuple(den))
+
+
+def _case_data(case: str, seconds: float) -> tuple:
+    from ..core.simulate import simulate
+    rng = np.random.default_rng(0)
+    if case.startswith("k3"):
+        rate, thetas, ctrl, delay = 20.0, PAPER_THETAS, PAPER_PID, 0
+        t = np.arange(int(seconds * rate)) / rate
+        r = 3 * np.sin(0.005 * t) + np.sin(2 * t) + np.sin(5 * t) + np.sin(17.5 * t)
+        noise_std = 0.1
+    else:
+        rate, thetas, ctrl, delay = 4096.0, BEAM_THETAS, beam_controller(4096.0), 4
+        t = np.arange(int(seconds * rate)) / rate
+        r = 1e-3 * np.sign(np.sin(2 * np.pi * 2.0 * t + 1e-9))
+        noise_std = 2e-6
+    n = t.size
+    sim = simulate(thetas, [SubmodelStructure()] * len(thetas), rate, r=r, controller=ctrl, input_delay=delay,
+                   noise=noise_std * rng.standard_normal(n))
+    return rate, thetas, ctrl, delay, r, sim.u, sim.y
+
+
+def bench_case(case: str, sweeps: int, refinements: int, seconds: float | None = None) -> dict[str, float]:
+    """Time the estimator on simulated closed-loop data; returns us_per_sample and realtime_factor."""
+    from ..core.recursive import RecursiveAdditiveSRIVC
+    if seconds is None:
+        seconds = 1000.0 if case.startswith("k3") else 20.0
+    rate, thetas, ctrl, delay, r, u, y = _case_data(case, seconds)
+    guess = [th * np.array([1.02, 0.98, 1.01]) for th in thetas]
+    memory = 50.0 if rate < 100 else 2.44
+    est = RecursiveAdditiveSRIVC([SubmodelStructure()] * len(thetas), guess, rate,
+                                 forgetting=1.0 - 1.0 / (memory * rate), controller=ctrl, input_delay=delay,
+                                 block_sweeps=sweeps, refinements=refinements)
+    n0 = min(u.size // 10, int(2 * rate))
+    est.prime(r[:n0], u[:n0], y[:n0])
+    est.update(r[n0:n0 + 10], u[n0:n0 + 10], y[n0:n0 + 10])  # compile / load cache outside the timing
+    best = np.inf
+    state = est.get_state()
+    for _ in range(3):
+        est.set_state(state)
+        t0 = time.perf_counter()
+        est.update(r[n0 + 10:], u[n0 + 10:], y[n0 + 10:])
+        best = min(best, time.perf_counter() - t0)
+    us = 1e6 * best / (u.size - n0 - 10)
+    return {"us_per_sample": us, "realtime_factor": (1e6 / rate) / us}
+
+
+_FIRST = r"""
+import os, time
+for v in ("OPENBLAS_NUM_THREADS", "OMP_NUM_THREADS", "MKL_NUM_THREADS"):
+    os.environ.setdefault(v, "1")
+import numpy as np
+from additive_rsrivc_ros.core.controller import DiscreteController
+from additive_rsrivc_ros.core.model import SubmodelStructure
+from additive_rsrivc_ros.core.recursive import RecursiveAdditiveSRIVC
+pid = DiscreteController((0.02329, -0.02058, 0.00454), (1.0, -1.0, 0.0))
+th = [np.array([0.25, 0.25, 3.0]), np.array([0.01, 0.04, 0.5]), np.array([0.01, 0.0025, 1.0])]
+est = RecursiveAdditiveSRIVC([SubmodelStructure()] * 3, th, 20.0, forgetting=0.999, controller=pid)
+est.update([1.0], [0.1], [0.2])
+m = est.modal()
+assert np.all(np.isfinite(m[:, :3]))
+print(repr(time.time()))
+"""
+
+
+def start_to_first_estimate() -> float:
+    """Seconds from spawning a fresh interpreter to its first estimate (second run: warm numba cache)."""
+    out = float("nan")
+    for _ in range(2):
+        t0 = time.time()
+        res = subprocess.run([sys.executable, "-c", _FIRST], capture_output=True, text=True, timeout=300,
+                             env=dict(os.environ))
+        if res.returncode != 0:
+            raise RuntimeError(res.stderr.strip().splitlines()[-1] if res.stderr.strip() else "child failed")
+        out = float(res.stdout.strip().splitlines()[-1]) - t0
+    return out
+
+
+CASES = {"k3_20hz_closed_1_0": ("k3", 1, 0), "k4_4096hz_closed_1_0": ("k4", 1, 0),
+         "k4_4096hz_closed_3_2": ("k4", 3, 2)}
+
+
+def main(argv: list[str] | None = None) -> int:
+    ap = argparse.ArgumentParser(prog="rsrivc_bench", description="Speed figures of the recursive estimator.")
+    ap.add_argument("--json", action="store_true", help="print one JSON object (CONTRACT)")
+    ap.add_argument("--seconds", type=float, default=None, help="simulated seconds per case (default 1000/20)")
+    args = ap.parse_args(argv)
+    try:
+        out: dict = {}
+        for key, (case, ml, ms) in CASES.items():
+            out[key] = bench_case(case, ml, ms, args.seconds)
+        out["start_to_first_estimate_s"] = start_to_first_estimate()
+    except Exception as exc:  # noqa: BLE001 - one-line error, non-zero exit
+        print(f"rsrivc_bench: error: {exc}", file=sys.stderr)
+        return 1
+    if args.json:
+        print(json.dumps(out))
+    else:
+        print(f"{'case':<24} {'us/sample':>10} {'x real time':>12}")
+        for key in CASES:
+            print(f"{key:<24} {out[key]['us_per_sample']:10.3f} {out[key]['realtime_factor']:12.1f}")
+        print(f"start to first estimate: {out['start_to_first_estimate_s']:.3f} s (fresh process, warm cache)")
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())

@@ -1,0 +1,374 @@
+"""Compiled per-sample kernel of the recursive additive SRIVC / CLSRIVC estimator (000 Algorithm 2).
+
+One source of truth: :func:`run_block` is plain Python decorated with numba ``@njit(cache=True)``; with
+``NUMBA_DISABLE_JIT=1`` the very same code runs interpreted (tested to match to 1e-10). All state lives
+in flat float64/int64 arrays (see :class:`KernelState` in ``core/recursive.py``), so snapshot/restore is a
+copy of arrays and continuation is bit-identical.
+
+Per mode i (000 eqs. 26-28, 33-35) four filter banks share the ZOH discretization of ``1/A_i(p)``
+(``core/zoh.second_order_zoh``; for a rigid-body mode ``b0/p^l`` the constant integrator chain):
+
+* bank Y on the residual output ``y~_i``: ``y~_f = 1/A y~``, ``-p/A y~``, ``-p^2/A y~`` (eq. 26-27);
+* bank U on the delayed input ``u(t_k - d h)``: ``1/A u`` (regressor, eq. 27) and the simulated output
+  ``x_i = b0/A u`` used in the other modes' residual outputs (eq. 22);
+* bank Z on the delayed instrument input ``z``: ``1/A z`` (eq. 33); closed loop ``z = S_uo(q, t_k) r``
+  is generated recursively from the noise-free closed loop of the current model, ``z_k = C_d(q)(r_k -
+  sum_i b0_i w_z,i(k))`` (NOTES erratum 3); open loop ``z = u`` and bank U is used instead;
+* bank X on the sampled auxiliary output ``x^_i(t_k) = b0 w_z,i(t_k)`` (model of t_{k-1}, eq. 28/33):
+  ``-p/A x^``, ``-p^2/A x^``.
+
+Filter states are physical ``[w, w']``; ``p^2/A v`` at ``t_k`` is the direct term ``(v_k - w - a1 w')/a2``.
+States are carried across coefficient changes (000 Remark 4.4). Within a sample (NOTES, "Ordering")
+every bank is propagated from its ``t_{k-1}`` state to ``t_k`` with the *latest iterate* of its mode
+(block-coordinate order of Algorithm 2: modes ``j < i`` are already updated); the ``t_{k-1}`` states are
+replaced only after all modes have been updated. Started at the true parameters with noise-free
+ZOH-exact data the regression residual ``y~_f - phi^T theta`` is exactly zero.
+
+IV-RLS (Algorithm 2 lines 7-9, Appendix B eqs. B.5-B.7; NOTES erratum 2, no factor 1/2)::
+
+    K = P phi^ / (lam + phi^T P phi^),  theta = theta_bar + K (y~_f - phi^T theta_bar),
+    P = (P_bar - K phi^T P_bar) / lam
+
+every iterate (sweep l, refinement s) restarts from ``theta_bar(t_{k-1})``, ``P_bar(t_{k-1})``.
+Stability projection (000 §4.7) reflects right-half-plane roots of ``A_i`` in closed form.
+
+Safeguards (counted, never silent): an update that produces a non-finite value, a non-positive IV
+denominator or a relative parameter step larger than ``max_step`` is rejected (theta, P keep the previous
+iterate); a non-finite or masked sample is skipped (input held, output replaced by the model
+prediction, no update); non-finite filter states reset the filters and re-prime (``hold`` samples
+without updates); P growth without excitation (wind-up) is stopped at ``p_cap`` times P(0).
+"""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+from numba import njit
+
+from .zoh import integrator_chain_zoh, second_order_zoh
+
+# bank indices
+BY, BU, BZ, BX = 0, 1, 2, 3
+N_BANKS = 4
+NT = 3  # padded parameter length (second-order mode [a1, a2, b0]; rigid body uses [b0] in slot 0)
+
+# int state slots (ist)
+I_POS, I_SAMPLES, I_SUBCOUNT, I_HOLD, I_UPDATES, I_SKIPPED, I_REPRIMES, I_HELD, I_CAPPED = range(9)
+N_IST = 9
+# float state slots (fst)
+F_SIGACC, F_SIGW, F_RLAST, F_ULAST, F_YHAT = range(5)
+N_FST = 5
+# int config slots (cfg_i)
+C_K, C_DELAY, C_SWEEPS, C_REFINE, C_PROJ, C_SUBSAMPLE, C_CLOSED, C_HOLDLEN = range(8)
+N_CFGI = 8
+# float config slots (cfg_f)
+C_H, C_LAMSIG, C_MAXSTEP, C_PCAP = range(4)
+N_CFGF = 4
+
+
+@njit(cache=True)
+def project_second_order(a1: float, a2: float) -> tuple[float, float, bool]:
+    """Reflect right-half-plane roots of ``A(p) = 1 + a1 p + a2 p^2`` into the LHP (000 §4.7).
+
+    ``a2 > 0, a1 < 0``: both roots in the RHP, reflection maps ``a1 -> -a1``. ``a2 < 0``: real roots of
+    opposite sign ``r- < 0 < r+``; reflecting ``r+`` gives ``a2 -> -a2`` and
+    ``a1 -> 1/|r-| + 1/r+ = sqrt(a1^2 + 4|a2|)``. Returns ``(a1, a2, projected)``.
+    """
+    if a2 > 0.0:
+        if a1 < 0.0:
+            return -a1, a2, True
+        return a1, a2, False
+    if a2 < 0.0:
+        return math.sqrt(a1 * a1 - 4.0 * a2), -a2, True
+    return a1, a2, False
+
+
+@njit(cache=True)
+def discretize_mode(kind: int, a1: float, a2: float, h: float, phi: np.ndarray, gam: np.ndarray) -> None:
+    """``Phi, Gamma`` of ``1/A(p)`` (kind 0, closed form) or of ``1/p^kind`` (rigid body, 000 §4.6)."""
+    if kind == 0:
+        second_order_zoh(a1, a2, h, phi, gam)
+    else:
+        phi[:, :] = 0.0
+        gam[:] = 0.0
+        integrator_chain_zoh(kind, h, phi[:kind, :kind], gam[:kind])
+
+
+@njit(cache=True)
+def _propagate_mode(i: int, phi: np.ndarray, gam: np.ndarray, xs: np.ndarray, T: np.ndarray,
+                    vy: float, vu: float, vz: float, vx: float) -> None:
+    """``T[i, b] = Phi_i xs[i, b] + Gamma_i v_b`` for the four banks (t_{k-1} -> t_k)."""
+    p00 = phi[i, 0, 0]
+    p01 = phi[i, 0, 1]
+    p10 = phi[i, 1, 0]
+    p11 = phi[i, 1, 1]
+    g0 = gam[i, 0]
+    g1 = gam[i, 1]
+    for b in range(N_BANKS):
+        if b == BY:
+            v = vy
+        elif b == BU:
+            v = vu
+        elif b == BZ:
+            v = vz
+        else:
+            v = vx
+        s0 = xs[i, b, 0]
+        s1 = xs[i, b, 1]
+        T[i, b, 0] = p00 * s0 + p01 * s1 + g0 * v
+        T[i, b, 1] = p10 * s0 + p11 * s1 + g1 * v
+
+
+@njit(cache=True)
+def run_block(r: np.ndarray, u: np.ndarray, y: np.ndarray, valid: np.ndarray, allow_update: bool,
+              kind: np.ndarray, lam: np.ndarray, cnum: np.ndarray, cden: np.ndarray,
+              cfg_i: np.ndarray, cfg_f: np.ndarray, p0diag: np.ndarray,
+              theta: np.ndarray, P: np.ndarray, xs: np.ndarray, vin: np.ndarray, phi: np.ndarray,
+              gam: np.ndarray, ubuf: np.ndarray, zbuf: np.ndarray, ce: np.ndarray, cz: np.ndarray,
+              ist: np.ndarray, fst: np.ndarray, proj: np.ndarray, rej: np.ndarray,
+              trace: np.ndarray) -> None:
+    """Process a block of samples in place: 000 Algorithm 2 lines 2-16 for each sample.
+
+    ``allow_update=False`` only filters (priming, Algorithm 2 step 1). ``trace`` (n, K, 3) receives
+    theta after every sample when it has n rows (pass a (0, K, 3) array to skip).
+    """
+    n = r.shape[0]
+    K = cfg_i[C_K]
+    d = cfg_i[C_DELAY]
+    sweeps = cfg_i[C_SWEEPS]
+    refine = cfg_i[C_REFINE]
+    projection = cfg_i[C_PROJ] != 0
+    subsample = cfg_i[C_SUBSAMPLE]
+    closed = cfg_i[C_CLOSED] != 0
+    hold_len = cfg_i[C_HOLDLEN]
+    h = cfg_f[C_H]
+    lam_sig = cfg_f[C_LAMSIG]
+    max_step = cfg_f[C_MAXSTEP]
+    p_cap = cfg_f[C_PCAP]
+    nb = cnum.shape[0]
+    na = cden.shape[0]
+    nbuf = d + 1
+    do_trace = trace.shape[0] == n
+
+    # workspace
+    T = np.empty((K, N_BANKS, 2))
+    phi_it = np.empty((K, 2, 2))
+    gam_it = np.empty((K, 2))
+    th_it = np.empty((K, NT))
+    P_it = np.empty((K, NT, NT))
+    xu = np.empty(K)
+    xh = np.empty(K)
+    ytil = np.empty(K)
+    ph = np.zeros(NT)
+    phh = np.zeros(NT)
+    Pph = np.zeros(NT)
+    phP = np.zeros(NT)
+    gain = np.zeros(NT)
+    thn = np.zeros(NT)
+    Pn = np.zeros((NT, NT))
+    ib0 = np.empty(K, dtype=np.int64)
+    ntk = np.empty(K, dtype=np.int64)
+    for i in range(K):
+        if kind[i] == 0:
+            ib0[i] = 2
+            ntk[i] = 3
+        else:
+            ib0[i] = 0
+            ntk[i] = 1
+
+    for k in range(n):
+        rk = r[k]
+        uk = u[k]
+        yk = y[k]
+        ok = valid[k] != 0 and math.isfinite(uk) and math.isfinite(yk)
+        if closed and not math.isfinite(rk):
+            ok = False
+        if not ok:
+            rk = fst[F_RLAST]
+            uk = fst[F_ULAST]
+        pos = ist[I_POS]
+        ud_prev = ubuf[pos]
+        zd_prev = zbuf[pos] if closed else ud_prev
+        zb = BZ if closed else BU
+
+        # propagate every bank t_{k-1} -> t_k with theta_bar(t_{k-1}) (cached Phi, Gamma)
+        finite = True
+        for i in range(K):
+            _propagate_mode(i, phi, gam, xs, T, vin[i, 0], ud_prev, zd_prev, vin[i, 1])
+            for b in range(N_BANKS):
+                if not (math.isfinite(T[i, b, 0]) and math.isfinite(T[i, b, 1])):
+                    finite = False
+        if not finite:
+            # re-prime: filters from rest, no updates for hold_len samples (counted)
+            T[:, :, :] = 0.0
+            ist[I_HOLD] = max(ist[I_HOLD], hold_len)
+            ist[I_REPRIMES] += 1
+        yhat = 0.0
+        for i in range(K):
+            xu[i] = theta[i, ib0[i]] * T[i, BU, 0]
+            xh[i] = theta[i, ib0[i]] * T[i, zb, 0]
+            yhat += xh[i]
+        ysim = 0.0
+        for i in range(K):
+            ysim += xu[i]
+        if not ok:
+            yk = ysim  # no information: residual outputs become the model's own outputs
+            ist[I_SKIPPED] += 1
+        else:
+            e = yk - ysim
+            fst[F_SIGACC] = lam_sig * fst[F_SIGACC] + (1.0 - lam_sig) * e * e
+            fst[F_SIGW] = lam_sig * fst[F_SIGW] + (1.0 - lam_sig)
+
+        do_update = False
+        if ok and allow_update:
+            if ist[I_HOLD] > 0:
+                ist[I_HOLD] -= 1
+                ist[I_HELD] += 1
+            else:
+                do_update = ist[I_SUBCOUNT] % subsample == 0
+                ist[I_SUBCOUNT] += 1
+
+        if do_update:
+            for i in range(K):
+                for a in range(NT):
+                    th_it[i, a] = theta[i, a]
+                    for c in range(NT):
+                        P_it[i, a, c] = P[i, a, c]
+                for a in range(2):
+                    gam_it[i, a] = gam[i, a]
+                    for c in range(2):
+                        phi_it[i, a, c] = phi[i, a, c]
+            for _l in range(sweeps):
+                for i in range(K):
+                    nt = ntk[i]
+                    lam_i = lam[i]
+                    for _s in range(refine + 1):
+                        # residual output with the other modes' latest iterates (000 eq. 22)
+                        yt = yk
+                        for j in range(K):
+                            if j != i:
+                                yt -= th_it[j, ib0[j]] * T[j, BU, 0]
+                        ytil[i] = yt
+                        if kind[i] == 0:
+                            a1 = th_it[i, 0]
+                            a2 = th_it[i, 1]
+                            wy = T[i, BY, 0]
+                            dwy = T[i, BY, 1]
+                            wx = T[i, BX, 0]
+                            dwx = T[i, BX, 1]
+                            yf = wy                                   # eq. 26
+                            ph[0] = -dwy                              # eq. 27
+                            ph[1] = -(yt - wy - a1 * dwy) / a2
+                            ph[2] = T[i, BU, 0]
+                            phh[0] = -dwx                             # eq. 28 / 33
+                            phh[1] = -(xh[i] - wx - a1 * dwx) / a2
+                            phh[2] = T[i, zb, 0]
+                        else:
+                            yf = yt                                   # eqs. 34-35, A_1 = 1
+                            ph[0] = T[i, BU, 0]
+                            phh[0] = T[i, zb, 0]
+                        # IV-RLS from theta_bar(t_{k-1}), P_bar(t_{k-1}) (Algorithm 2 lines 7-9)
+                        capped = False
+                        for a in range(nt):
+                            if P[i, a, a] > p_cap * p0diag[i, a]:
+                                capped = True
+                        lam_eff = 1.0 if capped else lam_i
+                        den = lam_eff
+                        eps = yf
+                        for a in range(nt):
+                            acc = 0.0
+                            acc2 = 0.0
+                            for c in range(nt):
+                                acc += P[i, a, c] * phh[c]
+                                acc2 += ph[c] * P[i, c, a]
+                            Pph[a] = acc
+                            phP[a] = acc2
+                            den += ph[a] * acc
+                            eps -= ph[a] * theta[i, a]
+                        good = den > 0.0 and math.isfinite(den) and math.isfinite(eps)
+                        if good:
+                            for a in range(nt):
+                                gain[a] = Pph[a] / den
+                                thn[a] = theta[i, a] + gain[a] * eps
+                                if not math.isfinite(thn[a]):
+                                    good = False
+                                if max_step > 0.0 and abs(thn[a] - theta[i, a]) > max_step * abs(theta[i, a]):
+                                    good = False
+                                for c in range(nt):
+                                    Pn[a, c] = (P[i, a, c] - gain[a] * phP[c]) / lam_eff
+                                    if not math.isfinite(Pn[a, c]):
+                                        good = False
+                        if good and kind[i] == 0:
+                            if thn[1] == 0.0:
+                                good = False
+                            elif projection:
+                                na1, na2, flag = project_second_order(thn[0], thn[1])
+                                if flag:
+                                    thn[0] = na1
+                                    thn[1] = na2
+                                    proj[i] += 1
+                        if not good:
+                            rej[i] += 1
+                            continue
+                        if capped:
+                            ist[I_CAPPED] += 1
+                        for a in range(nt):
+                            th_it[i, a] = thn[a]
+                            for c in range(nt):
+                                P_it[i, a, c] = Pn[a, c]
+                        # filters of this mode follow the new iterate (re-run from the t_{k-1} states)
+                        if kind[i] == 0:
+                            second_order_zoh(thn[0], thn[1], h, phi_it[i], gam_it[i])
+                            _propagate_mode(i, phi_it, gam_it, xs, T, vin[i, 0], ud_prev, zd_prev, vin[i, 1])
+                            if not finite:
+                                T[i, :, :] = 0.0
+            for i in range(K):
+                for a in range(NT):
+                    theta[i, a] = th_it[i, a]
+                    for c in range(NT):
+                        P[i, a, c] = P_it[i, a, c]
+                for a in range(2):
+                    gam[i, a] = gam_it[i, a]
+                    for c in range(2):
+                        phi[i, a, c] = phi_it[i, a, c]
+            ist[I_UPDATES] += 1
+        else:
+            for i in range(K):
+                ytil[i] = yk - (ysim - xu[i])
+
+        # the t_k states replace the t_{k-1} states only now (NOTES, "Ordering")
+        for i in range(K):
+            for b in range(N_BANKS):
+                xs[i, b, 0] = T[i, b, 0]
+                xs[i, b, 1] = T[i, b, 1]
+            vin[i, 0] = ytil[i]
+            vin[i, 1] = xh[i]
+
+        # closed-loop instrument input z_k = C_d(q) (r_k - y^_k), 000 eq. 33 (NOTES erratum 3)
+        if closed:
+            ek = rk - yhat
+            zk = cnum[0] * ek
+            for j in range(1, nb):
+                zk += cnum[j] * ce[j - 1]
+            for j in range(1, na):
+                zk -= cden[j] * cz[j - 1]
+            if not math.isfinite(zk):
+                zk = 0.0
+            for j in range(ce.shape[0] - 1, 0, -1):
+                ce[j] = ce[j - 1]
+            ce[0] = ek
+            for j in range(cz.shape[0] - 1, 0, -1):
+                cz[j] = cz[j - 1]
+            cz[0] = zk
+            zbuf[pos] = zk
+        ubuf[pos] = uk
+        ist[I_POS] = (pos + 1) % nbuf
+        fst[F_RLAST] = rk
+        fst[F_ULAST] = uk
+        fst[F_YHAT] = yhat
+        ist[I_SAMPLES] += 1
+        if do_trace:
+            for i in range(K):
+                for a in range(NT):
+                    trace[k, i, a] = theta[i, a]

@@ -1,0 +1,490 @@
+"""Streaming recursive additive SRIVC / CLSRIVC estimator (000 Algorithm 2, §4.5-4.7).
+
+:class:`RecursiveAdditiveSRIVC` wraps the compiled kernel (:mod:`core.kernel`) with
+
+* a robust start (issue 4 item 2): offline initialization on the first data (``core.offline.identify``,
+  001 eqs. 20-29) when available, then filter priming (000 Algorithm 2 step 1: the filters run over the
+  initialization data with the initial model, no parameter updates), and ``P_i(0)`` scaled per parameter
+  (``diag(rho_a^2 a1^2, rho_a^2 a2^2, rho_b^2 b0^2)``, ../shared/NOTES.md);
+* a streaming API: :meth:`update` takes any number of samples; :attr:`thetas`, :attr:`covariances`
+  (``sigma^2 P_bar``), :meth:`modal` (delta method), :attr:`health`;
+* snapshot/restore (:meth:`get_state`/:meth:`set_state`, :meth:`save`/:meth:`load`): all state lives in
+  numpy arrays, so a restored estimator continues bit-identically;
+* bad input handling: a non-finite or masked sample is skipped (counted), :meth:`mark_gap` re-primes the
+  filters after a gap, non-finite filter states re-prime automatically; theta and P never take a
+  non-finite value.
+
+Forgetting factors are per *update*: ``lambda_i = 1 - subsampling / (memory_s_i * rate)`` (NOTES: lambda
+must scale with the rate), so that the memory in seconds does not depend on the output subsampling.
+Supported submodels: second-order modes ``b0/(a2 p^2 + a1 p + 1)`` and rigid-body modes ``b0/p^l``
+(l = 1, 2; 000 §4.6 eqs. 34-35). Other orders raise ``ValueError``.
+"""
+
+from __future__ import annotations
+
+import math
+from collections.abc import Sequence
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from . import kernel as kn
+from .model import SubmodelStructure, modal_from_theta, modal_std
+
+STATE_KEYS = ("kind", "lam", "cnum", "cden", "cfg_i", "cfg_f", "p0diag", "theta", "P", "xs", "vin", "phi", "gam",
+              "ubuf", "zbuf", "ce", "cz", "ist", "fst", "proj", "rej")
+_INT_KEYS = ("kind", "cfg_i", "ist", "proj", "rej")
+STATE_VERSION = 1
+
+
+def _kind_of(s: SubmodelStructure) -> int:
+    """Kernel mode kind: 0 = second-order mode, l = rigid body ``b0/p^l``."""
+    if s.n == 2 and s.m == 0 and s.integrators == 0:
+        return 0
+    if s.n == 0 and s.m == 0 and s.integrators in (1, 2):
+        return s.integrators
+    raise ValueError(f"unsupported submodel {s}: the recursive engine supports b0/(a2 p^2 + a1 p + 1) "
+                     "and rigid-body b0/p^l (l = 1, 2)")
+
+
+def _structure_of(kind: int) -> SubmodelStructure:
+    return SubmodelStructure(2, 0, 0) if kind == 0 else SubmodelStructure(0, 0, int(kind))
+
+
+def p0_diagonal(theta: np.ndarray, kind: int, p0_relative: tuple[float, float]) -> np.ndarray:
+    """``P_i(0)`` diagonal scaled with the parameters (NOTES): ``rho_a^2 a_j^2`` and ``rho_b^2 b0^2``."""
+    ra, rb = p0_relative
+    out = np.zeros(kn.NT)
+    th = np.abs(np.asarray(theta, dtype=float))
+    th = np.maximum(th, 1e-300)
+    if kind == 0:
+        out[:3] = [ra * th[0] ** 2, ra * th[1] ** 2, rb * th[2] ** 2]
+    else:
+        out[0] = rb * th[0] ** 2
+    return out
+
+
+class RecursiveAdditiveSRIVC:
+    """Recursive additive (CL)SRIVC estimator, 000 Algorithm 2 with the closed-loop instrument eq. 33.
+
+    Parameters
+    ----------
+    structures, theta0:
+        Submodel structures and initial parameter vectors ``[a1, a2, b0]`` (or ``[b0]`` rigid body).
+    rate_hz:
+        Sample rate of r, u, y.
+    forgetting:
+        ``lambda_i`` per mode, per update (see module docstring).
+    controller:
+        Known ``C_d`` for the closed-loop instrument ``z = S_uo(q, t_k) r`` (000 eq. 33); ``None`` = open
+        loop (``z = u``, eq. 28).
+    input_delay:
+        Known input delay in samples.
+    block_sweeps, refinements:
+        ``M_l`` and ``M_s`` of Algorithm 2.
+    projection:
+        Reflect right-half-plane roots of ``A_i`` (000 §4.7).
+    subsampling:
+        Update every n-th sample; all inputs are still filtered (000 §4.7).
+    p0_relative:
+        ``(rho_a^2, rho_b^2)`` of ``P_i(0)`` (NOTES).
+    max_step:
+        Reject an update that moves a parameter by more than this fraction of its value (0, the default,
+        disables it: on the beam a wound-up P made every update exceed any fixed bound and the estimator
+        locked).
+    p_cap:
+        Stop dividing by lambda once a diagonal of P exceeds ``p_cap`` times its P(0) (wind-up guard; off by
+        default: 1e4-1e8 slowed the tracking of the 000 §5 and beam scenarios).
+    reprime_s:
+        Samples (in s) without updates after a gap or a filter reset; default 5 slowest time constants.
+    init_method, init_max_iterations, init_samples:
+        Offline initialization used by :meth:`initialize` (``"none"`` keeps the guesses).
+    """
+
+    def __init__(self, structures: Sequence[SubmodelStructure], theta0: Sequence[np.ndarray], rate_hz: float, *,
+                 forgetting: np.ndarray | Sequence[float] | float, controller: Any,
+                 input_delay: int = 0, block_sweeps: int = 1, refinements: int = 0, projection: bool = True,
+                 subsampling: int = 1, p0_relative: tuple[float, float] = (0.016, 1.1e-6),
+                 max_step: float = 0.0, p_cap: float = math.inf, reprime_s: float | None = None,
+                 init_method: str = "auto", init_max_iterations: int = 30, init_samples: int | None = None) -> None:
+        structures = list(structures)
+        K = len(structures)
+        if K == 0:
+            raise ValueError("at least one submodel is needed")
+        if len(theta0) != K:
+            raise ValueError(f"{len(theta0)} initial parameter vectors for {K} submodels")
+        if not rate_hz > 0.0:
+            raise ValueError(f"rate_hz must be > 0, got {rate_hz}")
+        if int(input_delay) < 0 or int(block_sweeps) < 1 or int(refinements) < 0 or int(subsampling) < 1:
+            raise ValueError("need input_delay >= 0, block_sweeps >= 1, refinements >= 0, subsampling >= 1")
+        kind = np.array([_kind_of(s) for s in structures], dtype=np.int64)
+        if np.sum(kind > 0) > 1:
+            raise ValueError("at most one rigid-body submodel (000 §4.6)")
+        self.structures = structures
+        self.rate_hz = float(rate_hz)
+        self.p0_relative = (float(p0_relative[0]), float(p0_relative[1]))
+        self.init_method = init_method
+        self.init_max_iterations = int(init_max_iterations)
+        self.init_samples = init_samples
+        self.controller = controller
+        self.last_init: Any = None
+        self.init_message = "not initialized"
+        h = 1.0 / self.rate_hz
+
+        theta = np.zeros((K, kn.NT))
+        for i, (th, s) in enumerate(zip(theta0, structures, strict=True)):
+            th = np.asarray(th, dtype=float).ravel()
+            if th.shape != (s.n_theta,) or not np.all(np.isfinite(th)):
+                raise ValueError(f"theta0[{i}] must be {s.n_theta} finite values, got {th}")
+            if kind[i] == 0:
+                a1, a2, flag = kn.project_second_order(th[0], th[1])
+                if a2 == 0.0:
+                    raise ValueError(f"theta0[{i}]: a2 must be non-zero")
+                th = np.array([a1, a2, th[2]])
+            theta[i, :th.size] = th
+        if reprime_s is None:
+            taus = [2.0 * theta[i, 1] / theta[i, 0] for i in range(K) if kind[i] == 0 and theta[i, 0] > 0]
+            reprime_s = 5.0 * max(taus) if taus else 1.0
+        hold_len = int(min(max(math.ceil(reprime_s * self.rate_hz), 10), 600 * self.rate_hz))
+
+        if controller is not None:
+            cnum, cden = controller.num.astype(float), controller.den.astype(float)
+        else:
+            cnum, cden = np.zeros(1), np.ones(1)
+        d = int(input_delay)
+        s = {
+            "kind": kind,
+            "lam": np.zeros(K),
+            "cnum": np.ascontiguousarray(cnum),
+            "cden": np.ascontiguousarray(cden),
+            "cfg_i": np.array([K, d, int(block_sweeps), int(refinements), int(bool(projection)), int(subsampling),
+                               int(controller is not None), hold_len], dtype=np.int64),
+            "cfg_f": np.array([h, 0.0, float(max_step), float(p_cap)]),
+            "p0diag": np.zeros((K, kn.NT)),
+            "theta": theta,
+            "P": np.zeros((K, kn.NT, kn.NT)),
+            "xs": np.zeros((K, kn.N_BANKS, 2)),
+            "vin": np.zeros((K, 2)),
+            "phi": np.zeros((K, 2, 2)),
+            "gam": np.zeros((K, 2)),
+            "ubuf": np.zeros(d + 1),
+            "zbuf": np.zeros(d + 1),
+            "ce": np.zeros(max(cnum.size - 1, 1)),
+            "cz": np.zeros(max(cden.size - 1, 1)),
+            "ist": np.zeros(kn.N_IST, dtype=np.int64),
+            "fst": np.zeros(kn.N_FST),
+            "proj": np.zeros(K, dtype=np.int64),
+            "rej": np.zeros(K, dtype=np.int64),
+        }
+        self._s = s
+        self.set_forgetting(forgetting)
+        self._reset_covariance()
+        self._refresh_filters()
+
+    # ------------------------------------------------------------------ construction helpers
+    @classmethod
+    def from_config(cls, cfg: Any) -> RecursiveAdditiveSRIVC:
+        """Build from a :class:`config.MonitorConfig` (modes, memories, controller, estimator options)."""
+        est = cfg.estimator
+        sub = int(est.output_subsampling)
+        lam = np.array([1.0 - sub / (m.memory_s * cfg.loop_rate_hz) for m in cfg.modes])
+        return cls(cfg.structures, [m.theta0() for m in cfg.modes], cfg.loop_rate_hz, forgetting=lam,
+                   controller=cfg.controller if cfg.closed_loop else None, input_delay=cfg.input_delay_samples,
+                   block_sweeps=est.block_sweeps, refinements=est.refinements, projection=est.stability_projection,
+                   subsampling=sub, p0_relative=(est.p0_relative_a, est.p0_relative_b),
+                   init_method=est.init_method, init_max_iterations=est.init_max_iterations,
+                   init_samples=int(round(cfg.init_duration_s * cfg.loop_rate_hz)))
+
+    @classmethod
+    def from_state(cls, state: dict[str, np.ndarray]) -> RecursiveAdditiveSRIVC:
+        """Rebuild an estimator from a :meth:`get_state` snapshot alone (structures, rate, controller...)."""
+        kind = np.asarray(state["kind"]).astype(np.int64)
+        cfg_i = np.asarray(state["cfg_i"]).astype(np.int64)
+        cfg_f = np.asarray(state["cfg_f"], dtype=float)
+        structures = [_structure_of(k) for k in kind]
+        theta = np.asarray(state["theta"], dtype=float)
+        theta0 = [theta[i, :s.n_theta] for i, s in enumerate(structures)]
+        controller = None
+        if cfg_i[kn.C_CLOSED]:
+            from .controller import DiscreteController  # lazy: scipy.signal is slow to import
+            controller = DiscreteController(tuple(np.asarray(state["cnum"])), tuple(np.asarray(state["cden"])))
+        est = cls(structures, theta0, 1.0 / cfg_f[kn.C_H], forgetting=np.asarray(state["lam"]), controller=controller,
+                  input_delay=int(cfg_i[kn.C_DELAY]), block_sweeps=int(cfg_i[kn.C_SWEEPS]),
+                  refinements=int(cfg_i[kn.C_REFINE]), projection=bool(cfg_i[kn.C_PROJ]),
+                  subsampling=int(cfg_i[kn.C_SUBSAMPLE]), max_step=float(cfg_f[kn.C_MAXSTEP]),
+                  p_cap=float(cfg_f[kn.C_PCAP]))
+        est.set_state(state)
+        return est
+
+    def _reset_covariance(self) -> None:
+        s = self._s
+        for i in range(self.K):
+            diag = p0_diagonal(s["theta"][i], int(s["kind"][i]), self.p0_relative)
+            s["p0diag"][i] = diag
+            s["P"][i] = np.diag(diag)
+
+    def _refresh_filters(self) -> None:
+        """Cache ``Phi, Gamma`` of the current theta (the kernel keeps them in step afterwards)."""
+        s = self._s
+        h = float(s["cfg_f"][kn.C_H])
+        for i in range(self.K):
+            th = s["theta"][i]
+            kn.discretize_mode(int(s["kind"][i]), float(th[0]), float(th[1]), h, s["phi"][i], s["gam"][i])
+
+    def _reset_filters(self) -> None:
+        """Filters, delay line and controller memory from rest (before priming)."""
+        s = self._s
+        for key in ("xs", "vin", "ubuf", "zbuf", "ce", "cz"):
+            s[key][...] = 0.0
+        s["ist"][kn.I_POS] = 0
+
+    # ------------------------------------------------------------------ properties
+    @property
+    def K(self) -> int:
+        return int(self._s["cfg_i"][kn.C_K])
+
+    @property
+    def closed_loop(self) -> bool:
+        return bool(self._s["cfg_i"][kn.C_CLOSED])
+
+    @property
+    def forgetting(self) -> np.ndarray:
+        return self._s["lam"].copy()
+
+    @property
+    def thetas(self) -> list[np.ndarray]:
+        """Latest ``theta_bar_i(t_k)`` per mode (000 eq. 7 order)."""
+        return [self._s["theta"][i, :s.n_theta].copy() for i, s in enumerate(self.structures)]
+
+    @property
+    def residual_variance(self) -> float:
+        """Exponentially weighted mean of the squared output error ``y - sum_i x^_i`` (NaN before data)."""
+        acc, w = self._s["fst"][kn.F_SIGACC], self._s["fst"][kn.F_SIGW]
+        return float(acc / w) if w > 0.0 else float("nan")
+
+    @property
+    def covariances(self) -> list[np.ndarray]:
+        """``sigma^2 P_bar_i`` per mode (000 §4.2: P_bar is an approximate covariance up to sigma^2)."""
+        sig2 = self.residual_variance
+        out = []
+        for i, s in enumerate(self.structures):
+            p = self._s["P"][i, :s.n_theta, :s.n_theta]
+            out.append(sig2 * 0.5 * (p + p.T))
+        return out
+
+    def modal(self) -> np.ndarray:
+        """(K, 6): ``f_hz, zeta, gain, f_std, zeta_std, gain_std`` (delta method, model.modal_std)."""
+        out = np.full((self.K, 6), np.nan)
+        for i, (th, cov, s) in enumerate(zip(self.thetas, self.covariances, self.structures, strict=True)):
+            out[i, :3] = modal_from_theta(th, s)
+            if np.all(np.isfinite(cov)):
+                out[i, 3:] = modal_std(th, cov, s)
+        return out
+
+    def iv_condition(self) -> np.ndarray:
+        """Condition number per mode of the equilibrated IV matrix ``D R D`` (``R = P^-1``, ``D = |theta|``)."""
+        out = np.full(self.K, np.nan)
+        for i, s in enumerate(self.structures):
+            nt = s.n_theta
+            dinv = 1.0 / np.maximum(np.abs(self._s["theta"][i, :nt]), 1e-300)
+            m = dinv[:, None] * self._s["P"][i, :nt, :nt] * dinv[None, :]
+            if np.all(np.isfinite(m)):
+                out[i] = float(np.linalg.cond(m))
+        return out
+
+    @property
+    def health(self) -> dict[str, Any]:
+        """Samples, updates, skipped/held samples, re-primes, projections and rejections per mode,
+        IV condition numbers, residual variance."""
+        ist = self._s["ist"]
+        return {
+            "samples": int(ist[kn.I_SAMPLES]),
+            "updates": int(ist[kn.I_UPDATES]),
+            "skipped_samples": int(ist[kn.I_SKIPPED]),
+            "held_samples": int(ist[kn.I_HELD]),
+            "hold_remaining": int(ist[kn.I_HOLD]),
+            "reprimes": int(ist[kn.I_REPRIMES]),
+            "capped_updates": int(ist[kn.I_CAPPED]),
+            "projections": [int(v) for v in self._s["proj"]],
+            "rejected_updates": [int(v) for v in self._s["rej"]],
+            "cond": [float(v) for v in self.iv_condition()],
+            "residual_var": self.residual_variance,
+            "init_message": self.init_message,
+        }
+
+    # ------------------------------------------------------------------ runtime changes
+    def set_forgetting(self, forgetting: np.ndarray | Sequence[float] | float) -> None:
+        """Set ``lambda_i`` (per update) at run time; scalar = the same for all modes."""
+        lam = np.broadcast_to(np.asarray(forgetting, dtype=float), (self.K,)).copy()
+        if not np.all((lam > 0.0) & (lam <= 1.0)):
+            raise ValueError(f"forgetting factors must be in (0, 1], got {lam}")
+        self._s["lam"][:] = lam
+        # residual variance: exponential memory of the slowest mode, per sample
+        sub = int(self._s["cfg_i"][kn.C_SUBSAMPLE])
+        self._s["cfg_f"][kn.C_LAMSIG] = 1.0 - (1.0 - float(lam.max())) / sub
+
+    def set_memory(self, memory_s: np.ndarray | Sequence[float] | float) -> None:
+        """``lambda_i = 1 - subsampling/(memory_s_i rate)`` (NOTES: lambda scales with the rate)."""
+        mem = np.broadcast_to(np.asarray(memory_s, dtype=float), (self.K,))
+        sub = int(self._s["cfg_i"][kn.C_SUBSAMPLE])
+        if not np.all(mem * self.rate_hz >= 2.0 * sub):
+            raise ValueError(f"memory_s must cover at least two updates, got {mem}")
+        self.set_forgetting(1.0 - sub / (mem * self.rate_hz))
+
+    # ------------------------------------------------------------------ data
+    def _arrays(self, r: Any, u: Any, y: Any, valid: Any) -> tuple[np.ndarray, ...]:
+        u = np.ascontiguousarray(np.atleast_1d(np.asarray(u, dtype=float)).ravel())
+        y = np.ascontiguousarray(np.atleast_1d(np.asarray(y, dtype=float)).ravel())
+        n = u.size
+        if y.size != n:
+            raise ValueError(f"u and y must have the same length, got {n} and {y.size}")
+        if r is None:
+            if self.closed_loop:
+                raise ValueError("closed loop: the reference r is needed for the instrument (000 eq. 33)")
+            r = np.zeros(n)
+        r = np.ascontiguousarray(np.atleast_1d(np.asarray(r, dtype=float)).ravel())
+        if r.size != n:
+            raise ValueError(f"r must have the same length as u, got {r.size} and {n}")
+        if valid is None:
+            v = np.ones(n, dtype=np.uint8)
+        else:
+            v = np.ascontiguousarray(np.broadcast_to(np.asarray(valid, dtype=bool), (n,)).astype(np.uint8))
+        return r, u, y, v
+
+    def _run(self, r: np.ndarray, u: np.ndarray, y: np.ndarray, valid: np.ndarray, allow_update: bool,
+             trace: np.ndarray) -> None:
+        s = self._s
+        kn.run_block(r, u, y, valid, allow_update, s["kind"], s["lam"], s["cnum"], s["cden"], s["cfg_i"],
+                     s["cfg_f"], s["p0diag"], s["theta"], s["P"], s["xs"], s["vin"], s["phi"], s["gam"], s["ubuf"],
+                     s["zbuf"], s["ce"], s["cz"], s["ist"], s["fst"], s["proj"], s["rej"], trace)
+
+    def update(self, r: Any, u: Any, y: Any, valid: Any = None, *, trace: bool = False) -> np.ndarray | None:
+        """Process any number of samples (000 Algorithm 2 lines 2-16 per sample).
+
+        ``r`` is ignored in open loop (may be ``None``). ``valid`` (bool, broadcastable) marks samples to
+        skip; non-finite samples are skipped as well. With ``trace=True`` returns theta after every
+        sample, shape (n, K, 3) (rigid-body modes use column 0).
+        """
+        r, u, y, v = self._arrays(r, u, y, valid)
+        tr = np.empty((u.size if trace else 0, self.K, kn.NT))
+        self._run(r, u, y, v, True, tr)
+        return tr if trace else None
+
+    def prime(self, r: Any, u: Any, y: Any, valid: Any = None) -> None:
+        """000 Algorithm 2 step 1: filters from rest over the data with the current model, no updates."""
+        r, u, y, v = self._arrays(r, u, y, valid)
+        self._reset_filters()
+        self._run(r, u, y, v, False, np.empty((0, self.K, kn.NT)))
+
+    def mark_gap(self) -> None:
+        """Data are missing: restart the filters from rest and hold updates for the re-prime length."""
+        self._reset_filters()
+        s = self._s
+        s["ist"][kn.I_HOLD] = max(int(s["ist"][kn.I_HOLD]), int(s["cfg_i"][kn.C_HOLDLEN]))
+        s["ist"][kn.I_REPRIMES] += 1
+
+    def reset(self, theta0: Sequence[np.ndarray] | None = None) -> None:
+        """Restart the recursion: theta (given or current), P(0), filters from rest; counters kept."""
+        if theta0 is not None:
+            for i, th in enumerate(theta0):
+                self._s["theta"][i, :np.size(th)] = np.asarray(th, dtype=float)
+        self._reset_covariance()
+        self._refresh_filters()
+        self._reset_filters()
+
+    def _output_error_var(self, thetas: Sequence[np.ndarray], r: np.ndarray, u: np.ndarray, y: np.ndarray,
+                          v: np.ndarray) -> float:
+        """Mean squared output error of a candidate model on the data (a primed copy, no updates)."""
+        probe = RecursiveAdditiveSRIVC.from_state(self.get_state())
+        probe.reset(thetas)
+        st = probe._s
+        st["fst"][:] = 0.0
+        st["cfg_f"][kn.C_LAMSIG] = 1.0 - 1.0 / max(u.size, 1)
+        probe._run(r, u, y, v, False, np.empty((0, self.K, kn.NT)))
+        return probe.residual_variance
+
+    def initialize(self, r: Any, u: Any, y: Any) -> Any:
+        """Robust start (issue 4 item 2): offline init, P(0) scaled per parameter, then priming.
+
+        The offline estimate (``core.offline.identify``, 001 eqs. 20-29) replaces the guesses only when it
+        is finite, stable and explains the data better (smaller output-error variance). Returns the
+        ``IdentificationResult`` or ``None`` (no offline core, ``init_method="none"`` or failure).
+        """
+        r, u, y, v = self._arrays(r, u, y, None)
+        result = None
+        guesses = self.thetas
+        if self.init_method != "none" and u.size > 0:
+            try:
+                from .offline import identify
+            except ImportError:  # pragma: no cover - offline core not installed
+                identify = None
+                self.init_message = "offline core unavailable: using the guesses"
+            if identify is not None:
+                ok = np.isfinite(u) & np.isfinite(y) & (np.isfinite(r) if self.closed_loop else True)
+                try:
+                    result = identify(u[ok], y[ok], self.rate_hz, self.structures, guesses,
+                                      r=r[ok] if self.closed_loop else None, controller=self.controller,
+                                      input_delay=int(self._s["cfg_i"][kn.C_DELAY]), method=self.init_method,
+                                      max_iterations=self.init_max_iterations)
+                except Exception as exc:  # noqa: BLE001 - any failure falls back to the guesses
+                    self.init_message = f"offline init failed ({type(exc).__name__}: {exc}); using the guesses"
+                    result = None
+                if result is not None:
+                    cand = [np.asarray(t, dtype=float) for t in result.thetas]
+                    usable = all(np.all(np.isfinite(t)) for t in cand) and all(
+                        t[0] > 0 and t[1] > 0 for t, k in zip(cand, self._s["kind"], strict=True) if k == 0)
+                    if usable:
+                        e_new = self._output_error_var(cand, r, u, y, v)
+                        e_old = self._output_error_var(guesses, r, u, y, v)
+                        if np.isfinite(e_new) and not e_new > e_old:
+                            self.reset(cand)
+                            self.init_message = (f"offline init ({getattr(result, 'message', '')}): "
+                                                 f"output-error variance {e_old:.3g} -> {e_new:.3g}")
+                        else:
+                            self.init_message = f"offline init rejected (worse fit {e_new:.3g} > {e_old:.3g})"
+                    else:
+                        self.init_message = "offline init rejected (non-finite or unstable)"
+        elif self.init_method == "none":
+            self.init_message = "initialized with the guesses (init_method none)"
+        self.reset(self.thetas)
+        self._s["fst"][:] = 0.0
+        self.prime(r, u, y, v)
+        self.last_init = result
+        return result
+
+    # ------------------------------------------------------------------ snapshot / restore
+    def get_state(self) -> dict[str, np.ndarray]:
+        """Complete state as a dict of numpy arrays (copies); see :meth:`set_state`."""
+        out = {k: self._s[k].copy() for k in STATE_KEYS}
+        out["version"] = np.array([STATE_VERSION], dtype=np.int64)
+        return out
+
+    def set_state(self, state: dict[str, np.ndarray]) -> None:
+        """Restore a :meth:`get_state` snapshot; continuation is bit-identical. Shapes must match."""
+        for k in STATE_KEYS:
+            if k not in state:
+                raise ValueError(f"state is missing '{k}'")
+            a = np.asarray(state[k])
+            if a.shape != self._s[k].shape:
+                raise ValueError(f"state '{k}' has shape {a.shape}, this estimator needs {self._s[k].shape}")
+        if not np.array_equal(np.asarray(state["kind"]), self._s["kind"]):
+            raise ValueError("state was saved for different submodel structures")
+        for k in STATE_KEYS:
+            dtype = np.int64 if k in _INT_KEYS else np.float64
+            self._s[k][...] = np.asarray(state[k], dtype=dtype)
+
+    def save(self, path: str | Path) -> None:
+        """Write the state to an ``.npz`` file."""
+        np.savez(Path(path), **self.get_state())
+
+    def load(self, path: str | Path) -> None:
+        """Restore the state written by :meth:`save` into this (identically configured) estimator."""
+        with np.load(Path(path)) as z:
+            self.set_state({k: z[k] for k in z.files})
+
+    @classmethod
+    def restore(cls, path: str | Path) -> RecursiveAdditiveSRIVC:
+        """Build an estimator from a :meth:`save` file alone."""
+        with np.load(Path(path)) as z:
+            return cls.from_state({k: z[k] for k in z.files})

@@ -1,0 +1,20 @@
+"""rsrivc_bench --json (CONTRACT "Benchmark"): keys present, figures positive (no timing assertion)."""
+import json
+import subprocess
+import sys
+
+
+def test_bench_json_keys():
+    res = subprocess.run([sys.executable, "-m", "additive_rsrivc_ros.cli.bench", "--json", "--seconds", "2"],
+                         capture_output=True, text=True, timeout=600)
+    assert res.returncode == 0, res.stderr[-2000:]
+    out = json.loads(res.stdout.strip().splitlines()[-1])
+    for key in ("k3_20hz_closed_1_0", "k4_4096hz_closed_1_0", "k4_4096hz_closed_3_2"):
+        assert out[key]["us_per_sample"] > 0 and out[key]["realtime_factor"] > 0
+    assert out["start_to_first_estimate_s"] > 0
+
+
+def test_bench_bad_argument_exits_nonzero():
+    res = subprocess.run([sys.executable, "-m", "additive_rsrivc_ros.cli.bench", "--seconds", "abc"],
+                         capture_output=True, text=True, timeout=120)
+    assert res.returncode != 0 and "Traceback" not in res.stderr
