@@ -1,0 +1,434 @@
+"""rosbag2 (MCAP / sqlite3) reading and writing with ``rosbags`` 0.11; bag validation (../shared/CONTRACT.md).
+
+Layout written by :func:`write_bag` (one message per control sample, log time = sample time in ns):
+
+* ``/reference`` (closed loop only), ``/plant_input``, ``/plant_output``: ``std_msgs/msg/Float64``.
+* ``/truth/modes``: ``std_msgs/msg/Float64MultiArray`` in the layout of ``~/modes`` (dim[0] ``mode`` size K,
+  dim[1] ``field`` size 6: natural_frequency_hz, damping_ratio, gain, and three zero standard deviations),
+  published at ``truth_rate_hz``. The rows are the plant's modes; scenarios list the estimated modes first.
+* ``/truth/fault``: ``std_msgs/msg/String`` holding one JSON object per change of the fault state, e.g.
+  ``{"time_s": 12.0, "event": "onset", "fault": {...}, "active": [{...}, ...]}`` (keys sorted). ``fault`` describes
+  the fault that started (``event = "onset"``), finished ramping (``"complete"``) or ended (``"end"``);
+  ``active`` lists every fault active after the change. A first message at t = 0 (``event = "start"``) gives the
+  initial state.
+
+MCAP files carry the summary, chunk and message indexes Jazzy's rosbag2 needs (chunks zstd-compressed by
+default); the metadata lists offered QoS profiles (reliable; keep_last with a depth for the signals, keep_all +
+transient_local for the truth). No wall-clock time enters the files: the same input gives the same bytes.
+
+:func:`read_signals` checks a bag before use and raises :class:`BagError` with a one-line reason.
+"""
+
+from __future__ import annotations
+
+import json
+import math
+import os
+import shutil
+from collections.abc import Sequence
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+import yaml
+from rosbags.interfaces import (
+    Qos,
+    QosDurability,
+    QosHistory,
+    QosLiveliness,
+    QosReliability,
+    QosTime,
+)
+from rosbags.rosbag2 import Reader, Writer
+from rosbags.rosbag2.enums import CompressionFormat, CompressionMode, StoragePlugin
+from rosbags.typesys import Stores, get_typestore
+
+from .config import MonitorConfig
+
+FLOAT64 = "std_msgs/msg/Float64"
+MULTIARRAY = "std_msgs/msg/Float64MultiArray"
+STRING = "std_msgs/msg/String"
+JOINTSTATE = "sensor_msgs/msg/JointState"
+TRUTH_MODES_TOPIC = "/truth/modes"
+TRUTH_FAULT_TOPIC = "/truth/fault"
+DEFAULT_TOPICS = {"reference": "/reference", "input": "/plant_input", "output": "/plant_output"}
+MODE_FIELDS = ("natural_frequency_hz", "damping_ratio", "gain", "natural_frequency_hz_std", "damping_ratio_std",
+               "gain_std")
+DEFAULT_T0_NS = 1_700_000_000 * 10**9  # fixed start time: bags are reproducible byte for byte
+SIGNAL_QOS_DEPTH = 1000
+SPACING_TOLERANCE = 0.01  # relative tolerance of the mean sample spacing against 1/loop_rate_hz
+
+_CDR_LE = b"\x00\x01\x00\x00"  # CDR encapsulation header, little endian
+_TYPESTORE = get_typestore(Stores.ROS2_JAZZY)
+_ZERO_T = QosTime(0, 0)
+_INF_T = QosTime(2147483647, 4294967295)  # rmw "infinite" duration as rosbag2 writes it
+
+
+def _qos(history: QosHistory, depth: int, durability: QosDurability) -> Qos:
+    return Qos(history, depth, QosReliability.RELIABLE, durability, _INF_T, _INF_T, QosLiveliness.AUTOMATIC,
+               _INF_T, False)
+
+
+SIGNAL_QOS = _qos(QosHistory.KEEP_LAST, SIGNAL_QOS_DEPTH, QosDurability.VOLATILE)
+TRUTH_QOS = _qos(QosHistory.KEEP_ALL, 0, QosDurability.TRANSIENT_LOCAL)
+
+
+class BagError(ValueError):
+    """A bag that cannot be used; the message is one line naming the bag and the reason."""
+
+
+@dataclass
+class Signals:
+    """Samples of a bag (docs/ARCHITECTURE.md). ``t`` is in s since the first output sample."""
+
+    t: np.ndarray
+    t0_ns: int
+    r: np.ndarray | None
+    u: np.ndarray
+    y: np.ndarray
+    truth_t: np.ndarray | None = None
+    truth_modes: np.ndarray | None = None
+    truth_fault: list | None = None
+    nonfinite: int = 0
+    nonfinite_by_signal: dict[str, int] = field(default_factory=dict)
+    storage: str = ""
+    metadata: dict[str, str] = field(default_factory=dict)
+
+    @property
+    def n(self) -> int:
+        return int(self.t.size)
+
+
+# ----------------------------------------------------------------------------------------------------------------
+# Writing
+# ----------------------------------------------------------------------------------------------------------------
+def float64_cdr(values: np.ndarray) -> list[bytes]:
+    """CDR bytes of ``std_msgs/msg/Float64`` messages (4-byte header + little-endian double), vectorized."""
+    raw = np.ascontiguousarray(np.asarray(values, dtype="<f8")).view(np.uint8).reshape(-1, 8)
+    return [_CDR_LE + row.tobytes() for row in raw]
+
+
+def sample_times_ns(n: int, rate_hz: float, t0_ns: int = DEFAULT_T0_NS) -> np.ndarray:
+    """Log times ``t0 + round(k * 1e9 / rate)`` (integer ns; exact for rates dividing 1e9)."""
+    k = np.arange(n, dtype=np.int64)
+    if float(rate_hz).is_integer() and 10**9 % int(rate_hz) == 0:
+        return t0_ns + k * (10**9 // int(rate_hz))
+    return t0_ns + np.rint(k * (1e9 / rate_hz)).astype(np.int64)
+
+
+def truth_indices(n: int, rate_hz: float, truth_rate_hz: float) -> np.ndarray:
+    """Samples nearest to ``j / truth_rate_hz`` (j = 0, 1, ...): where ``/truth/modes`` is published."""
+    if not truth_rate_hz > 0:
+        raise ValueError(f"truth_rate_hz must be > 0, got {truth_rate_hz}")
+    j = np.arange(int(math.ceil(n / rate_hz * truth_rate_hz)) + 1)
+    idx = np.unique(np.rint(j * (rate_hz / truth_rate_hz)).astype(np.int64))
+    return idx[idx < n]
+
+
+def _multiarray(values: np.ndarray) -> bytes:
+    msgs = _TYPESTORE.types
+    layout = msgs["std_msgs/msg/MultiArrayLayout"](
+        dim=[msgs["std_msgs/msg/MultiArrayDimension"](label="mode", size=values.shape[0], stride=values.size),
+             msgs["std_msgs/msg/MultiArrayDimension"](label="field", size=values.shape[1], stride=values.shape[1])],
+        data_offset=0)
+    msg = msgs[MULTIARRAY](layout=layout, data=np.ascontiguousarray(values, dtype=np.float64).ravel())
+    return bytes(_TYPESTORE.serialize_cdr(msg, MULTIARRAY))
+
+
+def _string(text: str) -> bytes:
+    return bytes(_TYPESTORE.serialize_cdr(_TYPESTORE.types[STRING](data=text), STRING))
+
+
+def write_bag(path: str | Path, rate_hz: float, u: np.ndarray, y: np.ndarray, r: np.ndarray | None = None, *,
+              truth_modal: np.ndarray | None = None, truth_rate_hz: float = 10.0,
+              fault_events: Sequence[dict[str, Any]] = (), storage: str = "mcap", compress: bool = True,
+              t0_ns: int = DEFAULT_T0_NS, topics: dict[str, str] | None = None,
+              custom_data: dict[str, str] | None = None) -> Path:
+    """Write one rosbag2 directory at ``path`` (must not exist) and return it.
+
+    ``u``, ``y`` (and ``r`` in closed loop) are the samples at ``rate_hz``; ``truth_modal`` ``(K, N, 3)`` is the
+    per-sample modal truth (f_hz, zeta, gain) published on ``/truth/modes`` every ``1/truth_rate_hz`` s;
+    ``fault_events`` are JSON-serializable dicts with a ``time_s`` key, published on ``/truth/fault``.
+    ``storage``: ``mcap`` (default; zstd chunk compression when ``compress``) or ``sqlite3``.
+    """
+    path = Path(path)
+    u, y = np.asarray(u, dtype=np.float64), np.asarray(y, dtype=np.float64)
+    n = u.size
+    if u.ndim != 1 or y.shape != u.shape or (r is not None and np.shape(r) != u.shape):
+        raise ValueError("r, u and y must be one-dimensional arrays of equal length")
+    if n == 0:
+        raise ValueError("cannot write an empty bag")
+    if not (rate_hz > 0 and math.isfinite(rate_hz)):
+        raise ValueError(f"rate_hz must be > 0, got {rate_hz}")
+    if storage not in ("mcap", "sqlite3"):
+        raise ValueError(f"storage must be 'mcap' or 'sqlite3', got {storage!r}")
+    topics = {**DEFAULT_TOPICS, **(topics or {})}
+    ts = sample_times_ns(n, rate_hz, t0_ns)
+    plugin = StoragePlugin.MCAP if storage == "mcap" else StoragePlugin.SQLITE3
+    writer = Writer(path, version=9, storage_plugin=plugin)
+    if compress and storage == "mcap":
+        writer.set_compression(CompressionMode.STORAGE, CompressionFormat.ZSTD)
+    for key, value in sorted((custom_data or {}).items()):
+        writer.set_custom_data(key, value)
+    writer.open()
+    try:
+        streams: list[tuple[Any, np.ndarray, list[bytes]]] = []
+        signals = [("reference", r), ("input", u), ("output", y)]
+        for name, values in signals:
+            if values is None:
+                continue
+            conn = writer.add_connection(topics[name], FLOAT64, typestore=_TYPESTORE,
+                                         offered_qos_profiles=[SIGNAL_QOS])
+            streams.append((conn, ts, float64_cdr(np.asarray(values, dtype=np.float64))))
+        if truth_modal is not None:
+            truth_modal = np.asarray(truth_modal, dtype=np.float64)
+            if truth_modal.ndim != 3 or truth_modal.shape[1:] != (n, 3):
+                raise ValueError(f"truth_modal must have shape (K, {n}, 3), got {truth_modal.shape}")
+            idx = truth_indices(n, rate_hz, truth_rate_hz)
+            conn = writer.add_connection(TRUTH_MODES_TOPIC, MULTIARRAY, typestore=_TYPESTORE,
+                                         offered_qos_profiles=[TRUTH_QOS])
+            rows = np.zeros((truth_modal.shape[0], 6))
+            data = []
+            for k in idx:
+                rows[:, :3] = truth_modal[:, k, :]
+                data.append(_multiarray(rows))
+            streams.append((conn, ts[idx], data))
+        if fault_events:
+            conn = writer.add_connection(TRUTH_FAULT_TOPIC, STRING, typestore=_TYPESTORE,
+                                         offered_qos_profiles=[TRUTH_QOS])
+            ev_t = np.array([t0_ns + int(round(float(e["time_s"]) * 1e9)) for e in fault_events], dtype=np.int64)
+            data = [_string(json.dumps(e, sort_keys=True, allow_nan=False)) for e in fault_events]
+            streams.append((conn, ev_t, data))
+        # interleave in time order (stable: topics in connection order at equal times), as a recorder would
+        all_t = np.concatenate([s[1] for s in streams])
+        which = np.concatenate([np.full(len(s[2]), j) for j, s in enumerate(streams)])
+        pos = np.concatenate([np.arange(len(s[2])) for s in streams])
+        order = np.lexsort((which, all_t))
+        write = writer.write
+        conns = [s[0] for s in streams]
+        payloads = [s[2] for s in streams]
+        for i in order.tolist():
+            j = which[i]
+            write(conns[j], int(all_t[i]), payloads[j][pos[i]])
+    except BaseException:
+        writer.close()
+        shutil.rmtree(path, ignore_errors=True)
+        raise
+    writer.close()
+    return path
+
+
+def write_bag_atomic(path: str | Path, **kwargs: Any) -> Path:
+    """:func:`write_bag` into a temporary directory next to ``path``, renamed at the end (never half-written)."""
+    path = Path(path)
+    if path.exists():
+        raise FileExistsError(f"{path} exists already")
+    tmp = path.with_name(f".{path.name}.partial-{os.getpid()}")
+    shutil.rmtree(tmp, ignore_errors=True)
+    try:
+        tmp.mkdir()
+        write_bag(tmp / path.name, **kwargs)  # final name inside: metadata.yaml names the right file
+        os.rename(tmp / path.name, path)
+    finally:
+        shutil.rmtree(tmp, ignore_errors=True)
+    return path
+
+
+# ----------------------------------------------------------------------------------------------------------------
+# Reading and validation
+# ----------------------------------------------------------------------------------------------------------------
+def _one_line(exc: BaseException) -> str:
+    text = str(exc).strip().splitlines()
+    return (text[0] if text else type(exc).__name__)[:300]
+
+
+def _resolve(bag: str | Path) -> Path:
+    bag = Path(bag)
+    if not bag.exists():
+        raise BagError(f"bag not found: {bag}")
+    if bag.is_file():
+        if (bag.parent / "metadata.yaml").exists() and bag.name != "metadata.yaml":
+            return bag.parent
+        if bag.name == "metadata.yaml":
+            return bag.parent
+        raise BagError(f"{bag}: not a rosbag2 directory (give the directory that holds metadata.yaml)")
+    if not (bag / "metadata.yaml").exists():
+        raise BagError(f"{bag}: not a rosbag2 bag (no metadata.yaml in the directory)")
+    return bag
+
+
+def _decode_float64(raw: list[bytes], topic: str, bag: Path) -> np.ndarray:
+    if not raw:
+        return np.zeros(0)
+    blob = b"".join(raw)
+    if len(blob) != 12 * len(raw) or any(len(m) != 12 for m in raw[:: max(1, len(raw) // 64)]):
+        raise BagError(f"{bag}: {topic}: messages are not std_msgs/msg/Float64 (wrong size)")
+    arr = np.frombuffer(blob, dtype=np.uint8).reshape(-1, 12)
+    if not np.all(arr[:, 0] == 0) or not np.all(arr[:, 1] == 1):
+        # big-endian or unknown encapsulation: fall back to the generic deserializer
+        return np.array([_TYPESTORE.deserialize_cdr(m, FLOAT64).data for m in raw], dtype=np.float64)
+    return arr[:, 4:].copy().view("<f8").ravel().astype(np.float64)
+
+
+def _decode_joint(raw: list[bytes], sig: Any, topic: str, bag: Path) -> tuple[np.ndarray, np.ndarray]:
+    vals = np.empty(len(raw))
+    stamps = np.empty(len(raw), dtype=np.int64)
+    for k, m in enumerate(raw):
+        msg = _TYPESTORE.deserialize_cdr(m, JOINTSTATE)
+        names = list(msg.name)
+        arr = np.asarray(getattr(msg, sig.field))
+        if sig.joint and sig.joint not in names:
+            raise BagError(f"{bag}: {topic}: joint '{sig.joint}' not in message {k} (joints {names})")
+        j = names.index(sig.joint) if sig.joint else 0
+        if arr.size <= j:
+            raise BagError(f"{bag}: {topic}: message {k} has no '{sig.field}' value for joint index {j}")
+        vals[k] = arr[j]
+        stamps[k] = int(msg.header.stamp.sec) * 10**9 + int(msg.header.stamp.nanosec)
+    return vals, stamps
+
+
+def read_signals(bag: str | Path, config: MonitorConfig) -> Signals:
+    """Read and check ``r``, ``u``, ``y`` (and the truth topics, if any) of a bag for ``config``.
+
+    Raises :class:`BagError` (one line) when the bag is missing, has no metadata, is unreadable, truncated or
+    corrupt, is empty, lacks a configured topic, has a topic of the wrong type, has unequal sample counts, or a
+    sample spacing inconsistent with ``loop_rate_hz``. Non-finite samples are kept (NaN in the arrays) and
+    counted in ``nonfinite``: the caller decides.
+    """
+    path = _resolve(bag)
+    wanted = ["input", "output"] + (["reference"] if config.closed_loop else [])
+    sigcfg = {name: config.signals[name] for name in wanted}
+    raw: dict[str, list[bytes]] = {name: [] for name in wanted}
+    log_ns: dict[str, list[int]] = {name: [] for name in wanted}
+    truth_raw: list[tuple[int, bytes]] = []
+    fault_raw: list[tuple[int, bytes]] = []
+    try:
+        with Reader(path) as reader:
+            if reader.message_count == 0:
+                raise BagError(f"{path}: the bag is empty (no messages)")
+            by_topic: dict[str, list] = {}
+            for c in reader.connections:
+                by_topic.setdefault(c.topic, []).append(c)
+            conns = []
+            topic_to_sig: dict[str, list[str]] = {}
+            for name, s in sigcfg.items():
+                if s.topic not in by_topic:
+                    have = ", ".join(sorted(by_topic)) or "none"
+                    raise BagError(f"{path}: configured {name} topic '{s.topic}' is not in the bag (topics: {have})")
+                types = {c.msgtype for c in by_topic[s.topic]}
+                if types != {s.type}:
+                    raise BagError(f"{path}: topic '{s.topic}' has type {', '.join(sorted(types))}, "
+                                   f"configured {name}.type is {s.type}")
+                if s.topic not in topic_to_sig:
+                    conns += by_topic[s.topic]
+                topic_to_sig.setdefault(s.topic, []).append(name)
+            extra = []
+            for topic, typ in ((TRUTH_MODES_TOPIC, MULTIARRAY), (TRUTH_FAULT_TOPIC, STRING)):
+                for c in by_topic.get(topic, []):
+                    if c.msgtype == typ:
+                        extra.append(c)
+            for conn, timestamp, data in reader.messages(connections=conns + extra):
+                if conn.topic == TRUTH_MODES_TOPIC and conn in extra:
+                    truth_raw.append((timestamp, bytes(data)))
+                elif conn.topic == TRUTH_FAULT_TOPIC and conn in extra:
+                    fault_raw.append((timestamp, bytes(data)))
+                else:
+                    for name in topic_to_sig.get(conn.topic, ()):
+                        raw[name].append(bytes(data))
+                        log_ns[name].append(timestamp)
+    except BagError:
+        raise
+    except Exception as exc:  # noqa: BLE001 - rosbags raises many types for damaged files
+        raise BagError(f"{path}: unreadable, truncated or corrupt bag ({type(exc).__name__}: {_one_line(exc)})")\
+            from None
+    return _assemble(path, config, sigcfg, raw, log_ns, truth_raw, fault_raw)
+
+
+def _assemble(path: Path, config: MonitorConfig, sigcfg: dict, raw: dict, log_ns: dict, truth_raw: list,
+              fault_raw: list) -> Signals:
+    values: dict[str, np.ndarray] = {}
+    stamps: dict[str, np.ndarray] = {}
+    for name, s in sigcfg.items():
+        if not raw[name]:
+            raise BagError(f"{path}: topic '{s.topic}' ({name}) has no messages")
+        try:
+            if s.type == FLOAT64:
+                values[name] = _decode_float64(raw[name], s.topic, path)
+                stamps[name] = np.asarray(log_ns[name], dtype=np.int64)
+            else:
+                values[name], stamps[name] = _decode_joint(raw[name], s, s.topic, path)
+        except BagError:
+            raise
+        except Exception as exc:  # noqa: BLE001
+            raise BagError(f"{path}: {s.topic}: cannot decode {s.type} ({_one_line(exc)})") from None
+    counts = {name: v.size for name, v in values.items()}
+    if len(set(counts.values())) != 1:
+        desc = ", ".join(f"{sigcfg[k].topic}={v}" for k, v in counts.items())
+        raise BagError(f"{path}: sample counts differ between topics ({desc}); samples are aligned by order")
+    n = counts["output"]
+    t_ns = stamps["output"]
+    t0 = int(t_ns[0])
+    if n >= 2:
+        dt = np.diff(t_ns)
+        if np.any(dt < 0):
+            raise BagError(f"{path}: {sigcfg['output'].topic}: sample times go backwards")
+        mean_dt = float(t_ns[-1] - t_ns[0]) / (n - 1) * 1e-9
+        h = 1.0 / config.loop_rate_hz
+        if abs(mean_dt - h) > SPACING_TOLERANCE * h:
+            raise BagError(f"{path}: mean sample spacing {mean_dt * 1e3:.6g} ms is inconsistent with "
+                           f"loop_rate_hz {config.loop_rate_hz:g} (expected {h * 1e3:.6g} ms)")
+    nonfinite = {name: int(np.count_nonzero(~np.isfinite(v))) for name, v in values.items()}
+    truth_t = truth_modes = None
+    if truth_raw:
+        rows = []
+        for _, data in truth_raw:
+            try:
+                msg = _TYPESTORE.deserialize_cdr(data, MULTIARRAY)
+            except Exception as exc:  # noqa: BLE001
+                raise BagError(f"{path}: {TRUTH_MODES_TOPIC}: cannot decode ({_one_line(exc)})") from None
+            dims = msg.layout.dim
+            if len(dims) != 2 or dims[1].size != 6 or len(msg.data) != dims[0].size * 6:
+                raise BagError(f"{path}: {TRUTH_MODES_TOPIC}: layout is not (mode K, field 6)")
+            rows.append(np.asarray(msg.data, dtype=np.float64).reshape(dims[0].size, 6))
+        if len({r.shape for r in rows}) != 1:
+            raise BagError(f"{path}: {TRUTH_MODES_TOPIC}: the number of modes changes between messages")
+        truth_modes = np.stack(rows)
+        truth_t = (np.array([ts for ts, _ in truth_raw], dtype=np.int64) - t0) * 1e-9
+    truth_fault = None
+    if fault_raw:
+        truth_fault = []
+        for _, data in fault_raw:
+            try:
+                text = _TYPESTORE.deserialize_cdr(data, STRING).data
+                truth_fault.append(json.loads(text))
+            except Exception as exc:  # noqa: BLE001
+                raise BagError(f"{path}: {TRUTH_FAULT_TOPIC}: not JSON ({_one_line(exc)})") from None
+    return Signals(
+        t=(t_ns - t0) * 1e-9, t0_ns=t0, r=values.get("reference"), u=values["input"], y=values["output"],
+        truth_t=truth_t, truth_modes=truth_modes, truth_fault=truth_fault, nonfinite=sum(nonfinite.values()),
+        nonfinite_by_signal=nonfinite, **_metadata_info(path))
+
+
+def _metadata_info(path: Path) -> dict[str, Any]:
+    """Storage identifier and custom data from metadata.yaml (already parsed successfully by the reader)."""
+    try:
+        info = yaml.safe_load((path / "metadata.yaml").read_text())["rosbag2_bagfile_information"]
+        return {"storage": str(info.get("storage_identifier", "")),
+                "metadata": {str(k): str(v) for k, v in (info.get("custom_data") or {}).items()}}
+    except Exception:  # noqa: BLE001 - informative only
+        return {"storage": "", "metadata": {}}
+
+
+def bag_info(bag: str | Path) -> dict[str, Any]:
+    """Topics, types and message counts of a bag (``{"storage", "topics": {name: (type, count)}, ...}``)."""
+    path = _resolve(bag)
+    try:
+        with Reader(path) as reader:
+            return {"path": str(path), "message_count": reader.message_count, "duration_ns": reader.duration,
+                    "start_time_ns": reader.start_time,
+                    "topics": {c.topic: (c.msgtype, c.msgcount) for c in reader.connections}}
+    except Exception as exc:  # noqa: BLE001
+        raise BagError(f"{path}: unreadable bag ({type(exc).__name__}: {_one_line(exc)})") from None
+
+

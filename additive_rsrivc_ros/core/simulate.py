@@ -1,0 +1,648 @@
+"""Time-varying additive modal plant in closed or open loop, exact ZOH (ROS-free; numba per-sample loop).
+
+The plant is the additive continuous-time model of 000 eq. (5) / 001 eq. (2)
+
+    x(t) = sum_i x_i(t),   p^l_i (a_i2 p^2 + a_i1 p + 1) x_i = b_i0 u(t - d h)     (flexible / with integrators)
+                           p^l_i x_i = b_i0 u(t - d h)                              (rigid body, n = 0)
+
+with ``u`` held constant between samples (zero-order hold, ../shared/NOTES.md conventions) and a known input
+delay of ``d`` samples. Parameters may change at every sample: ``theta_i(t_k)`` holds on ``[t_k, t_k+1)`` and the
+physical state of each mode ``[x_i, x_i', ...]`` (output coordinates) is carried across changes, so a gain change
+changes the forcing, never the position (the slow-variation setting of 000 Remark 4.4).
+
+Sampling and causality (000 eq. 10, §5): ``y(t_k) = x(t_k) + v(t_k)`` and in closed loop
+``u(t_k) = C_d(q) (r - y)(t_k)``; ``x(t_k)`` depends on ``u`` up to ``t_{k-1-d}``. The ZOH transition of each mode
+is exact: :func:`core.zoh.second_order_zoh` for flexible modes, :func:`core.zoh.integrator_chain_zoh` for rigid-body
+modes and a compiled scaling-and-squaring matrix exponential for ``b0/(p^l A(p))`` with ``l > 0``.
+
+Sensor faults act on the measured output (the sensor feeds the controller too): additive bias/drift, a stuck
+value, dropped samples (the last received value is held by the receiver) and NaN samples (the controller holds
+its last finite measurement; the recorded ``y`` is NaN).
+"""
+
+from __future__ import annotations
+
+import math
+from collections.abc import Sequence
+from dataclasses import dataclass, field
+
+import numpy as np
+from numba import njit
+from scipy import signal
+
+from .controller import DiscreteController
+from .model import TWO_PI, SubmodelStructure
+from .zoh import integrator_chain_zoh, second_order_zoh
+
+QUANTITIES = ("frequency", "damping", "gain")
+SHAPES = ("step", "ramp", "raised_cosine", "bump")
+SENSOR_FAULTS = ("bias", "drift", "stuck", "drop", "nan")
+
+_KIND_SECOND, _KIND_CHAIN, _KIND_GENERAL = 0, 1, 2
+
+
+# ----------------------------------------------------------------------------------------------------------------
+# Plant description
+# ----------------------------------------------------------------------------------------------------------------
+@dataclass(frozen=True)
+class PlantMode:
+    """One additive submodel in modal form: ``gain / (p^l (p^2/w^2 + 2 zeta p/w + 1))`` (000 eq. 16).
+
+    ``natural_frequency_hz == 0`` is a rigid-body mode ``gain / p^l`` (needs ``integrators > 0``, 000 §4.6).
+    """
+
+    natural_frequency_hz: float
+    damping_ratio: float
+    gain: float
+    integrators: int = 0
+
+    def __post_init__(self) -> None:
+        if not (math.isfinite(self.natural_frequency_hz) and math.isfinite(self.damping_ratio)
+                and math.isfinite(self.gain)):
+            raise ValueError(f"plant mode values must be finite, got {self}")
+        if self.natural_frequency_hz < 0.0:
+            raise ValueError(f"natural frequency must be >= 0 Hz, got {self.natural_frequency_hz}")
+        if self.natural_frequency_hz == 0.0 and self.integrators < 1:
+            raise ValueError("a rigid-body mode (frequency 0) needs integrators >= 1")
+        if not 0 <= self.integrators <= 3:
+            raise ValueError(f"integrators must be in 0..3, got {self.integrators}")
+        if self.natural_frequency_hz > 0.0 and self.damping_ratio < 0.0:
+            raise ValueError(f"damping ratio must be >= 0, got {self.damping_ratio}")
+
+    @property
+    def rigid(self) -> bool:
+        return self.natural_frequency_hz == 0.0
+
+    @property
+    def structure(self) -> SubmodelStructure:
+        return SubmodelStructure(n=0 if self.rigid else 2, m=0, integrators=self.integrators)
+
+    @property
+    def modal(self) -> np.ndarray:
+        return np.array([self.natural_frequency_hz, self.damping_ratio, self.gain])
+
+
+@dataclass(frozen=True)
+class ModalChange:
+    """A change of one modal quantity of one plant mode (manipulation or structural fault).
+
+    ``quantity(t) = nominal * (1 + relative_change * s(t))`` with the profile ``s`` rising from 0 at ``start_s``
+    to 1 at ``start_s + duration_s``: ``step`` (duration ignored), ``ramp`` (linear), ``raised_cosine``
+    (smooth, (1 - cos)/2) or ``bump`` (raised cosine there and back: 0 -> 1 at the middle -> 0). Several changes
+    of the same quantity multiply. ``mode`` is 0-based.
+    """
+
+    mode: int
+    quantity: str
+    relative_change: float
+    start_s: float
+    duration_s: float = 0.0
+    shape: str = "step"
+
+    def __post_init__(self) -> None:
+        if self.quantity not in QUANTITIES:
+            raise ValueError(f"quantity must be one of {QUANTITIES}, got {self.quantity!r}")
+        if self.shape not in SHAPES:
+            raise ValueError(f"shape must be one of {SHAPES}, got {self.shape!r}")
+        if not (math.isfinite(self.relative_change) and self.relative_change > -1.0):
+            raise ValueError(f"relative_change must be finite and > -1, got {self.relative_change}")
+        if self.duration_s < 0.0 or (self.shape != "step" and self.duration_s == 0.0):
+            raise ValueError(f"shape {self.shape!r} needs duration_s > 0, got {self.duration_s}")
+
+    def profile(self, t: np.ndarray) -> np.ndarray:
+        """``s(t)`` in [0, 1]."""
+        t = np.asarray(t, dtype=float)
+        if self.shape == "step":
+            return (t >= self.start_s).astype(float)
+        x = np.clip((t - self.start_s) / self.duration_s, 0.0, 1.0)
+        if self.shape == "ramp":
+            return x
+        if self.shape == "raised_cosine":
+            return 0.5 * (1.0 - np.cos(np.pi * x))
+        return 0.5 * (1.0 - np.cos(TWO_PI * x))  # bump
+
+    def to_dict(self) -> dict:
+        return {"mode": self.mode, "quantity": self.quantity, "relative_change": self.relative_change,
+                "start_s": self.start_s, "duration_s": self.duration_s, "shape": self.shape}
+
+
+@dataclass(frozen=True)
+class SensorFault:
+    """A fault of the output sensor (applied to the measured ``y``, which the controller uses too).
+
+    kinds: ``bias`` (adds ``value`` on the window), ``drift`` (adds ``value`` per second since ``start_s``),
+    ``stuck`` (reads ``value``; None: the clean measurement at onset), ``drop`` (a fraction ``fraction`` of the
+    window's samples are lost, the receiver holds the last value), ``nan`` (a fraction of samples read NaN).
+    The window is ``[start_s, start_s + duration_s)``; ``duration_s = inf`` lasts to the end.
+    """
+
+    kind: str
+    start_s: float
+    duration_s: float = math.inf
+    value: float | None = 0.0
+    fraction: float = 0.0
+
+    def __post_init__(self) -> None:
+        if self.kind not in SENSOR_FAULTS:
+            raise ValueError(f"sensor fault kind must be one of {SENSOR_FAULTS}, got {self.kind!r}")
+        if not self.duration_s > 0.0:
+            raise ValueError(f"sensor fault duration_s must be > 0, got {self.duration_s}")
+        if self.kind in ("drop", "nan") and not 0.0 < self.fraction <= 1.0:
+            raise ValueError(f"sensor fault {self.kind!r} needs 0 < fraction <= 1, got {self.fraction}")
+        if self.kind in ("bias", "drift") and (self.value is None or not math.isfinite(self.value)):
+            raise ValueError(f"sensor fault {self.kind!r} needs a finite value")
+
+    def to_dict(self) -> dict:
+        return {"kind": self.kind, "start_s": self.start_s,
+                "duration_s": None if math.isinf(self.duration_s) else self.duration_s,
+                "value": self.value, "fraction": self.fraction}
+
+
+# ----------------------------------------------------------------------------------------------------------------
+# Parameter trajectories
+# ----------------------------------------------------------------------------------------------------------------
+def modal_trajectories(modes: Sequence[PlantMode], t: np.ndarray,
+                       changes: Sequence[ModalChange] = ()) -> np.ndarray:
+    """Per-sample modal truth ``(K_plant, N, 3)``: natural frequency (Hz), damping ratio, gain."""
+    t = np.asarray(t, dtype=float)
+    out = np.empty((len(modes), t.size, 3))
+    for i, m in enumerate(modes):
+        out[i] = m.modal
+    for c in changes:
+        if not 0 <= c.mode < len(modes):
+            raise ValueError(f"change refers to mode {c.mode}, the plant has {len(modes)} modes (0-based)")
+        if modes[c.mode].rigid and c.quantity != "gain":
+            raise ValueError(f"mode {c.mode} is rigid-body: only its gain can change")
+        out[c.mode, :, QUANTITIES.index(c.quantity)] *= 1.0 + c.relative_change * c.profile(t)
+    return out
+
+
+def thetas_from_modal(modal: np.ndarray, modes: Sequence[PlantMode]) -> list[np.ndarray]:
+    """``theta_i(t_k) = [a1, a2, b0]`` (000 eq. 7, 16-17) per sample, or ``[b0]`` for rigid-body modes."""
+    thetas = []
+    for i, m in enumerate(modes):
+        f, z, g = modal[i, :, 0], modal[i, :, 1], modal[i, :, 2]
+        if m.rigid:
+            thetas.append(g[:, None].copy())
+        else:
+            w = TWO_PI * f
+            thetas.append(np.column_stack((2.0 * z / w, 1.0 / w**2, g)))
+    return thetas
+
+
+def modal_from_thetas(thetas: Sequence[np.ndarray], structures: Sequence[SubmodelStructure]) -> np.ndarray:
+    """Inverse of :func:`thetas_from_modal`: ``(K, N, 3)`` f_hz, zeta, gain (rigid body: 0, 0, b0)."""
+    out = []
+    for th, s in zip(thetas, structures, strict=True):
+        th = np.atleast_2d(th)
+        if s.n == 0:
+            out.append(np.column_stack((np.zeros(len(th)), np.zeros(len(th)), th[:, 0])))
+        else:
+            a1, a2, b0 = th[:, 0], th[:, 1], th[:, 2]
+            out.append(np.column_stack((1.0 / (TWO_PI * np.sqrt(a2)), a1 / (2.0 * np.sqrt(a2)), b0)))
+    return np.stack(out)
+
+
+# ----------------------------------------------------------------------------------------------------------------
+# Signal generators (reference / open-loop input) and noise
+# ----------------------------------------------------------------------------------------------------------------
+def time_vector(rate_hz: float, duration_s: float) -> np.ndarray:
+    """``t_k = k / rate_hz`` for ``k = 0 .. round(duration_s * rate_hz) - 1``."""
+    if not (rate_hz > 0 and math.isfinite(rate_hz)):
+        raise ValueError(f"rate_hz must be > 0, got {rate_hz}")
+    if not (duration_s > 0 and math.isfinite(duration_s)):
+        raise ValueError(f"duration_s must be > 0, got {duration_s}")
+    n = int(round(duration_s * rate_hz))
+    if n < 1:
+        raise ValueError(f"duration {duration_s} s is shorter than one sample at {rate_hz} Hz")
+    return np.arange(n) / float(rate_hz)
+
+
+def sum_of_sines(t: np.ndarray, amplitudes: Sequence[float], omegas_rad_s: Sequence[float],
+                 phases: Sequence[float] | None = None) -> np.ndarray:
+    """``sum_j A_j sin(w_j t + phi_j)`` (000 §5 reference: ``3 sin(0.005t) + sin 2t + sin 5t + sin 17.5t``)."""
+    t = np.asarray(t, dtype=float)
+    amplitudes, omegas = np.asarray(amplitudes, float), np.asarray(omegas_rad_s, float)
+    phases = np.zeros_like(omegas) if phases is None else np.asarray(phases, float)
+    if not (amplitudes.shape == omegas.shape == phases.shape):
+        raise ValueError("amplitudes, omegas and phases must have the same length")
+    out = np.zeros_like(t)
+    for a, w, ph in zip(amplitudes, omegas, phases, strict=True):
+        out += a * np.sin(w * t + ph)
+    return out
+
+
+def multisine(t: np.ndarray, freqs_hz: Sequence[float], rms: float, rng: np.random.Generator) -> np.ndarray:
+    """Equal-amplitude multisine with uniformly random phases, scaled to the given RMS."""
+    freqs = np.asarray(freqs_hz, float)
+    if freqs.size == 0 or np.any(freqs <= 0):
+        raise ValueError("multisine needs positive frequencies")
+    phases = rng.uniform(0.0, TWO_PI, freqs.size)
+    amp = rms * math.sqrt(2.0 / freqs.size)  # each sine has RMS amp/sqrt(2)
+    return sum_of_sines(t, np.full(freqs.size, amp), TWO_PI * freqs, phases)
+
+
+def square_wave(t: np.ndarray, freq_hz: float, amplitude: float = 1.0, offset: float = 0.0,
+                duty: float = 0.5) -> np.ndarray:
+    """``offset + amplitude`` for the first ``duty`` of each period, ``offset - amplitude`` otherwise."""
+    if not (freq_hz > 0 and 0.0 < duty < 1.0):
+        raise ValueError("square wave needs freq_hz > 0 and 0 < duty < 1")
+    # integer sample phase avoids floating drift in the switching instants
+    phase = np.mod(np.asarray(t, float) * freq_hz, 1.0)
+    return offset + amplitude * np.where(phase < duty, 1.0, -1.0)
+
+
+def white_noise(n: int, std: float, rng: np.random.Generator) -> np.ndarray:
+    """Gaussian white noise of standard deviation ``std``."""
+    return std * rng.standard_normal(n)
+
+
+def prbs(n: int, amplitude: float, rng: np.random.Generator, nbits: int = 10, hold: int = 1) -> np.ndarray:
+    """Maximum-length pseudo-random binary sequence (+/- amplitude), random LFSR start, each bit held ``hold``."""
+    if not (2 <= nbits <= 32 and hold >= 1):
+        raise ValueError("prbs needs 2 <= nbits <= 32 and hold >= 1")
+    state = rng.integers(0, 2, nbits)
+    if not state.any():
+        state[0] = 1
+    nbits_needed = -(-n // hold)
+    period = 2**nbits - 1
+    seq, _ = signal.max_len_seq(nbits, state=state, length=min(nbits_needed, period))
+    seq = np.resize(seq, nbits_needed)
+    return amplitude * (2.0 * np.repeat(seq, hold)[:n] - 1.0)
+
+
+def arma_noise(n: int, std: float, rng: np.random.Generator, c: Sequence[float] = (1.0,),
+               d: Sequence[float] = (1.0,)) -> np.ndarray:
+    """Coloured noise ``v = C(q^-1)/D(q^-1) e`` (scipy.signal.lfilter), scaled so that its stationary std is ``std``.
+
+    The stationary variance is computed from the impulse response (D must be stable); a burn-in of
+    the filter's settling time is discarded so that ``v`` is stationary from the first sample.
+    """
+    c, d = np.asarray(c, float), np.asarray(d, float)
+    if d.size == 0 or d[0] == 0.0:
+        raise ValueError("ARMA denominator must start with a non-zero coefficient")
+    roots = np.roots(d) if d.size > 1 else np.array([])
+    if np.any(np.abs(roots) >= 1.0):
+        raise ValueError("ARMA denominator must be stable (roots inside the unit circle)")
+    rho = float(np.max(np.abs(roots))) if roots.size else 0.0
+    burn = int(min(1e6, 40.0 / max(1.0 - rho, 1e-6))) if rho > 0 else c.size
+    imp = signal.lfilter(c, d, np.r_[1.0, np.zeros(burn + c.size)])
+    gain = math.sqrt(float(np.sum(imp**2)))
+    e = rng.standard_normal(n + burn)
+    v = signal.lfilter(c, d, e)[burn:]
+    return v * (std / gain) if gain > 0 else v
+
+
+# ----------------------------------------------------------------------------------------------------------------
+# Compiled per-sample kernel
+# ----------------------------------------------------------------------------------------------------------------
+@njit(cache=True)
+def _expm_small(m: np.ndarray) -> np.ndarray:
+    """Matrix exponential of a small matrix: scaling and squaring with an 18-term Taylor series (error ~ ulp)."""
+    n = m.shape[0]
+    norm = 0.0
+    for i in range(n):
+        row = 0.0
+        for j in range(n):
+            row += abs(m[i, j])
+        norm = max(norm, row)
+    s = 0
+    if norm > 0.25:
+        s = int(math.ceil(math.log2(norm / 0.25)))
+    a = m / (2.0**s)
+    result = np.eye(n)
+    term = np.eye(n)
+    for k in range(1, 19):
+        term = term @ a / k
+        result = result + term
+    for _ in range(s):
+        result = result @ result
+    return result
+
+
+@njit(cache=True)
+def _mode_zoh(kind: int, l: int, a1: float, a2: float, b0: float, h: float, phi: np.ndarray,
+              gamma: np.ndarray) -> None:
+    """Exact ZOH of one mode in output coordinates ``[x, x', ...]``, input ``u`` (the gain is in ``gamma``)."""
+    if kind == 0:
+        p2 = np.zeros((2, 2))
+        g2 = np.zeros(2)
+        second_order_zoh(a1, a2, h, p2, g2)
+        phi[:2, :2] = p2
+        gamma[0] = g2[0] * b0
+        gamma[1] = g2[1] * b0
+    elif kind == 1:
+        pc = np.zeros((l, l))
+        gc = np.zeros(l)
+        integrator_chain_zoh(l, h, pc, gc)
+        phi[:l, :l] = pc
+        for i in range(l):
+            gamma[i] = gc[i] * b0
+    else:
+        ns = l + 2
+        aug = np.zeros((ns + 1, ns + 1))
+        for i in range(ns - 1):
+            aug[i, i + 1] = h
+        aug[ns - 1, l] = -h / a2
+        aug[ns - 1, l + 1] = -h * a1 / a2
+        aug[ns - 1, ns] = h * b0 / a2
+        e = _expm_small(aug)
+        phi[:ns, :ns] = e[:ns, :ns]
+        for i in range(ns):
+            gamma[i] = e[i, ns]
+
+
+@njit(cache=True)
+def _simulate_kernel(theta: np.ndarray, kinds: np.ndarray, ls: np.ndarray, h: float, closed: bool,
+                     r: np.ndarray, u_ext: np.ndarray, v: np.ndarray, delay: int, num: np.ndarray,
+                     den: np.ndarray, add: np.ndarray, stuck: np.ndarray, stuck_val: np.ndarray,
+                     hold: np.ndarray, nanmask: np.ndarray, u: np.ndarray, y: np.ndarray, x: np.ndarray,
+                     e: np.ndarray) -> None:
+    """Per-sample loop (000 eq. 10 closed loop): output at t_k, control u(t_k), then advance with u(t_{k-d})."""
+    n, kmodes = theta.shape[0], theta.shape[1]
+    ns_max = 5
+    z = np.zeros((kmodes, ns_max))
+    phi = np.zeros((kmodes, ns_max, ns_max))
+    gam = np.zeros((kmodes, ns_max))
+    last = np.full((kmodes, 3), np.nan)
+    nst = np.zeros(kmodes, dtype=np.int64)
+    for i in range(kmodes):
+        nst[i] = 2 if kinds[i] == 0 else (ls[i] if kinds[i] == 1 else ls[i] + 2)
+    zn = np.zeros(ns_max)
+    last_meas = 0.0
+    last_finite = 0.0
+    for k in range(n):
+        xk = 0.0
+        for i in range(kmodes):
+            xk += z[i, 0]
+        x[k] = xk
+        meas = xk + v[k] + add[k]
+        if stuck[k]:
+            meas = stuck_val[k]
+        if hold[k] and k > 0:
+            meas = last_meas
+        last_meas = meas
+        if nanmask[k]:
+            y[k] = np.nan
+        else:
+            y[k] = meas
+            last_finite = meas
+        if closed:
+            e[k] = r[k] - last_finite
+            acc = 0.0
+            for j in range(num.size):
+                if k - j >= 0:
+                    acc += num[j] * e[k - j]
+            for j in range(1, den.size):
+                if k - j >= 0:
+                    acc -= den[j] * u[k - j]
+            u[k] = acc
+        else:
+            u[k] = u_ext[k]
+        ud = u[k - delay] if k - delay >= 0 else 0.0
+        for i in range(kmodes):
+            a1, a2, b0 = theta[k, i, 0], theta[k, i, 1], theta[k, i, 2]
+            if a1 != last[i, 0] or a2 != last[i, 1] or b0 != last[i, 2]:
+                _mode_zoh(kinds[i], ls[i], a1, a2, b0, h, phi[i], gam[i])
+                last[i, 0], last[i, 1], last[i, 2] = a1, a2, b0
+            m = nst[i]
+            for a in range(m):
+                acc = gam[i, a] * ud
+                for b in range(m):
+                    acc += phi[i, a, b] * z[i, b]
+                zn[a] = acc
+            for a in range(m):
+                z[i, a] = zn[a]
+
+
+# ----------------------------------------------------------------------------------------------------------------
+# Driver
+# ----------------------------------------------------------------------------------------------------------------
+@dataclass
+class SimulationResult:
+    """Simulated samples and their truth. ``modal`` is ``(K_plant, N, 3)``: f_hz, zeta, gain per sample."""
+
+    t: np.ndarray
+    r: np.ndarray | None
+    u: np.ndarray
+    y: np.ndarray
+    x: np.ndarray
+    v: np.ndarray
+    theta: list[np.ndarray]
+    modal: np.ndarray
+    structures: list[SubmodelStructure]
+    rate_hz: float
+    input_delay: int
+    controller: DiscreteController | None
+    sensor_faults: list[SensorFault] = field(default_factory=list)
+    nan_mask: np.ndarray | None = None
+    drop_mask: np.ndarray | None = None
+
+
+def _sensor_arrays(t: np.ndarray, faults: Sequence[SensorFault], rng: np.random.Generator):
+    n = t.size
+    add, stuck_val = np.zeros(n), np.zeros(n)
+    stuck, hold, nanm = (np.zeros(n, dtype=np.bool_) for _ in range(3))
+    stuck_at_onset: list[tuple[np.ndarray, int]] = []
+    for f in faults:
+        win = (t >= f.start_s) & (t < f.start_s + f.duration_s)
+        if f.kind == "bias":
+            add[win] += f.value
+        elif f.kind == "drift":
+            add[win] += f.value * (t[win] - f.start_s)
+        elif f.kind == "stuck":
+            stuck |= win
+            if f.value is None:
+                stuck_at_onset.append((win, int(np.argmax(win)) if win.any() else -1))
+            else:
+                stuck_val[win] = f.value
+        else:
+            hit = win & (rng.random(n) < f.fraction)
+            if f.kind == "drop":
+                hold |= hit
+            else:
+                nanm |= hit
+    return add, stuck, stuck_val, hold, nanm, stuck_at_onset
+
+
+def simulate(thetas: Sequence[np.ndarray], structures: Sequence[SubmodelStructure], rate_hz: float, *,
+             r: np.ndarray | None = None, u: np.ndarray | None = None,
+             controller: DiscreteController | None = None, input_delay: int = 0,
+             noise: np.ndarray | None = None, sensor_faults: Sequence[SensorFault] = (),
+             rng: np.random.Generator | None = None, n: int | None = None,
+             modal: np.ndarray | None = None) -> SimulationResult:
+    """Simulate the additive plant (000 eq. 5, 10) exactly at the samples.
+
+    ``thetas[i]`` is ``(N, n_theta_i)`` (one row per sample, 000 eq. 7 order) or ``(n_theta_i,)`` for a constant
+    mode; ``structures[i]`` must be a mode (n = 2, m = 0) or a rigid body (n = 0, m = 0, integrators >= 1).
+    Closed loop: give ``r`` and ``controller``. Open loop: give ``u``. ``noise`` is ``v(t_k)`` (default 0).
+    ``modal`` (optional, ``(K, N, 3)``) is the precomputed modal truth of ``thetas``.
+    """
+    if len(thetas) != len(structures) or len(thetas) == 0:
+        raise ValueError("need one theta trajectory per structure and at least one mode")
+    closed = controller is not None
+    if closed and (r is None or u is not None):
+        raise ValueError("closed loop needs r (and no u); open loop needs u and no controller")
+    if not closed and u is None:
+        raise ValueError("open loop needs the input u (or give a controller and r for closed loop)")
+    drive = np.asarray(r if closed else u, dtype=float)
+    if drive.ndim != 1:
+        raise ValueError("r/u must be one-dimensional")
+    n = drive.size if n is None else n
+    if drive.size != n:
+        raise ValueError(f"r/u has {drive.size} samples, expected {n}")
+    if not np.all(np.isfinite(drive)):
+        raise ValueError("r/u must be finite")
+    if not (rate_hz > 0 and math.isfinite(rate_hz)):
+        raise ValueError(f"rate_hz must be > 0, got {rate_hz}")
+    if input_delay < 0:
+        raise ValueError(f"input_delay must be >= 0, got {input_delay}")
+    kmodes = len(structures)
+    theta = np.zeros((n, kmodes, 3))
+    kinds = np.zeros(kmodes, dtype=np.int64)
+    ls = np.zeros(kmodes, dtype=np.int64)
+    full_thetas = []
+    for i, (th, s) in enumerate(zip(thetas, structures, strict=True)):
+        th = np.asarray(th, dtype=float)
+        th = np.broadcast_to(th, (n, s.n_theta)) if th.ndim == 1 else th
+        if th.shape != (n, s.n_theta):
+            raise ValueError(f"mode {i}: theta has shape {th.shape}, expected ({n}, {s.n_theta})")
+        if not np.all(np.isfinite(th)):
+            raise ValueError(f"mode {i}: theta must be finite")
+        if s.m != 0 or s.n not in (0, 2):
+            raise ValueError(f"mode {i}: the simulator supports b0/(p^l A) with deg A in (0, 2), got {s}")
+        if s.n == 0:
+            if s.integrators < 1:
+                raise ValueError(f"mode {i}: a rigid-body mode needs integrators >= 1")
+            kinds[i], theta[:, i, 2] = _KIND_CHAIN, th[:, 0]
+        else:
+            if np.any(th[:, 1] <= 0.0):
+                raise ValueError(f"mode {i}: a2 must be > 0")
+            kinds[i] = _KIND_SECOND if s.integrators == 0 else _KIND_GENERAL
+            theta[:, i, :] = th
+        if s.integrators > 3:
+            raise ValueError(f"mode {i}: at most 3 integrators supported")
+        ls[i] = s.integrators
+        full_thetas.append(np.array(th))
+    rng = np.random.default_rng(0) if rng is None else rng
+    v = np.zeros(n) if noise is None else np.asarray(noise, dtype=float)
+    if v.shape != (n,):
+        raise ValueError(f"noise has shape {v.shape}, expected ({n},)")
+    t = np.arange(n) / float(rate_hz)
+    add, stuck, stuck_val, hold, nanm, onset = _sensor_arrays(t, sensor_faults, rng)
+    num = controller.num if closed else np.zeros(1)
+    den = controller.den if closed else np.ones(1)
+    u_out, y, x, e = np.zeros(n), np.zeros(n), np.zeros(n), np.zeros(n)
+    for win, k in onset:  # "stuck at the value at onset": the measurement just before the sensor froze
+        if k >= 0:
+            stuck_val[win] = _clean_meas_at(theta, kinds, ls, rate_hz, closed, drive, v, input_delay, num, den,
+                                            add, stuck, stuck_val, hold, k)
+    _simulate_kernel(theta, kinds, ls, 1.0 / rate_hz, closed, drive, drive, v, input_delay, num, den, add, stuck,
+                     stuck_val, hold, nanm, u_out, y, x, e)
+    structures = list(structures)
+    return SimulationResult(
+        t=t, r=drive.copy() if closed else None, u=u_out, y=y, x=x, v=v, theta=full_thetas,
+        modal=modal_from_thetas(full_thetas, structures) if modal is None else modal, structures=structures,
+        rate_hz=float(rate_hz),
+        input_delay=int(input_delay), controller=controller, sensor_faults=list(sensor_faults),
+        nan_mask=nanm, drop_mask=hold)
+
+
+def _clean_meas_at(theta, kinds, ls, rate_hz, closed, drive, v, delay, num, den, add, stuck, stuck_val, hold,
+                   k: int) -> float:
+    """Measurement (noise and earlier faults included) at sample ``k`` before a stuck fault starting there."""
+    m = k + 1
+    st = stuck[:m].copy()
+    st[k] = False
+    u, y, x, e = np.zeros(m), np.zeros(m), np.zeros(m), np.zeros(m)
+    _simulate_kernel(theta[:m], kinds, ls, 1.0 / rate_hz, closed, drive[:m], drive[:m], v[:m], delay, num, den,
+                     add[:m], st, stuck_val[:m], hold[:m], np.zeros(m, np.bool_), u, y, x, e)
+    return float(y[k])
+
+
+def simulate_modes(modes: Sequence[PlantMode], rate_hz: float, *, changes: Sequence[ModalChange] = (),
+                   r: np.ndarray | None = None, u: np.ndarray | None = None,
+                   controller: DiscreteController | None = None, input_delay: int = 0,
+                   noise: np.ndarray | None = None, sensor_faults: Sequence[SensorFault] = (),
+                   rng: np.random.Generator | None = None) -> SimulationResult:
+    """:func:`simulate` for a plant given in modal form with per-sample changes (manipulations, faults)."""
+    n = np.asarray(r if r is not None else u).size
+    t = np.arange(n) / float(rate_hz)
+    modal = modal_trajectories(modes, t, changes)
+    return simulate(thetas_from_modal(modal, modes), [m.structure for m in modes], rate_hz, r=r, u=u,
+                    controller=controller, input_delay=input_delay, noise=noise, sensor_faults=sensor_faults,
+                    rng=rng, n=n, modal=modal)
+
+
+# ----------------------------------------------------------------------------------------------------------------
+# Closed-loop analysis
+# ----------------------------------------------------------------------------------------------------------------
+def discrete_plant(thetas: Sequence[np.ndarray], structures: Sequence[SubmodelStructure], rate_hz: float,
+                   input_delay: int = 0) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Exact ZOH state-space ``(Phi, Gamma, C)`` of the frozen plant ``sum_i B_i/(p^l A_i)`` with the delay
+    as extra shift states (000 eq. 10): ``x_{k+1} = Phi x_k + Gamma u_k``, ``y_k = C x_k``."""
+    h = 1.0 / rate_hz
+    blocks_phi, blocks_gam, blocks_c = [], [], []
+    for th, s in zip(thetas, structures, strict=True):
+        th = np.asarray(th, float)
+        kind = _KIND_CHAIN if s.n == 0 else (_KIND_SECOND if s.integrators == 0 else _KIND_GENERAL)
+        ns = 2 if kind == _KIND_SECOND else (s.integrators if kind == _KIND_CHAIN else s.integrators + 2)
+        phi, gam = np.zeros((5, 5)), np.zeros(5)
+        a1, a2, b0 = (0.0, 0.0, th[0]) if s.n == 0 else (th[0], th[1], th[2])
+        _mode_zoh(kind, s.integrators, a1, a2, b0, h, phi, gam)
+        blocks_phi.append(phi[:ns, :ns])
+        blocks_gam.append(gam[:ns])
+        c = np.zeros(ns)
+        c[0] = 1.0
+        blocks_c.append(c)
+    from scipy.linalg import block_diag
+    phi = block_diag(*blocks_phi)
+    gam = np.concatenate(blocks_gam)
+    c = np.concatenate(blocks_c)
+    nx = phi.shape[0]
+    if input_delay:
+        d = input_delay
+        big = np.zeros((nx + d, nx + d))
+        big[:nx, :nx] = phi
+        big[:nx, nx + d - 1] = gam  # oldest delayed input drives the plant
+        for j in range(d - 1, 0, -1):
+            big[nx + j, nx + j - 1] = 1.0
+        g = np.zeros(nx + d)
+        g[nx] = 1.0
+        phi, gam, c = big, g, np.concatenate((c, np.zeros(d)))
+    return phi, gam, c
+
+
+def closed_loop_poles(thetas: Sequence[np.ndarray], structures: Sequence[SubmodelStructure],
+                      controller: DiscreteController, rate_hz: float, input_delay: int = 0) -> np.ndarray:
+    """Eigenvalues of the sampled loop ``u = C_d (r - y)`` around the frozen ZOH plant (000 eq. 10)."""
+    phi, gam, c = discrete_plant(thetas, structures, rate_hz, input_delay)
+    num, den = controller.num, controller.den
+    nc = max(num.size, den.size) - 1
+    nump, denp = np.zeros(nc + 1), np.zeros(nc + 1)
+    nump[: num.size], denp[: den.size] = num, den
+    if nc == 0:
+        ac, bc, cc, dc = np.zeros((0, 0)), np.zeros((0, 1)), np.zeros((1, 0)), np.array([[nump[0]]])
+    else:
+        ac, bc, cc, dc = signal.tf2ss(nump, denp)  # q^-1 polynomials of equal length = z polynomials
+    nx = phi.shape[0]
+    # u = Cc xc + Dc (r - C x);  x+ = Phi x + Gamma u;  xc+ = Ac xc + Bc (r - C x)
+    top = np.hstack((phi - np.outer(gam, c) * dc[0, 0], gam[:, None] @ cc))
+    bot = np.hstack((-bc @ c[None, :], ac))
+    a = np.vstack((top, bot)) if nc else top
+    assert a.shape == (nx + nc, nx + nc)
+    return np.linalg.eigvals(a)
+
+
+def loop_margins(thetas: Sequence[np.ndarray], structures: Sequence[SubmodelStructure],
+                 controller: DiscreteController, rate_hz: float, input_delay: int = 0,
+                 n_freq: int = 20000) -> dict[str, float]:
+    """Modulus margin ``min |1 + C_d G_d|`` and the largest closed-loop pole modulus of the frozen loop."""
+    phi, gam, c = discrete_plant(thetas, structures, rate_hz, input_delay)
+    f = np.geomspace(1e-3, rate_hz / 2 * 0.999, n_freq)
+    zs = np.exp(1j * TWO_PI * f / rate_hz)
+    eye = np.eye(phi.shape[0])
+    g = np.array([c @ np.linalg.solve(z * eye - phi, gam) for z in zs])
+    loop = 1.0 + controller.frequency_response(f, rate_hz) * g
+    poles = closed_loop_poles(thetas, structures, controller, rate_hz, input_delay)
+    return {"modulus_margin": float(np.min(np.abs(loop))), "max_pole": float(np.max(np.abs(poles)))}
