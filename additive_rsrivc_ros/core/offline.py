@@ -1,0 +1,718 @@
+"""Offline continuous-time identification: LSSVF, SRIVC, CLSRIVC, additive SRIVC/CLSRIVC, BCD (001, 002).
+
+All estimators return one :class:`IdentificationResult`. The single entry point :func:`identify` is used
+by the recursive engine (000 Algorithm 2 step 1) and by ``rsrivc_identify``.
+
+Conventions (``core/model.py``): submodel ``B_i(p)/(p^l_i A_i(p))``, ``theta_i = [a_i1..a_in, b_i0..b_im]``
+(000 eq. 7); the input is held (ZOH) between samples and reaches the plant ``input_delay`` samples late.
+All filtering is ZOH-exact (``core/filters.py``).
+
+Methods
+-------
+``additive-clsrivc``  001 eq. 29 with the closed-loop instrument 001 eq. 20 (``z = S_uo(q) r``)
+``additive-srivc``    001 eq. 29 with the open-loop instrument 001 eq. 10 (``z = u``)
+``bcd-srivc``         002 Algorithm 2 (SRIVC inner iterations per block, descent test on V_N)
+``srivc``/``clsrivc`` unfactored ``B/(p^l A)`` (001 eq. 30, K = 1), split back into the additive form
+``lssvf``             one least-squares step with the fixed filter of the initial guess (003 §3)
+``*-uns``             unstable plants (003 §4-§6), see ``core/offline_unstable.py``
+
+Marginally stable submodels (integrators, 001 Remark 6 eqs. 31-32) are part of every method here.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+from typing import Any
+
+import numpy as np
+from scipy.optimize import linear_sum_assignment
+
+from .controller import DiscreteController
+from .filters import (
+    ClosedLoopUnstableError,
+    closed_loop_radius,
+    closed_loop_response,
+    delay_signal,
+    discretize,
+    instrument_continuous,
+    svf,
+    svf_continuous,
+)
+from .model import (
+    SubmodelStructure,
+    frequency_response,
+    modal_from_theta,
+    modal_std,
+    reflect_unstable,
+    split_theta,
+    total_transfer_function,
+)
+
+METHODS = ("auto", "additive-clsrivc", "additive-srivc", "bcd-srivc", "srivc", "clsrivc", "lssvf",
+           "srivc-uns", "clsrivc-uns", "lssvf-uns", "srivc-uns-monic", "clsrivc-uns-monic")
+
+
+@dataclass
+class IdentificationResult:
+    """Outcome of one offline estimator (001 eq. 29 / Theorem 1 covariance).
+
+    ``thetas``: per submodel, 000 eq. 7 layout. ``covariance``: full ``sigma^2`` sandwich covariance
+    ``sigma^2 M^-1 (Z^T Z) M^-T`` with ``M = Z^T Phi`` the IV normal matrix (asymptotically
+    ``sigma^2 (sum zeta zeta^T)^-1``, 001 Theorem 1/Corollary 1); ``covariances`` its diagonal blocks.
+    ``P``: the unscaled inverse IV normal matrix ``M^-1`` (sums, not means; 001 eq. 33), and ``p_blocks``
+    the per-submodel ``(sum_k zeta_i phi_i^T)^-1`` used by the block-coordinate recursion (000 eqs. 30-32).
+    ``cond``: condition number of the column-equilibrated IV normal matrix. ``cost``: ``V_N = mean(eps^2)``
+    of the output error (002 eq. 8). ``modal``: (K, 3) natural frequency [Hz], damping ratio, gain;
+    ``modal_std`` by the delta method (``model.modal_std``).
+    """
+
+    method: str
+    structures: list[SubmodelStructure]
+    thetas: list[np.ndarray]
+    covariances: list[np.ndarray]
+    covariance: np.ndarray
+    P: np.ndarray
+    p_blocks: list[np.ndarray]
+    residual_variance: float
+    iterations: int
+    converged: bool
+    cond: float
+    cost: float
+    modal: np.ndarray
+    modal_std: np.ndarray
+    projections: int = 0
+    message: str = ""
+    n_samples: int = 0
+    extra: dict[str, Any] = field(default_factory=dict)
+
+    @property
+    def beta(self) -> np.ndarray:
+        """Stacked parameter vector (000 eq. 8)."""
+        return np.concatenate(self.thetas)
+
+    @property
+    def theta_std(self) -> list[np.ndarray]:
+        return [np.sqrt(np.maximum(np.diag(c), 0.0)) for c in self.covariances]
+
+    def to_dict(self) -> dict[str, Any]:
+        """JSON-ready object of ../shared/CONTRACT.md (``rsrivc_identify``)."""
+        modes = []
+        for th, sd, mo, ms in zip(self.thetas, self.theta_std, self.modal, self.modal_std, strict=True):
+            modes.append({
+                "theta": [float(v) for v in th], "theta_std": [float(v) for v in sd],
+                "natural_frequency_hz": _num(mo[0]), "damping_ratio": _num(mo[1]), "gain": _num(mo[2]),
+                "natural_frequency_hz_std": _num(ms[0]), "damping_ratio_std": _num(ms[1]), "gain_std": _num(ms[2]),
+            })
+        return {
+            "method": self.method, "converged": bool(self.converged), "iterations": int(self.iterations),
+            "modes": modes, "residual_variance": _num(self.residual_variance), "cost": _num(self.cost),
+            "cond": _num(self.cond), "projections": int(self.projections), "message": self.message,
+            "n_samples": int(self.n_samples),
+        }
+
+
+def _num(v: float) -> float | None:
+    v = float(v)
+    return v if np.isfinite(v) else None
+
+
+# --------------------------------------------------------------------------------------------------
+# input checks
+
+
+@dataclass
+class _Data:
+    u: np.ndarray          # input as seen by the plant (delayed)
+    y: np.ndarray
+    r: np.ndarray | None
+    h: float
+    controller: DiscreteController | None
+    delay: int
+
+    @property
+    def closed_loop(self) -> bool:
+        return self.r is not None and self.controller is not None
+
+    @property
+    def n(self) -> int:
+        return self.y.size
+
+
+def _check_inputs(u, y, rate_hz, structures, thetas0, r, controller, input_delay) -> tuple[_Data, list]:
+    """Validate the data and the initial model; clear ``ValueError`` messages for bad input."""
+    if not (np.isscalar(rate_hz) and np.isfinite(rate_hz) and rate_hz > 0):
+        raise ValueError(f"rate_hz must be a positive finite number, got {rate_hz!r}")
+    u = np.asarray(u, dtype=float).ravel()
+    y = np.asarray(y, dtype=float).ravel()
+    if u.size != y.size:
+        raise ValueError(f"u and y have different lengths ({u.size} and {y.size})")
+    if r is not None:
+        r = np.asarray(r, dtype=float).ravel()
+        if r.size != y.size:
+            raise ValueError(f"r and y have different lengths ({r.size} and {y.size})")
+    for name, sig in (("u", u), ("y", y), ("r", r)):
+        if sig is not None and not np.all(np.isfinite(sig)):
+            raise ValueError(f"{name} contains NaN or inf")
+    structures = list(structures)
+    if not structures:
+        raise ValueError("at least one submodel structure is needed")
+    if len(thetas0) != len(structures):
+        raise ValueError(f"{len(thetas0)} initial parameter vectors for {len(structures)} submodels")
+    thetas = []
+    for i, (th, st) in enumerate(zip(thetas0, structures, strict=True)):
+        th = np.asarray(th, dtype=float).ravel()
+        if th.size != st.n_theta:
+            raise ValueError(f"submodel {i + 1}: theta has {th.size} entries, structure needs {st.n_theta}")
+        if not np.all(np.isfinite(th)):
+            raise ValueError(f"submodel {i + 1}: initial theta contains NaN or inf")
+        if st.n > 0 and th[st.n - 1] == 0.0:
+            raise ValueError(f"submodel {i + 1}: leading denominator coefficient a_n must be non-zero")
+        thetas.append(th)
+    if sum(st.is_biproper for st in structures) > 1:
+        raise ValueError("at most one submodel may be biproper (001 §2)")
+    n_par = sum(st.n_theta for st in structures)
+    delay = int(input_delay)
+    if delay < 0:
+        raise ValueError(f"input_delay must be >= 0 samples, got {input_delay}")
+    need = max(10 * n_par, 4 * n_par + delay + 20)
+    if y.size < need:
+        raise ValueError(f"too few samples for the model order: {y.size} < {need} ({n_par} parameters)")
+    if not np.any(u) and r is None:
+        raise ValueError("the input u is identically zero: nothing to identify")
+    if (r is None) != (controller is None):
+        raise ValueError("closed-loop identification needs both the reference r and the controller")
+    data = _Data(delay_signal(u, delay), y, r, 1.0 / float(rate_hz), controller, delay)
+    return data, thetas
+
+
+# --------------------------------------------------------------------------------------------------
+# the additive IV iteration (001 eqs. 21-29, Remark 6)
+
+
+@dataclass
+class _Step:
+    Z: np.ndarray            # (N, P) instrument 001 eq. 10 / 20 / 31
+    Phi: np.ndarray          # (N, P) regressor 001 eq. 24 / 32
+    Ups: np.ndarray          # (N, K) filtered residual outputs 001 eq. 22
+    xhat: list[np.ndarray]   # submodel outputs G_i u
+    eps: np.ndarray          # output error y - sum G_i u
+
+
+def _blocks(structures: list[SubmodelStructure]) -> list[slice]:
+    out, i = [], 0
+    for st in structures:
+        out.append(slice(i, i + st.n_theta))
+        i += st.n_theta
+    return out
+
+
+def _submodel_outputs(data: _Data, thetas, structures) -> tuple[list[np.ndarray], list[np.ndarray]]:
+    """``p^j/(p^l A_i) u`` (j = 0..m_i) banks and the simulated outputs ``B_i/(p^l A_i) u`` (001 eq. 23)."""
+    banks, xhat = [], []
+    for th, st in zip(thetas, structures, strict=True):
+        a, b = split_theta(th, st)
+        bank = discretize(*svf_continuous(a, st.integrators), data.h).run(data.u, rows=range(st.m + 1))
+        banks.append(bank)
+        xhat.append(bank @ b)
+    return banks, xhat
+
+
+def _instrument_source(data: _Data, thetas, structures, closed_loop: bool) -> np.ndarray:
+    """``z = u`` (open loop) or ``z = S_uo(q) r`` of the current model, delayed like ``u`` (001 eq. 20)."""
+    if not closed_loop:
+        return data.u
+    z, _ = closed_loop_response(thetas, structures, data.h, data.controller, data.r, data.delay, check=False)
+    return delay_signal(z, data.delay)
+
+
+def _build(data: _Data, thetas, structures, closed_loop: bool, only: int | None = None) -> _Step:
+    """Instrument, regressor and filtered outputs of every submodel (or only submodel ``only``).
+
+    The compiled filters write straight into the preallocated (N, P) instrument and regressor matrices.
+    """
+    idx = list(range(len(structures))) if only is None else [only]
+    sts = [structures[i] for i in idx]
+    N, P, K = data.n, sum(st.n_theta for st in sts), len(idx)
+    Z, Phi, Ups = np.empty((N, P)), np.empty((N, P)), np.empty((N, K))
+    blocks = _blocks(sts)
+    xhat = [None] * len(structures)
+    dss = {}
+    for i, (th, st) in enumerate(zip(thetas, structures, strict=True)):
+        a, b = split_theta(th, st)
+        dss[i] = discretize(*svf_continuous(a, st.integrators), data.h)
+        if i in idx:
+            sl = blocks[idx.index(i)]
+            dst = Phi[:, sl.start + st.n: sl.stop]                   # p^j/(p^l A_i) u, 001 eq. 24 / 32
+            dss[i].run(data.u, rows=range(st.m + 1), out=dst)
+            xhat[i] = dst @ b
+        else:
+            xhat[i] = dss[i].run(data.u, rows=range(st.m + 1)) @ b
+    total = np.sum(xhat, axis=0)
+    z = _instrument_source(data, thetas, structures, closed_loop)
+    for k, i in enumerate(idx):
+        th, st, sl = thetas[i], structures[i], blocks[k]
+        a, _ = split_theta(th, st)
+        ytil = data.y - (total - xhat[i])                            # 001 eq. 23
+        d_y = dss[i] if st.integrators == 0 else discretize(*svf_continuous(a, 0), data.h)
+        d_y.run(ytil, rows=[0], out=Ups[:, k: k + 1])               # 001 eq. 22
+        if st.n:
+            d_y.run(ytil, rows=range(1, st.n + 1), out=Phi[:, sl.start: sl.start + st.n], sign=-1.0)
+            discretize(*instrument_continuous(th, st), data.h).run(   # -p^j B/(p^l A^2) z, 001 eq. 10/20/31
+                z, rows=range(1, st.n + 1), out=Z[:, sl.start: sl.start + st.n], sign=-1.0)
+        if z is data.u:
+            Z[:, sl.start + st.n: sl.stop] = Phi[:, sl.start + st.n: sl.stop]
+        else:
+            dss[i].run(z, rows=range(st.m + 1), out=Z[:, sl.start + st.n: sl.stop])
+    return _Step(Z, Phi, Ups, xhat, data.y - total)
+
+
+def _equilibrated_solve(M: np.ndarray, R: np.ndarray, zn: np.ndarray, pn: np.ndarray) -> tuple[np.ndarray, float]:
+    """Solve ``M X = R`` after column/row equilibration; returns X and cond of the equilibrated matrix."""
+    dz = 1.0 / np.where(zn > 0, zn, 1.0)
+    dp = 1.0 / np.where(pn > 0, pn, 1.0)
+    Ms = dz[:, None] * M * dp[None, :]
+    cond = float(np.linalg.cond(Ms))
+    if not np.isfinite(cond) or cond > 1e15:
+        raise np.linalg.LinAlgError(f"IV normal matrix is singular (cond {cond:.3g})")
+    X = dp[:, None] * np.linalg.solve(Ms, dz[:, None] * R)
+    return X, cond
+
+
+def _iv_update(step: _Step, structures: list[SubmodelStructure], only: int | None = None) -> tuple[list, float]:
+    """001 eq. 29: ``B^{j+1} = [sum zeta phi^T]^-1 [sum zeta Upsilon^T]``, block diagonal extracted (eq. 27)."""
+    M = step.Z.T @ step.Phi
+    R = step.Z.T @ step.Ups
+    X, cond = _equilibrated_solve(M, R, np.linalg.norm(step.Z, axis=0), np.linalg.norm(step.Phi, axis=0))
+    sts = structures if only is None else [structures[only]]
+    out = [X[sl, i].copy() for i, sl in enumerate(_blocks(sts))]
+    return out, cond
+
+
+def _project(thetas, structures) -> tuple[list[np.ndarray], int]:
+    """Reflect right-half-plane roots of every ``A_i`` into the left half plane (000 §4.7)."""
+    out, count = [], 0
+    for th, st in zip(thetas, structures, strict=True):
+        if st.n == 0:
+            out.append(th)
+            continue
+        a, b = split_theta(th, st)
+        a2, changed = reflect_unstable(a)
+        count += int(changed)
+        out.append(np.concatenate((a2[1:], b)))
+    return out, count
+
+
+def _time_scale(theta: np.ndarray, st: SubmodelStructure) -> float:
+    """``|a_n|^(1/n)`` (1/omega of a second-order mode); 0 for n = 0."""
+    return abs(theta[st.n - 1]) ** (1.0 / st.n) if st.n else 0.0
+
+
+def match_order(thetas: list[np.ndarray], reference: list[np.ndarray], structures) -> tuple[list[np.ndarray], bool]:
+    """Permute submodels of identical structure so that they follow the reference's (e.g. the initial
+    guesses') order by time scale. Any permutation is the same additive model (001 §2: the decomposition is
+    unique up to the labels), so this only restores the user's labelling after an iteration swapped two."""
+    out = list(thetas)
+    swapped = False
+    for st in set(structures):
+        idx = [i for i, s2 in enumerate(structures) if s2 == st]
+        if len(idx) < 2 or st.n == 0:
+            continue
+        te = np.array([_time_scale(thetas[i], st) for i in idx])
+        tr = np.array([_time_scale(reference[i], st) for i in idx])
+        if np.any(te <= 0) or np.any(tr <= 0):
+            continue
+        cost = np.abs(np.log(te)[:, None] - np.log(tr)[None, :])
+        rows, cols = linear_sum_assignment(cost)
+        for r_, c_ in zip(rows, cols, strict=True):
+            if r_ != c_:
+                swapped = True
+            out[idx[c_]] = thetas[idx[r_]]
+    return out, swapped
+
+
+def _finite(thetas) -> bool:
+    return all(np.all(np.isfinite(t)) for t in thetas)
+
+
+def _rel_change(new: list[np.ndarray], old: list[np.ndarray], scale: np.ndarray) -> float:
+    """``||beta_new - beta_old|| / ||beta_old||`` with each parameter scaled by its initial magnitude."""
+    bn, bo = np.concatenate(new) / scale, np.concatenate(old) / scale
+    return float(np.linalg.norm(bn - bo) / max(np.linalg.norm(bo), 1e-300))
+
+
+def _cl_ok(data: _Data, thetas, structures) -> bool:
+    try:
+        return closed_loop_radius(thetas, structures, data.h, data.controller, data.delay) < 1.0
+    except (ValueError, np.linalg.LinAlgError):
+        return False
+
+
+def _safeguard(data, thetas_new, thetas_old, structures, closed_loop: bool, projection: bool):
+    """Projection (000 §4.7) and, in closed loop, step halving until the controller stabilizes the iterate.
+
+    Returns ``(thetas, projections, note)``; ``thetas`` is None when no admissible step was found.
+    """
+    proj = 0
+    if projection:
+        thetas_new, proj = _project(thetas_new, structures)
+    if not closed_loop or _cl_ok(data, thetas_new, structures):
+        return thetas_new, proj, ""
+    for k in range(1, 11):
+        w = 0.5 ** k
+        trial = [o + w * (n - o) for n, o in zip(thetas_new, thetas_old, strict=True)]
+        if projection:
+            trial, p2 = _project(trial, structures)
+            proj += p2
+        if _cl_ok(data, trial, structures):
+            return trial, proj, f"step halved {k} time(s) to keep the closed loop stable"
+    return None, proj, "no iterate stabilized by the controller near the previous one"
+
+
+def _finalize(method: str, data: _Data, structures, thetas, closed_loop: bool, iterations: int, converged: bool,
+              cond: float, projections: int, message: str, thetas_cov=None) -> IdentificationResult:
+    """Covariance (001 Theorem 1, sandwich form), residual variance, cost, modal values and their stds."""
+    step = _build(data, thetas, structures, closed_loop)
+    N, P = step.Z.shape
+    rss = float(step.eps @ step.eps)
+    sigma2 = rss / max(N - P, 1)
+    M = step.Z.T @ step.Phi
+    try:
+        Minv = np.linalg.inv(M)
+        G = step.Z.T @ step.Z
+        cov = sigma2 * Minv @ G @ Minv.T
+        cov = 0.5 * (cov + cov.T)
+        dz = 1.0 / np.linalg.norm(step.Z, axis=0)
+        dp = 1.0 / np.linalg.norm(step.Phi, axis=0)
+        cond_final = float(np.linalg.cond(dz[:, None] * M * dp[None, :]))
+    except np.linalg.LinAlgError:
+        Minv = np.full((P, P), np.nan)
+        cov = np.full((P, P), np.nan)
+        cond_final = np.inf
+        message = (message + "; " if message else "") + "IV normal matrix singular at the estimate"
+        converged = False
+    blocks = _blocks(structures)
+    p_blocks = []
+    for sl in blocks:
+        try:
+            p_blocks.append(np.linalg.inv(M[sl, sl]))
+        except np.linalg.LinAlgError:
+            p_blocks.append(np.full((sl.stop - sl.start,) * 2, np.nan))
+    covs = [cov[sl, sl].copy() for sl in blocks]
+    modal = np.array([modal_from_theta(t, s) for t, s in zip(thetas, structures, strict=True)])
+    mstd = np.array([modal_std(t, c, s) for t, c, s in zip(thetas, covs, structures, strict=True)])
+    return IdentificationResult(
+        method=method, structures=list(structures), thetas=[np.asarray(t, float) for t in thetas],
+        covariances=covs, covariance=cov, P=Minv, p_blocks=p_blocks, residual_variance=sigma2,
+        iterations=iterations, converged=converged, cond=cond_final if np.isfinite(cond_final) else cond,
+        cost=rss / N, modal=modal, modal_std=mstd, projections=projections, message=message, n_samples=N)
+
+
+def additive_iv(data: _Data, structures, thetas0, *, closed_loop: bool, method: str, max_iterations: int = 50,
+                tol: float = 1e-7, projection: bool = True) -> IdentificationResult:
+    """Additive SRIVC / CLSRIVC: iterate 001 eq. 29 (K = 1: SRIVC/CLSRIVC of 001 eq. 30).
+
+    Open loop ``zeta`` = 001 eq. 10 (gradient of the output error), closed loop 001 eq. 20 with
+    ``z = S_uo(q) r``; integrators per 001 Remark 6 (eqs. 31-32). Stops when the scaled relative change
+    of beta is below ``tol``; a failure (singular normal matrix, no stabilized iterate, iteration limit)
+    returns the last admissible iterate with ``converged=False`` and a message.
+    """
+    thetas = [np.asarray(t, float).copy() for t in thetas0]
+    scale = np.abs(np.concatenate(thetas))
+    scale = np.where(scale > 0, scale, 1.0)
+    projections, cond, message, converged, it = 0, np.nan, "", False, 0
+    if projection:   # the filters are built from the initial guess too (000 §4.7)
+        thetas, projections = _project(thetas, structures)
+    for it in range(1, max_iterations + 1):
+        try:
+            step = _build(data, thetas, structures, closed_loop)
+            new, cond = _iv_update(step, structures)
+        except np.linalg.LinAlgError as exc:
+            message = f"iteration {it}: {exc}"
+            it -= 1
+            break
+        if not _finite(new):
+            message = f"iteration {it}: non-finite estimate"
+            it -= 1
+            break
+        new, p, note = _safeguard(data, new, thetas, structures, closed_loop, projection)
+        projections += p
+        if new is None:
+            message = f"iteration {it}: {note}"
+            it -= 1
+            break
+        change = _rel_change(new, thetas, scale)
+        thetas = new
+        if change < tol:
+            converged = True
+            break
+    else:
+        message = f"no convergence within {max_iterations} iterations (last relative change {change:.3g})"
+    if converged and not message:
+        message = "converged"
+    thetas, swapped = match_order(thetas, thetas0, structures)
+    if swapped:
+        message += "; submodels re-labelled to follow the initial guesses' order"
+    return _finalize(method, data, structures, thetas, closed_loop, it, converged, cond, projections, message)
+
+
+def _cost(data: _Data, xhat_sum: np.ndarray) -> float:
+    e = data.y - xhat_sum
+    return float(e @ e) / data.n
+
+
+def bcd_srivc(data: _Data, structures, thetas0, *, max_iterations: int = 50, tol: float = 1e-7,
+              inner_iterations: int = 20, projection: bool = True, closed_loop: bool = False) -> IdentificationResult:
+    """Block-coordinate descent SRIVC (002 Algorithm 2): per block, SRIVC iterations (002 eq. 12) on the
+    residual output until ``V_N`` (002 eq. 8) decreases; stop on the relative change of x (line 15)."""
+    thetas = [np.asarray(t, float).copy() for t in thetas0]
+    K = len(structures)
+    scale = np.abs(np.concatenate(thetas))
+    scale = np.where(scale > 0, scale, 1.0)
+    projections, cond, converged, message, it = 0, np.nan, False, "", 0
+    if projection:
+        thetas, projections = _project(thetas, structures)
+    _, xhat = _submodel_outputs(data, thetas, structures)
+    for sweep in range(1, max_iterations + 1):
+        it = sweep
+        old = [t.copy() for t in thetas]
+        for i in range(K):
+            others = np.sum(xhat, axis=0) - xhat[i]
+            v_start = _cost(data, others + xhat[i])
+            trial = [t.copy() for t in thetas]
+            for _s in range(inner_iterations):
+                try:
+                    step = _build(data, trial, structures, closed_loop, only=i)
+                    new_i, cond = _iv_update(step, structures, only=i)
+                except np.linalg.LinAlgError as exc:
+                    message = f"block {i + 1}: {exc}"
+                    break
+                if not np.all(np.isfinite(new_i[0])):
+                    break
+                cand = [t.copy() for t in trial]
+                cand[i] = new_i[0]
+                cand, p, _ = _safeguard(data, cand, trial, structures, closed_loop, projection)
+                projections += p
+                if cand is None:
+                    break
+                trial = cand
+                _, xi = _submodel_outputs(data, [trial[i]], [structures[i]])
+                if _cost(data, others + xi[0]) < v_start:       # 002 Algorithm 2 line 8
+                    thetas = trial
+                    xhat[i] = xi[0]
+                    break
+        change = _rel_change(thetas, old, scale)
+        if change < tol:
+            converged = True
+            break
+    else:
+        message = f"no convergence within {max_iterations} sweeps (last relative change {change:.3g})"
+    if converged:
+        message = "converged"
+    thetas, swapped = match_order(thetas, thetas0, structures)
+    if swapped:
+        message += "; submodels re-labelled to follow the initial guesses' order"
+    return _finalize("bcd-srivc", data, structures, thetas, closed_loop, it, converged, cond, projections, message)
+
+
+# --------------------------------------------------------------------------------------------------
+# unfactored models (K = 1) and the partial-fraction split back into submodels
+
+
+def unfactored_structure(structures: list[SubmodelStructure]) -> SubmodelStructure:
+    """Smallest ``B/(p^l A)`` that contains the additive model (002 Proposition 1)."""
+    n = sum(st.n for st in structures)
+    l_tot = sum(st.integrators for st in structures)
+    m = max(st.m + (n + l_tot) - (st.n + st.integrators) for st in structures)
+    return SubmodelStructure(n=n, m=m, integrators=l_tot)
+
+
+def to_unfactored(thetas, structures) -> tuple[np.ndarray, SubmodelStructure]:
+    """The additive model as one ``theta`` of :func:`unfactored_structure` (001 eq. 1)."""
+    su = unfactored_structure(structures)
+    num, den = total_transfer_function(thetas, structures)
+    den = den[su.integrators:]
+    num = np.concatenate((num, np.zeros(max(0, su.m + 1 - num.size))))[: su.m + 1]
+    return np.concatenate((den[1: su.n + 1] / den[0], num / den[0])), su
+
+
+def split_additive(theta_u: np.ndarray, su: SubmodelStructure, structures: list[SubmodelStructure],
+                   thetas_ref: list[np.ndarray]) -> list[np.ndarray]:
+    """Partial-fraction split of an unfactored ``B/(p^l A)`` into the additive structures (002 §4.1).
+
+    The roots of ``A`` are assigned to the submodels by matching the poles of ``thetas_ref`` (Hungarian
+    assignment); the numerators are the least-squares fit of the frequency response with those
+    denominators (exact when the unfactored model is additive; extra numerator terms are dropped).
+    """
+    a, b = split_theta(theta_u, su)
+    roots = np.roots(a[::-1]) if su.n > 0 else np.zeros(0)
+    ref_roots, owner = [], []
+    for i, (th, st) in enumerate(zip(thetas_ref, structures, strict=True)):
+        if st.n > 0:
+            ai, _ = split_theta(th, st)
+            rr = np.roots(ai[::-1])
+            ref_roots.extend(rr)
+            owner.extend([i] * rr.size)
+    den_i = []
+    if roots.size:
+        cost = np.abs(roots[:, None] - np.asarray(ref_roots)[None, :]) / np.maximum(np.abs(ref_roots), 1e-12)[None, :]
+        ri, ci = linear_sum_assignment(cost)
+        groups: list[list[complex]] = [[] for _ in structures]
+        for r_idx, c_idx in zip(ri, ci, strict=True):
+            groups[owner[c_idx]].append(roots[r_idx])
+    else:
+        groups = [[] for _ in structures]
+    for i in range(len(structures)):
+        poly = np.array([1.0 + 0j])
+        for rt in groups[i]:
+            poly = np.polynomial.polynomial.polymul(poly, np.array([1.0, -1.0 / rt]))
+        if np.max(np.abs(poly.imag)) > 1e-6 * np.max(np.abs(poly)):
+            raise ValueError("partial-fraction split failed: complex roots were not paired within a submodel")
+        den_i.append(poly.real)
+    # numerators: least squares on the frequency response over a band covering every pole
+    mags = np.abs(np.concatenate([roots, np.asarray(ref_roots)])) if roots.size else np.array([1.0])
+    wlo, whi = max(mags.min() / 20, 1e-6), mags.max() * 20
+    w = np.logspace(np.log10(wlo), np.log10(whi), 400)
+    s = 1j * w
+    g = np.polyval(b[::-1], s) / (s**su.integrators * np.polyval(a[::-1], s))
+    cols = []
+    for st, dn in zip(structures, den_i, strict=True):
+        base = 1.0 / (s**st.integrators * np.polyval(dn[::-1], s))
+        cols.extend([base * s**j for j in range(st.m + 1)])
+    Amat = np.array(cols).T
+    wt = 1.0 / np.maximum(np.abs(g), 1e-300)
+    Ar = np.vstack(((Amat * wt[:, None]).real, (Amat * wt[:, None]).imag))
+    gr = np.concatenate(((g * wt).real, (g * wt).imag))
+    cn = np.linalg.norm(Ar, axis=0)
+    coef = np.linalg.lstsq(Ar / cn, gr, rcond=None)[0] / cn
+    out, k = [], 0
+    for st, dn in zip(structures, den_i, strict=True):
+        out.append(np.concatenate((dn[1: st.n + 1], coef[k: k + st.m + 1])))
+        k += st.m + 1
+    return out
+
+
+def unfactored_iv(data: _Data, structures, thetas0, *, closed_loop: bool, method: str, max_iterations: int = 50,
+                  tol: float = 1e-7, projection: bool = True) -> IdentificationResult:
+    """Unfactored SRIVC / CLSRIVC (001 eq. 30, Remark 5) on ``B/(p^l A)``, then split into the submodels.
+
+    The additive covariance follows from the unfactored one by the delta method through the split.
+    """
+    th_u0, su = to_unfactored(thetas0, structures)
+    res = additive_iv(data, [su], [th_u0], closed_loop=closed_loop, method=method, max_iterations=max_iterations,
+                      tol=tol, projection=projection)
+    if len(structures) == 1:
+        return res
+    th_u = res.thetas[0]
+    try:
+        thetas = split_additive(th_u, su, structures, thetas0)
+    except (ValueError, np.linalg.LinAlgError) as exc:
+        res.message += f"; split into submodels failed ({exc})"
+        res.converged = False
+        return res
+    # delta method through the split (central differences)
+    base = np.concatenate(thetas)
+    J = np.zeros((base.size, th_u.size))
+    for j in range(th_u.size):
+        dh = 1e-6 * max(abs(th_u[j]), 1e-12)
+        tp, tm = th_u.copy(), th_u.copy()
+        tp[j] += dh
+        tm[j] -= dh
+        J[:, j] = (np.concatenate(split_additive(tp, su, structures, thetas)) -
+                   np.concatenate(split_additive(tm, su, structures, thetas))) / (2 * dh)
+    cov = J @ res.covariance @ J.T
+    P = J @ res.P @ J.T
+    blocks = _blocks(structures)
+    covs = [cov[sl, sl] for sl in blocks]
+    modal = np.array([modal_from_theta(t, s) for t, s in zip(thetas, structures, strict=True)])
+    mstd = np.array([modal_std(t, c, s) for t, c, s in zip(thetas, covs, structures, strict=True)])
+    # output error of the split model (dropped numerator terms show up here)
+    _, xhat = _submodel_outputs(data, thetas, structures)
+    eps = data.y - np.sum(xhat, axis=0)
+    return IdentificationResult(
+        method=method, structures=list(structures), thetas=thetas, covariances=covs, covariance=cov, P=P,
+        p_blocks=[P[sl, sl] for sl in blocks], residual_variance=res.residual_variance,
+        iterations=res.iterations, converged=res.converged, cond=res.cond, cost=float(eps @ eps) / data.n,
+        modal=modal, modal_std=mstd, projections=res.projections, message=res.message, n_samples=data.n,
+        extra={"unfactored_theta": th_u, "unfactored_structure": su, "unfactored_covariance": res.covariance})
+
+
+def lssvf(data: _Data, structures, thetas0, *, method: str = "lssvf") -> IdentificationResult:
+    """Least-squares state-variable filter (003 §3): one LS step with the fixed filter ``1/A_f`` of the guess.
+
+    Uses the unfactored model with ``A_f`` the total denominator of the initial guess, then the additive
+    split. (An unstable ``A_f`` needs the all-pass extension: ``lssvf-uns``, 003 Remark 2.)
+    """
+    th_u0, su = to_unfactored(thetas0, structures)
+    a_f, _ = split_theta(th_u0, su)
+    fy = svf(a_f, data.y, data.h, 0)
+    fu = svf(a_f, data.u, data.h, su.integrators)
+    Phi = np.hstack((-fy[:, 1: su.n + 1], fu[:, : su.m + 1]))
+    X, cond = _equilibrated_solve(Phi.T @ Phi, (Phi.T @ fy[:, 0])[:, None], np.linalg.norm(Phi, axis=0),
+                                  np.linalg.norm(Phi, axis=0))
+    th_u = X[:, 0]
+    thetas = [th_u] if len(structures) == 1 else split_additive(th_u, su, structures, thetas0)
+    res = _finalize(method, data, structures, thetas, False, 1, True, cond, 0, "least squares (one step)")
+    res.extra["unfactored_theta"] = th_u
+    return res
+
+
+# --------------------------------------------------------------------------------------------------
+# entry point
+
+
+def identify(u, y, rate_hz: float, structures, thetas0, *, r=None, controller: DiscreteController | None = None,
+             input_delay: int = 0, method: str = "auto", max_iterations: int = 50, tol: float = 1e-7,
+             projection: bool = True) -> IdentificationResult:
+    """Identify the additive continuous-time model ``sum_i B_i/(p^l_i A_i)`` from sampled data.
+
+    ``u`` is the plant input (held between samples, reaching the plant ``input_delay`` samples late),
+    ``y`` the measured output, ``r`` the reference (closed loop, with the discrete ``controller``
+    ``u = C_d (r - y)``). ``method``: see :data:`METHODS`; ``auto`` is ``additive-clsrivc`` when ``r`` and
+    ``controller`` are given, else ``additive-srivc``. Bad input raises ``ValueError``; non-convergence is
+    reported in the result (``converged=False``, ``message``).
+    """
+    if method not in METHODS:
+        raise ValueError(f"unknown method {method!r}; choose one of {', '.join(METHODS)}")
+    if not (isinstance(max_iterations, int | np.integer) and max_iterations >= 1):
+        raise ValueError(f"max_iterations must be a positive integer, got {max_iterations!r}")
+    if not (np.isfinite(tol) and tol > 0):
+        raise ValueError(f"tol must be positive, got {tol!r}")
+    data, thetas = _check_inputs(u, y, rate_hz, structures, thetas0, r, controller, input_delay)
+    structures = list(structures)
+    if method == "auto":
+        method = "additive-clsrivc" if data.closed_loop else "additive-srivc"
+    needs_cl = method in ("additive-clsrivc", "clsrivc", "clsrivc-uns", "clsrivc-uns-monic")
+    if needs_cl and not data.closed_loop:
+        raise ValueError(f"method {method} needs the reference r and the controller (closed-loop data)")
+    if method.endswith("-uns") or method.endswith("-monic"):
+        from .offline_unstable import identify_unstable
+        return identify_unstable(data, structures, thetas, method=method, max_iterations=max_iterations, tol=tol)
+    if needs_cl:
+        if method == "clsrivc":
+            th_u, su = to_unfactored(thetas, structures)
+            if not _cl_ok(data, [th_u], [su]):
+                raise ClosedLoopUnstableError(_unstable_msg(data, [th_u], [su]))
+        elif not _cl_ok(data, thetas, structures):
+            raise ClosedLoopUnstableError(_unstable_msg(data, thetas, structures))
+    kw = dict(max_iterations=max_iterations, tol=tol, projection=projection)
+    if method in ("additive-clsrivc", "additive-srivc"):
+        return additive_iv(data, structures, thetas, closed_loop=needs_cl, method=method, **kw)
+    if method in ("srivc", "clsrivc"):
+        return unfactored_iv(data, structures, thetas, closed_loop=needs_cl, method=method, **kw)
+    if method == "bcd-srivc":
+        return bcd_srivc(data, structures, thetas, **kw)
+    return lssvf(data, structures, thetas)
+
+
+def _unstable_msg(data: _Data, thetas, structures) -> str:
+    try:
+        rho = closed_loop_radius(thetas, structures, data.h, data.controller, data.delay)
+        return (f"the controller does not stabilize the initial model (closed-loop spectral radius {rho:.4g} >= 1); "
+                "check the controller, the input delay and the initial guess")
+    except ValueError as exc:
+        return f"the closed loop of the initial model cannot be formed: {exc}"
+
+
+def model_frf(result: IdentificationResult, freqs_hz: np.ndarray, input_delay_s: float = 0.0) -> np.ndarray:
+    """Frequency response of an identified model (convenience wrapper of ``model.frequency_response``)."""
+    return frequency_response(result.thetas, result.structures, freqs_hz, input_delay_s)
