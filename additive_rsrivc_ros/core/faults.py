@@ -1,0 +1,978 @@
+"""Fault diagnosis on the stream of modal estimates: baselines, sequential tests, estimator health.
+
+The recursive estimator (000 Algorithm 2) publishes per mode ``[f_hz, zeta, gain]`` and their standard
+deviations from ``sigma^2 P_bar`` (000 eq. 32 interpreted as a covariance, delta method in
+:mod:`.model`). This module turns that stream into structural fault flags, kept apart from the
+health of the estimator itself.
+
+Statistics used (documented here once; the docstrings below refer to these items):
+
+* **S1 - autocorrelation.** With forgetting ``lambda = 1 - h/T`` (memory ``T`` seconds) the estimate
+  is an exponentially weighted average of the data (000 eq. 21), i.e. close to an AR(1) process with
+  correlation ``exp(-dt/T)``. Its integrated autocorrelation time is ``tau_c = 2 T``: a window of
+  ``W`` seconds holds about ``n_eff = W / (2 T)`` independent values, and a sum of normalized values
+  over ``tau_c`` has roughly unit variance.
+* **S2 - baseline.** Over a healthy window after the estimator converged (settle time elapsed, and over
+  the last memory length no estimate moved by more than 3 reported std), the baseline is the mean of
+  the estimate. The typical fluctuation of the estimate is ``s_x = max(reported std, empirical std)``
+  (the reported std is approximate, the empirical one captures model error and excitation effects) and
+  the uncertainty of the baseline mean is ``s_b = s_x / sqrt(n_eff)`` (S1).
+* **S3 - test.** The deviation ``z = (x - b) / sqrt(s_x(t)^2 + s_b^2)`` (``s_x(t)`` uses the current
+  reported std) drives a two-sided CUSUM (Page 1954) whose increments are weighted by ``dt / tau_c``
+  so that the threshold ``h`` is counted in independent samples (S1):
+  ``g+ = max(0, g+ + w (z - k))``, ``g- = max(0, g- + w (-z - k))``, with the reference
+  ``k = max(k_min, delta / 2)`` where ``delta`` is the minimum relevant change in std units (the CUSUM
+  tuned to the smallest change worth detecting). The change time is estimated as
+  the last time ``g`` was zero (the CUSUM maximum-likelihood change point), bounded below by the last
+  time the deviation was still under half of the relevant change.
+* **S4 - decision.** A fault is *suspected* (WARN) when ``g > h`` AND the relative deviation exceeds
+  the minimum relevant change (same direction); it is *confirmed* (ERROR, flag set, event opened) once
+  the relevant deviation has lasted the persistence time; it clears when the deviation is back under ``clear_fraction``
+  of the relevant change or no longer significant (``z < k``) for the clear time (hysteresis).
+* **S5 - health.** Divergence, projection storms, loss of excitation, residual-variance jumps, stuck
+  or non-finite sensor values and data gaps make the health bad; while (and for a hold-off after) it
+  is bad, structural tests are frozen and the health lists why.
+"""
+
+from __future__ import annotations
+
+import math
+from collections import deque
+from collections.abc import Mapping, Sequence
+from dataclasses import asdict, dataclass, field
+from enum import IntEnum
+from typing import Any
+
+import numpy as np
+
+from .model import SubmodelStructure
+
+QUANTITIES: tuple[str, ...] = ("natural_frequency", "damping", "gain")
+"""Quantity names as in ../shared/CONTRACT.md events.csv; index q matches columns q and q+3 of modal()."""
+
+BASELINE_KEYS: tuple[str, ...] = ("natural_frequency_hz", "damping_ratio", "gain")
+
+
+class Level(IntEnum):
+    """diagnostic_msgs/DiagnosticStatus levels."""
+
+    OK = 0
+    WARN = 1
+    ERROR = 2
+    STALE = 3
+
+
+class FaultConfigError(ValueError):
+    """Fault settings or a given baseline that cannot be used (one-line message)."""
+
+
+# ----------------------------------------------------------------------------------------------- settings
+@dataclass(frozen=True)
+class FaultSettings:
+    """Thresholds of the fault logic (parameters ``faults.*`` in config.FAULT_PARAMS)."""
+
+    enabled: bool = True
+    settle_memory_lengths: float = 3.0
+    settle_max_memory_lengths: float = 30.0
+    baseline_duration_s: float = 0.0
+    baseline_memory_lengths: float = 5.0
+    baseline_value: tuple[tuple[float, ...], ...] = ((), (), ())      # per quantity, per mode (empty: learn)
+    baseline_std: tuple[tuple[float, ...], ...] = ((), (), ())
+    min_change: tuple[float, float, float] = (0.02, 0.20, 0.10)
+    cusum_reference_sigma: float = 0.5
+    cusum_threshold: float = 0.0          # 0: from cusum_false_alarm_interval_days (Siegmund)
+    cusum_false_alarm_interval_days: float = 100.0
+    persistence_s: float = 0.0
+    persistence_memory_lengths: float = 1.0
+    clear_s: float = 0.0
+    clear_memory_lengths: float = 2.0
+    clear_fraction: float = 0.5
+    health_holdoff_memory_lengths: float = 2.0
+    health_holdoff_min_s: float = 0.5
+    health_max_condition: float = 1e12
+    health_max_projection_fraction: float = 0.01
+    health_residual_jump_ratio: float = 3.0
+    health_max_relative_std: float = 0.25
+    health_max_parameter_ratio: float = 10.0
+    health_stuck_s: float = 0.25
+    health_stuck_min_samples: int = 10
+    health_gap_tolerance: float = 0.5
+    health_repeated_output_is_missing: bool = True
+    health_max_repeated_fraction: float = 0.01
+
+    @classmethod
+    def from_params(cls, p: Mapping[str, Any]) -> FaultSettings:
+        """Build from flat ``faults.*`` parameters (missing names keep their defaults)."""
+        d = cls()
+
+        def g(name: str, default: Any) -> Any:
+            return p.get(f"faults.{name}", default)
+
+        base = tuple(tuple(float(v) for v in g(f"baseline.{k}", ())) for k in BASELINE_KEYS)
+        base_std = tuple(tuple(float(v) for v in g(f"baseline.{k}_std", ())) for k in BASELINE_KEYS)
+        s = cls(
+            enabled=bool(g("enabled", d.enabled)),
+            settle_memory_lengths=float(g("settle_memory_lengths", d.settle_memory_lengths)),
+            settle_max_memory_lengths=float(g("settle_max_memory_lengths", d.settle_max_memory_lengths)),
+            baseline_duration_s=float(g("baseline_duration_s", d.baseline_duration_s)),
+            baseline_memory_lengths=float(g("baseline_memory_lengths", d.baseline_memory_lengths)),
+            baseline_value=base, baseline_std=base_std,
+            min_change=tuple(float(g(f"min_change.{q}", d.min_change[i])) for i, q in enumerate(QUANTITIES)),
+            cusum_reference_sigma=float(g("cusum.reference_sigma", d.cusum_reference_sigma)),
+            cusum_threshold=float(g("cusum.threshold", d.cusum_threshold)),
+            cusum_false_alarm_interval_days=float(g("cusum.false_alarm_interval_days",
+                                                    d.cusum_false_alarm_interval_days)),
+            persistence_s=float(g("persistence_s", d.persistence_s)),
+            persistence_memory_lengths=float(g("persistence_memory_lengths", d.persistence_memory_lengths)),
+            clear_s=float(g("clear_s", d.clear_s)),
+            clear_memory_lengths=float(g("clear_memory_lengths", d.clear_memory_lengths)),
+            clear_fraction=float(g("clear_fraction", d.clear_fraction)),
+            health_holdoff_memory_lengths=float(g("health.holdoff_memory_lengths", d.health_holdoff_memory_lengths)),
+            health_holdoff_min_s=float(g("health.holdoff_min_s", d.health_holdoff_min_s)),
+            health_max_condition=float(g("health.max_condition", d.health_max_condition)),
+            health_max_projection_fraction=float(g("health.max_projection_fraction",
+                                                   d.health_max_projection_fraction)),
+            health_residual_jump_ratio=float(g("health.residual_jump_ratio", d.health_residual_jump_ratio)),
+            health_max_relative_std=float(g("health.max_relative_std", d.health_max_relative_std)),
+            health_max_parameter_ratio=float(g("health.max_parameter_ratio", d.health_max_parameter_ratio)),
+            health_stuck_s=float(g("health.stuck_s", d.health_stuck_s)),
+            health_stuck_min_samples=int(g("health.stuck_min_samples", d.health_stuck_min_samples)),
+            health_gap_tolerance=float(g("health.gap_tolerance", d.health_gap_tolerance)),
+            health_repeated_output_is_missing=bool(g("health.repeated_output_is_missing",
+                                                     d.health_repeated_output_is_missing)),
+            health_max_repeated_fraction=float(g("health.max_repeated_fraction", d.health_max_repeated_fraction)),
+        )
+        s.check()
+        return s
+
+    def check(self, n_modes: int | None = None) -> None:
+        """Raise :class:`FaultConfigError` on inconsistent values (ranges are also in FAULT_PARAMS)."""
+        if not all(v > 0 for v in self.min_change):
+            raise FaultConfigError("faults.min_change.* must be > 0")
+        if self.cusum_threshold < 0 or self.cusum_reference_sigma < 0 or not self.cusum_false_alarm_interval_days > 0:
+            raise FaultConfigError("faults.cusum.threshold and faults.cusum.reference_sigma must be >= 0 and "
+                                   "faults.cusum.false_alarm_interval_days > 0")
+        if not 0.0 < self.clear_fraction < 1.0:
+            raise FaultConfigError("faults.clear_fraction must be in (0, 1)")
+        given = [len(v) for v in self.baseline_value]
+        if any(given) and n_modes is not None:
+            for key, n in zip(BASELINE_KEYS, given, strict=True):
+                if n != n_modes:
+                    raise FaultConfigError(f"faults.baseline.{key} has {n} entries but there are {n_modes} modes "
+                                           "(give all three lists, or none to learn the baseline)")
+            for key, v in zip(BASELINE_KEYS, self.baseline_std, strict=True):
+                if len(v) not in (0, n_modes):
+                    raise FaultConfigError(f"faults.baseline.{key}_std has {len(v)} entries, expected {n_modes} or 0")
+                if any(not (x >= 0 and math.isfinite(x)) for x in v):
+                    raise FaultConfigError(f"faults.baseline.{key}_std must be finite and >= 0")
+
+    @property
+    def has_given_baseline(self) -> bool:
+        return any(len(v) for v in self.baseline_value)
+
+
+# ----------------------------------------------------------------------------------------------- baseline
+@dataclass
+class Baseline:
+    """Per-mode reference ``[f_hz, zeta, gain]`` (K, 3) with its uncertainty (S2)."""
+
+    value: np.ndarray
+    std: np.ndarray          # uncertainty of the baseline value (s_b)
+    spread: np.ndarray       # typical fluctuation std of the estimate over the window (s_x)
+    source: str = "learned"  # learned | given
+    t_start: float = math.nan
+    t_end: float = math.nan
+    n_eff: np.ndarray | None = None
+
+    def to_dict(self) -> dict[str, Any]:
+        return {"value": self.value.tolist(), "std": self.std.tolist(), "spread": self.spread.tolist(),
+                "source": self.source, "t_start": self.t_start, "t_end": self.t_end,
+                "n_eff": None if self.n_eff is None else self.n_eff.tolist()}
+
+    @classmethod
+    def from_dict(cls, d: Mapping[str, Any]) -> Baseline:
+        return cls(np.asarray(d["value"], float), np.asarray(d["std"], float), np.asarray(d["spread"], float),
+                   str(d["source"]), float(d["t_start"]), float(d["t_end"]),
+                   None if d.get("n_eff") is None else np.asarray(d["n_eff"], float))
+
+    @classmethod
+    def given(cls, settings: FaultSettings, n_modes: int) -> Baseline:
+        """Baseline from ``faults.baseline.*`` lists; missing std lists mean an exact baseline."""
+        settings.check(n_modes)
+        value = np.array(settings.baseline_value, dtype=float).T
+        std = np.zeros((n_modes, 3))
+        for q, v in enumerate(settings.baseline_std):
+            if len(v):
+                std[:, q] = v
+        if not np.all(np.isfinite(value)):
+            raise FaultConfigError("faults.baseline.* values must be finite")
+        return cls(value, std, std.copy(), "given")
+
+
+class BaselineLearner:
+    """Accumulates the estimate over a healthy window and returns a :class:`Baseline` (S1, S2)."""
+
+    def __init__(self, n_modes: int) -> None:
+        self.n_modes = n_modes
+        self.reset(math.nan)
+
+    def reset(self, t_start: float) -> None:
+        self.t_start = t_start
+        self.t_last = t_start
+        self.n = 0
+        self.sum = np.zeros((self.n_modes, 3))
+        self.sumsq = np.zeros((self.n_modes, 3))
+        self.sum_var = np.zeros((self.n_modes, 3))
+
+    def add(self, t: float, modal: np.ndarray) -> None:
+        x, s = modal[:, :3], modal[:, 3:6]
+        self.n += 1
+        self.sum += x
+        self.sumsq += x * x
+        self.sum_var += s * s
+        self.t_last = t
+
+    def finish(self, memory_s: np.ndarray, duration_s: float) -> Baseline:
+        """Mean, fluctuation ``s_x = max(reported, empirical)`` and ``s_b = s_x / sqrt(n_eff)`` (S2)."""
+        if self.n == 0:
+            raise RuntimeError("baseline window holds no estimates")
+        mean = self.sum / self.n
+        emp_var = np.maximum(self.sumsq / self.n - mean * mean, 0.0) * (self.n / max(self.n - 1, 1))
+        spread = np.sqrt(np.maximum(emp_var, self.sum_var / self.n))
+        n_eff = np.clip(duration_s / (2.0 * np.asarray(memory_s, float)), 1.0, float(self.n))
+        std = spread / np.sqrt(n_eff)[:, None]
+        return Baseline(mean, std, spread, "learned", self.t_start, self.t_last, n_eff)
+
+    def to_dict(self) -> dict[str, Any]:
+        return {"t_start": self.t_start, "t_last": self.t_last, "n": self.n, "sum": self.sum.tolist(),
+                "sumsq": self.sumsq.tolist(), "sum_var": self.sum_var.tolist()}
+
+    def load(self, d: Mapping[str, Any]) -> None:
+        self.t_start, self.t_last, self.n = float(d["t_start"]), float(d["t_last"]), int(d["n"])
+        self.sum, self.sumsq = np.asarray(d["sum"], float), np.asarray(d["sumsq"], float)
+        self.sum_var = np.asarray(d["sum_var"], float)
+
+
+def cusum_threshold(k: float, arl0: float) -> float:
+    """CUSUM threshold ``h`` giving the in-control average run length ``arl0`` for reference ``k``.
+
+    Siegmund's approximation for unit-variance Gaussian increments (S3):
+    ``ARL0 = (exp(2 k b) - 2 k b - 1) / (2 k^2)`` with ``b = h + 1.166``; ``ARL0 = b^2`` as ``k -> 0``.
+    """
+    if not (arl0 > 1.0 and math.isfinite(arl0)):
+        raise ValueError(f"arl0 must be a finite number > 1, got {arl0}")
+    if k < 1e-3:
+        return max(math.sqrt(arl0) - 1.166, 0.0)
+    c = 2.0 * k * k * arl0
+    b = math.log(c + 1.0) / (2.0 * k)
+    for _ in range(50):                  # fixed point of exp(2kb) = c + 2kb + 1 (monotone, converges fast)
+        b_new = math.log(c + 2.0 * k * b + 1.0) / (2.0 * k)
+        if abs(b_new - b) < 1e-12 * max(1.0, b):
+            b = b_new
+            break
+        b = b_new
+    return max(b - 1.166, 0.0)
+
+
+# ----------------------------------------------------------------------------------------------- events
+@dataclass
+class FaultEvent:
+    """One structural fault episode; fields map onto events.csv (../shared/CONTRACT.md)."""
+
+    mode: int                  # 1-based, as in the diagnostics status name "mode <i>"
+    quantity: str              # natural_frequency | damping | gain
+    direction: str             # up | down
+    onset_time_s: float        # estimated change time (S3), s since the first sample
+    alarm_time_s: float        # time the fault was confirmed
+    baseline: float
+    value: float               # latest estimate while the fault was present
+    clear_time_s: float | None = None
+    z: float = math.nan        # normalized deviation at confirmation
+
+    @property
+    def is_open(self) -> bool:
+        return self.clear_time_s is None
+
+    def csv_row(self) -> dict[str, Any]:
+        """The events.csv columns: onset_time_s, clear_time_s, mode, quantity, direction, baseline, value."""
+        return {"onset_time_s": self.onset_time_s,
+                "clear_time_s": "" if self.clear_time_s is None else self.clear_time_s,
+                "mode": self.mode, "quantity": self.quantity, "direction": self.direction,
+                "baseline": self.baseline, "value": self.value}
+
+    def to_dict(self) -> dict[str, Any]:
+        return asdict(self)
+
+
+EVENTS_CSV_HEADER = ("onset_time_s", "clear_time_s", "mode", "quantity", "direction", "baseline", "value")
+
+
+@dataclass
+class SequentialTest:
+    """Two-sided CUSUM with relevance gate, persistence and clear hysteresis for one mode/quantity (S3, S4)."""
+
+    mode: int
+    quantity: str
+    g_up: float = 0.0
+    g_down: float = 0.0
+    zero_up_t: float = math.nan
+    zero_down_t: float = math.nan
+    small_up_t: float = math.nan      # last time the deviation was below clear_fraction * relevant change
+    small_down_t: float = math.nan
+    gate_up_since: float = math.nan   # start of the current stretch with deviation >= relevant change
+    gate_down_since: float = math.nan
+    state: str = "ok"                 # ok | suspect | fault
+    direction: int = 0
+    since: float = math.nan           # suspect start / clear-streak start
+    event: FaultEvent | None = None
+    last_z: float = 0.0
+    h: float = math.nan               # threshold used at the last step
+    confirm_before: float = math.inf  # a relevant deviation starting later is not confirmed (advisory health)
+
+    @property
+    def level(self) -> Level:
+        return {"ok": Level.OK, "suspect": Level.WARN, "fault": Level.ERROR}[self.state]
+
+    @property
+    def flag(self) -> bool:
+        return self.state == "fault"
+
+    @property
+    def direction_name(self) -> str:
+        return {1: "up", -1: "down"}.get(self.direction, "")
+
+    def reset(self, t: float) -> None:
+        """Forget the accumulated evidence (after a clear, a rebaseline or a hold)."""
+        self.g_up = self.g_down = 0.0
+        self.zero_up_t = self.zero_down_t = self.small_up_t = self.small_down_t = t
+        self.gate_up_since = self.gate_down_since = math.nan
+        if self.state != "fault":
+            self.state, self.direction, self.since = "ok", 0, math.nan
+
+    def step(self, t: float, w: float, x: float, sigma_d: float, b: float, rho: float, k: float, h: float,
+             clear_fraction: float, persist_s: float, clear_s: float, *, arl0: float = 1e6,
+             ) -> tuple[FaultEvent | None, FaultEvent | None]:
+        """Advance the test by one estimate ``x`` (S3, S4); returns (opened event, closed event).
+
+        ``h <= 0`` selects the threshold from the in-control run length ``arl0`` (:func:`cusum_threshold`).
+        """
+        dev = x - b
+        rel = dev / abs(b)
+        z = dev / sigma_d
+        self.last_z = z
+        k_eff = max(k, 0.5 * rho * abs(b) / sigma_d)   # reference of the CUSUM tuned to the relevant change
+        if h <= 0.0:   # floor: at least one independent estimate's worth of excess over k
+            h = max(cusum_threshold(k_eff, arl0), 1.0)
+        self.h = h
+        cap = 2.0 * h
+        self.g_up = min(cap, max(0.0, self.g_up + w * (z - k_eff)))
+        self.g_down = min(cap, max(0.0, self.g_down + w * (-z - k_eff)))
+        if self.g_up == 0.0:
+            self.zero_up_t = t
+        if self.g_down == 0.0:
+            self.zero_down_t = t
+        if rel < clear_fraction * rho:
+            self.small_up_t = t
+        if rel > -clear_fraction * rho:
+            self.small_down_t = t
+        self.gate_up_since = (t if math.isnan(self.gate_up_since) else self.gate_up_since) if rel >= rho else math.nan
+        self.gate_down_since = ((t if math.isnan(self.gate_down_since) else self.gate_down_since) if rel <= -rho
+                                else math.nan)
+        opened = closed = None
+        if self.state == "fault":
+            d = self.direction
+            present = d * rel >= clear_fraction * rho and d * z >= k
+            if present:
+                self.since = math.nan
+                self.event.value = x
+            else:
+                if math.isnan(self.since):
+                    self.since = t
+                if t - self.since >= clear_s:
+                    self.event.clear_time_s = self.since
+                    closed = self.event
+                    self.event, self.state, self.direction, self.since = None, "ok", 0, math.nan
+                    self.reset(t)
+            return opened, closed
+        cand = 0
+        if self.g_up > h and rel >= rho:
+            cand = 1
+        elif self.g_down > h and rel <= -rho:
+            cand = -1
+        if cand == 0:
+            self.state, self.direction, self.since = "ok", 0, math.nan
+            return opened, closed
+        if self.state != "suspect" or cand != self.direction:
+            self.state, self.direction, self.since = "suspect", cand, t
+        gate_since = self.gate_up_since if cand > 0 else self.gate_down_since
+        if t - gate_since >= persist_s and gate_since <= self.confirm_before:
+            zero_t = self.zero_up_t if cand > 0 else self.zero_down_t
+            small_t = self.small_up_t if cand > 0 else self.small_down_t
+            onset = np.nanmax([zero_t, small_t, -np.inf])
+            onset = min(float(onset), self.since) if math.isfinite(onset) else self.since
+            self.event = FaultEvent(self.mode, self.quantity, self.direction_name, onset, t, b, x, None, z)
+            self.state, self.since = "fault", math.nan
+            opened = self.event
+        return opened, closed
+
+    def to_dict(self) -> dict[str, Any]:
+        d = asdict(self)
+        d["event"] = None if self.event is None else self.event.to_dict()
+        return d
+
+    @classmethod
+    def from_dict(cls, d: Mapping[str, Any]) -> SequentialTest:
+        d = dict(d)
+        ev = d.pop("event", None)
+        out = cls(**d)
+        out.event = None if ev is None else FaultEvent(**ev)
+        return out
+
+
+# ----------------------------------------------------------------------------------------------- monitor
+@dataclass
+class FaultUpdate:
+    """What one :meth:`FaultMonitor.update` changed."""
+
+    opened: list[FaultEvent] = field(default_factory=list)
+    closed: list[FaultEvent] = field(default_factory=list)
+    baseline_ready: bool = False
+
+
+class FaultMonitor:
+    """Baseline + per mode/quantity sequential tests on the modal estimate stream (S1-S4).
+
+    ``update(t, modal, hold=...)`` is called at the publish rate with the estimator's ``modal()``
+    array (K, 6). Phases: ``waiting`` (no estimate yet) -> ``settling`` (settle_memory_lengths x the
+    longest memory) -> ``learning`` (baseline window) -> ``monitoring``; with a given baseline the
+    learning phase is skipped. ``hold=True`` (bad health, S5) freezes the tests and restarts a
+    baseline window in progress.
+    """
+
+    def __init__(self, memory_s: Sequence[float], settings: FaultSettings | None = None, *,
+                 structures: Sequence[SubmodelStructure] | None = None) -> None:
+        self.memory_s = np.asarray(memory_s, dtype=float)
+        if self.memory_s.ndim != 1 or self.memory_s.size == 0 or not np.all(self.memory_s > 0):
+            raise FaultConfigError("memory_s must list one positive memory length per mode")
+        self.K = self.memory_s.size
+        self.structures = list(structures) if structures is not None else [SubmodelStructure()] * self.K
+        if len(self.structures) != self.K:
+            raise FaultConfigError(f"{len(self.structures)} structures for {self.K} modes")
+        self.settings = settings or FaultSettings()
+        self.settings.check(self.K)
+        self.tests = [[SequentialTest(i + 1, q) for q in QUANTITIES] for i in range(self.K)]
+        self.learner = BaselineLearner(self.K)
+        self.baseline: Baseline | None = Baseline.given(self.settings, self.K) \
+            if self.settings.has_given_baseline else None
+        self.phase = "waiting"
+        self.t_phase = math.nan
+        self.t_last = math.nan
+        self.held = False
+        self.events: list[FaultEvent] = []   # every event ever opened (open ones are also in tests)
+        self.last_modal = np.full((self.K, 6), np.nan)
+        self.history: deque[tuple[float, np.ndarray]] = deque()
+        self.settle_forced = False
+        self.anomaly_since: float | None = None   # latched advisory stress (S5), see update()
+        self.anomaly_quiet_since = math.nan
+
+    # -- configuration
+    @classmethod
+    def from_config(cls, cfg: Any) -> FaultMonitor:
+        """From a :class:`..config.MonitorConfig` (memories, structures and ``faults.*`` parameters)."""
+        return cls([m.memory_s for m in cfg.modes], FaultSettings.from_params(cfg.params),
+                   structures=cfg.structures)
+
+    def update_settings(self, params: Mapping[str, Any]) -> None:
+        """Apply changed ``faults.*`` thresholds at runtime (node parameter callback); state is kept.
+
+        ``params`` may hold only the changed names; a given baseline is applied when its lists change.
+        """
+        merged = self._settings_as_params()
+        merged.update({k: v for k, v in params.items() if k.startswith("faults.")})
+        new = FaultSettings.from_params(merged)
+        new.check(self.K)
+        old = self.settings
+        self.settings = new
+        if new.baseline_value != old.baseline_value or new.baseline_std != old.baseline_std:
+            if new.has_given_baseline:
+                self.baseline = Baseline.given(new, self.K)
+                if self.phase == "learning":
+                    self.phase = "monitoring"
+            elif old.has_given_baseline:
+                self.rebaseline(self.t_last)
+
+    def _settings_as_params(self) -> dict[str, Any]:
+        s = self.settings
+        out: dict[str, Any] = {
+            "faults.enabled": s.enabled, "faults.settle_memory_lengths": s.settle_memory_lengths,
+            "faults.settle_max_memory_lengths": s.settle_max_memory_lengths,
+            "faults.baseline_duration_s": s.baseline_duration_s,
+            "faults.baseline_memory_lengths": s.baseline_memory_lengths,
+            "faults.cusum.reference_sigma": s.cusum_reference_sigma, "faults.cusum.threshold": s.cusum_threshold,
+            "faults.cusum.false_alarm_interval_days": s.cusum_false_alarm_interval_days,
+            "faults.persistence_s": s.persistence_s, "faults.persistence_memory_lengths": s.persistence_memory_lengths,
+            "faults.clear_s": s.clear_s, "faults.clear_memory_lengths": s.clear_memory_lengths,
+            "faults.clear_fraction": s.clear_fraction,
+            "faults.health.holdoff_memory_lengths": s.health_holdoff_memory_lengths,
+            "faults.health.holdoff_min_s": s.health_holdoff_min_s,
+            "faults.health.max_condition": s.health_max_condition,
+            "faults.health.max_projection_fraction": s.health_max_projection_fraction,
+            "faults.health.residual_jump_ratio": s.health_residual_jump_ratio,
+            "faults.health.max_relative_std": s.health_max_relative_std,
+            "faults.health.max_parameter_ratio": s.health_max_parameter_ratio,
+            "faults.health.stuck_s": s.health_stuck_s, "faults.health.stuck_min_samples": s.health_stuck_min_samples,
+            "faults.health.gap_tolerance": s.health_gap_tolerance,
+            "faults.health.repeated_output_is_missing": s.health_repeated_output_is_missing,
+            "faults.health.max_repeated_fraction": s.health_max_repeated_fraction,
+        }
+        for q, name in enumerate(QUANTITIES):
+            out[f"faults.min_change.{name}"] = s.min_change[q]
+        for q, key in enumerate(BASELINE_KEYS):
+            out[f"faults.baseline.{key}"] = list(s.baseline_value[q])
+            out[f"faults.baseline.{key}_std"] = list(s.baseline_std[q])
+        return out
+
+    def set_memory(self, memory_s: Sequence[float]) -> None:
+        """Follow a runtime memory change (time constants of S1 and of the persistence/clear times)."""
+        m = np.asarray(memory_s, dtype=float)
+        if m.shape != self.memory_s.shape or not np.all(m > 0):
+            raise FaultConfigError(f"memory_s must list {self.K} positive values")
+        self.memory_s = m
+
+    # -- derived times
+    @property
+    def settle_s(self) -> float:
+        return self.settings.settle_memory_lengths * float(self.memory_s.max())
+
+    @property
+    def baseline_window_s(self) -> float:
+        s = self.settings
+        return s.baseline_duration_s if s.baseline_duration_s > 0 else s.baseline_memory_lengths * float(
+            self.memory_s.max())
+
+    def persistence_s(self, i: int) -> float:
+        s = self.settings
+        return max(s.persistence_s, s.persistence_memory_lengths * float(self.memory_s[i]))
+
+    def clear_time_s(self, i: int) -> float:
+        s = self.settings
+        return max(s.clear_s, s.clear_memory_lengths * float(self.memory_s[i]))
+
+    def arl0_samples(self, i: int) -> float:
+        """Target in-control run length of one CUSUM side in independent estimates (S1: one per 2 T_i)."""
+        return self.settings.cusum_false_alarm_interval_days * 86400.0 / (2.0 * float(self.memory_s[i]))
+
+    def applicable(self, i: int, q: int) -> bool:
+        """Frequency and damping are tested only for second-order modes (a rigid body has only a gain)."""
+        return q == 2 or self.structures[i].n == 2
+
+    # -- main step
+    def rebaseline(self, t: float) -> list[FaultEvent]:
+        """Forget the baseline and learn a new one from now on; open events are closed at ``t``."""
+        closed = []
+        for row in self.tests:
+            for test in row:
+                if test.event is not None:
+                    test.event.clear_time_s = t
+                    closed.append(test.event)
+                test.event, test.state, test.direction, test.since = None, "ok", 0, math.nan
+                test.reset(t)
+        self.baseline = None
+        self.anomaly_since, self.anomaly_quiet_since = None, math.nan
+        if self.phase in ("learning", "monitoring"):
+            self.phase, self.t_phase = "learning", t
+            self.learner.reset(t)
+        return closed
+
+    def update(self, t: float, modal: np.ndarray, *, hold: bool = False,
+               suspect_since: float | None = None) -> FaultUpdate:
+        """Process one modal estimate (K, 6) at time ``t`` (s); see the class docstring.
+
+        ``suspect_since`` (S5, advisory health issues such as a residual-variance jump): the estimator has
+        been under stress since that time; a fault is then confirmed only if its relevant deviation began no
+        later than two memory lengths after it (the stress is explained by that structural change) and it
+        is the most significant (largest ``|z|``) of the mode's relevant deviations (the other quantities of
+        a mode swing during the transient of a real change); other tests stay at WARN.
+        """
+        out = FaultUpdate()
+        modal = np.asarray(modal, dtype=float)
+        if modal.shape != (self.K, 6):
+            raise ValueError(f"modal estimate must have shape ({self.K}, 6), got {modal.shape}")
+        dt = 0.0 if math.isnan(self.t_last) else max(t - self.t_last, 0.0)
+        self.t_last = t
+        self.last_modal = modal.copy()
+        finite = bool(np.all(np.isfinite(modal[:, :3])))
+        self.held = hold or not finite
+        if self.phase == "waiting":
+            self.phase, self.t_phase = "settling", t
+        if self.held:
+            if self.phase == "learning":       # the baseline window must be healthy: start it again later
+                self.phase, self.t_phase = "settling", t - self.settle_s
+            for row in self.tests:
+                for test in row:
+                    test.reset(t)
+            return out
+        self._remember(t, modal)
+        if self.phase == "settling":
+            if t - self.t_phase < self.settle_s:
+                return out
+            forced = t - self.t_phase >= self.settings.settle_max_memory_lengths * float(self.memory_s.max())
+            if not (forced or self.converged(t, modal)):
+                return out
+            self.settle_forced = forced and not self.converged(t, modal)
+            if self.baseline is not None:
+                self.phase, self.t_phase = "monitoring", t
+                out.baseline_ready = True
+                for row in self.tests:
+                    for test in row:
+                        test.reset(t)
+            else:
+                self.phase, self.t_phase = "learning", t
+                self.learner.reset(t)
+        if self.phase == "learning":
+            self.learner.add(t, modal)
+            if t - self.t_phase >= self.baseline_window_s:
+                self.baseline = self.learner.finish(self.memory_s, t - self.t_phase)
+                self.phase, self.t_phase = "monitoring", t
+                out.baseline_ready = True
+                for row in self.tests:
+                    for test in row:
+                        test.reset(t)
+            return out
+        if not self.settings.enabled or self.baseline is None:
+            return out
+        s = self.settings
+        base = self.baseline
+        sx = np.maximum(modal[:, 3:6], base.spread)
+        sigma = np.maximum(np.sqrt(sx * sx + base.std ** 2), 1e-9 * np.abs(base.value))
+        with np.errstate(divide="ignore", invalid="ignore"):
+            dev = modal[:, :3] - base.value
+            relevant = np.abs(dev) >= np.asarray(s.min_change) * np.abs(base.value)
+            score = np.where(relevant, np.abs(dev) / sigma, -1.0)
+        score = np.where(np.isfinite(score), score, -1.0)
+        for i in range(self.K):
+            for q in range(3):
+                if not self.applicable(i, q):
+                    score[i, q] = -1.0
+        # S5: an advisory stress episode latches as an output anomaly until every estimate is back within its
+        # relevant change for a clear time (or a rebaseline): a persistent sensor bias is slowly absorbed into
+        # the gains while the residual recovers; those later deviations must not become structural faults.
+        if suspect_since is not None:
+            self.anomaly_since = suspect_since if self.anomaly_since is None else min(self.anomaly_since,
+                                                                                         suspect_since)
+            self.anomaly_quiet_since = math.nan
+        elif self.anomaly_since is not None:
+            if np.any(relevant & (score >= 0)) or self.flags.any():
+                self.anomaly_quiet_since = math.nan
+            elif math.isnan(self.anomaly_quiet_since):
+                self.anomaly_quiet_since = t
+            elif t - self.anomaly_quiet_since >= max(self.clear_time_s(i) for i in range(self.K)):
+                self.anomaly_since, self.anomaly_quiet_since = None, math.nan
+        stress_since = self.anomaly_since
+        lead = np.argmax(score, axis=1)   # the most significant of the mode's relevant deviations
+        for i in range(self.K):           # ... unless the mode already has a confirmed fault: it explains it
+            faulted = [q for q in range(3) if self.tests[i][q].state == "fault"]
+            if faulted:
+                lead[i] = faulted[0]
+        for i in range(self.K):
+            w = min(1.0, dt / (2.0 * float(self.memory_s[i])))   # S1: weight per independent sample
+            for q in range(3):
+                if not self.applicable(i, q):
+                    continue
+                b = float(base.value[i, q])
+                if b == 0.0 or not math.isfinite(b):
+                    continue
+                sigma_d = float(sigma[i, q])
+                test = self.tests[i][q]
+                if stress_since is None:
+                    test.confirm_before = math.inf
+                elif q == lead[i]:
+                    test.confirm_before = stress_since + 2.0 * float(self.memory_s[i])
+                else:       # isolation under stress: only the mode's dominant deviation can be the fault
+                    test.confirm_before = -math.inf
+                opened, closed = test.step(
+                    t, w, float(modal[i, q]), sigma_d, b, s.min_change[q], s.cusum_reference_sigma,
+                    s.cusum_threshold, s.clear_fraction, self.persistence_s(i), self.clear_time_s(i),
+                    arl0=self.arl0_samples(i))
+                if opened is not None:
+                    out.opened.append(opened)
+                    self.events.append(opened)
+                if closed is not None:
+                    out.closed.append(closed)
+        return out
+
+    def _remember(self, t: float, modal: np.ndarray) -> None:
+        self.history.append((t, modal.copy()))
+        horizon = 1.5 * float(self.memory_s.max())
+        while len(self.history) > 2 and t - self.history[1][0] >= horizon:
+            self.history.popleft()
+
+    def converged(self, t: float, modal: np.ndarray) -> bool:
+        """The estimate has settled: over the last memory length of each mode no estimate moved by more than 3
+        reported std (S2 needs a converged estimate; a sluggish start from a small P(0) still drifts)."""
+        for i in range(self.K):
+            past = [m for (tp, m) in self.history if tp <= t - float(self.memory_s[i])]
+            if not past:
+                return False
+            then = past[-1]
+            for q in range(3):
+                if not self.applicable(i, q):
+                    continue
+                x0, s0, x1, s1 = then[i, q], then[i, 3 + q], modal[i, q], modal[i, 3 + q]
+                if not all(math.isfinite(v) for v in (x0, s0, x1, s1)):
+                    return False
+                if abs(x1 - x0) > 3.0 * s1:
+                    return False
+        return True
+
+    # -- views
+    @property
+    def flags(self) -> np.ndarray:
+        """(K, 3) bool: confirmed fault per mode and quantity."""
+        return np.array([[t.flag for t in row] for row in self.tests], dtype=bool)
+
+    @property
+    def levels(self) -> np.ndarray:
+        """(K, 3) int :class:`Level` per mode and quantity."""
+        return np.array([[int(t.level) for t in row] for row in self.tests], dtype=int)
+
+    @property
+    def directions(self) -> list[list[str]]:
+        return [[t.direction_name for t in row] for row in self.tests]
+
+    @property
+    def open_events(self) -> list[FaultEvent]:
+        return [t.event for row in self.tests for t in row if t.event is not None]
+
+    def baseline_arrays(self) -> tuple[np.ndarray, np.ndarray]:
+        """(value, std) of the baseline, NaN while there is none."""
+        if self.baseline is None:
+            return np.full((self.K, 3), np.nan), np.full((self.K, 3), np.nan)
+        return self.baseline.value.copy(), self.baseline.std.copy()
+
+    # -- persistence
+    def get_state(self) -> dict[str, Any]:
+        """JSON-serializable state (baseline, learner, tests, phase, events)."""
+        return {"version": 1, "K": self.K, "memory_s": self.memory_s.tolist(), "phase": self.phase,
+                "t_phase": self.t_phase, "t_last": self.t_last,
+                "baseline": None if self.baseline is None else self.baseline.to_dict(),
+                "learner": self.learner.to_dict(),
+                "tests": [[t.to_dict() for t in row] for row in self.tests],
+                "history": [[tp, m.tolist()] for tp, m in self.history], "settle_forced": self.settle_forced,
+                "anomaly_since": self.anomaly_since, "anomaly_quiet_since": self.anomaly_quiet_since,
+                "events": [e.to_dict() for e in self.events]}
+
+    def set_state(self, state: Mapping[str, Any]) -> None:
+        """Restore :meth:`get_state` output (same number of modes)."""
+        if int(state.get("K", -1)) != self.K:
+            raise FaultConfigError(f"saved fault state has {state.get('K')} modes, configuration has {self.K}")
+        self.phase, self.t_phase, self.t_last = str(state["phase"]), float(state["t_phase"]), float(state["t_last"])
+        self.baseline = None if state["baseline"] is None else Baseline.from_dict(state["baseline"])
+        if self.settings.has_given_baseline:
+            self.baseline = Baseline.given(self.settings, self.K)
+        self.learner.load(state["learner"])
+        self.history = deque((float(tp), np.asarray(m, float)) for tp, m in state.get("history", []))
+        self.settle_forced = bool(state.get("settle_forced", False))
+        self.anomaly_since = state.get("anomaly_since")
+        self.anomaly_quiet_since = float(state.get("anomaly_quiet_since", math.nan))
+        self.tests = [[SequentialTest.from_dict(d) for d in row] for row in state["tests"]]
+        by_key = {(e.mode, e.quantity, e.onset_time_s): e for row in self.tests for t in row
+                  if (e := t.event) is not None}
+        self.events = [by_key.get((d["mode"], d["quantity"], d["onset_time_s"])) or FaultEvent(**d)
+                       for d in state["events"]]
+
+
+# ----------------------------------------------------------------------------------------------- health
+@dataclass
+class HealthStatus:
+    """Estimator/data health at one report (S5); ``hold`` means structural alarms are held back."""
+
+    level: Level
+    reasons: list[str]
+    hold: bool
+    values: dict[str, Any]
+
+    @property
+    def ok(self) -> bool:
+        return self.level == Level.OK
+
+    def to_dict(self) -> dict[str, Any]:
+        return {"level": int(self.level), "ok": self.ok, "hold": self.hold, "reasons": list(self.reasons),
+                **self.values}
+
+
+class HealthMonitor:
+    """Estimator health, separate from structural faults (S5).
+
+    Issues are either *states* seen at an assessment (divergence, projection storm, loss of excitation,
+    residual-variance jump) or *incidents* noted by the pipeline (:meth:`note`: data gap, non-finite or
+    stuck sensor, out-of-order stamps, re-initialization). Each stays active for a hold-off of
+    ``health.holdoff_memory_lengths`` x the longest memory after it was last seen, because the estimate
+    needs that long to re-converge.
+    """
+
+    ERROR_KINDS = ("divergence", "stuck_sensor", "reinitializing")
+    ADVISORY_KINDS = ("residual_jump", "projection_storm")
+    """Also the signature of a genuine abrupt structural change: they do not hold structural alarms back,
+    they only require that a confirmed fault began together with them (FaultMonitor ``suspect_since``)."""
+
+    def __init__(self, memory_s: Sequence[float], settings: FaultSettings | None = None, *,
+                 reference_modal: np.ndarray | None = None, structures: Sequence[SubmodelStructure] | None = None,
+                 rate_hz: float | None = None) -> None:
+        self.memory_s = np.asarray(memory_s, dtype=float)
+        self.K = self.memory_s.size
+        self.settings = settings or FaultSettings()
+        self.structures = list(structures) if structures is not None else [SubmodelStructure()] * self.K
+        self.reference_modal = None if reference_modal is None else np.asarray(reference_modal, float)[:, :3]
+        self.rate_hz = rate_hz
+        self.active: dict[str, tuple[float, str]] = {}   # kind -> (last seen time, message)
+        self.first_seen: dict[str, float] = {}            # kind -> start of the current episode
+        self.counts: dict[str, int] = {}
+        self.residual_ref = math.nan
+        self.last_projections: float | None = None
+        self.last_samples: float | None = None
+        self.t_last = math.nan
+
+    @property
+    def holdoff_s(self) -> float:
+        s = self.settings
+        return max(s.health_holdoff_min_s, s.health_holdoff_memory_lengths * float(self.memory_s.max()))
+
+    def note(self, kind: str, t: float, message: str, count: int = 1) -> None:
+        """Record an incident at time ``t`` (s); it stays active for the hold-off."""
+        self.active[kind] = (t, message)
+        self.first_seen.setdefault(kind, t)
+        self.counts[kind] = self.counts.get(kind, 0) + count
+
+    def clear_reference(self, modal: np.ndarray | None = None) -> None:
+        """New reference for the parameter blow-up check (e.g. after a re-initialization)."""
+        self.reference_modal = None if modal is None else np.asarray(modal, float)[:, :3].copy()
+        self.residual_ref = math.nan
+
+    def assess(self, t: float, modal: np.ndarray, est_health: Mapping[str, Any] | None = None) -> HealthStatus:
+        """Check the estimate and the estimator's health dict at time ``t`` and return the status (S5)."""
+        s = self.settings
+        est = dict(est_health or {})
+        values: dict[str, Any] = {}
+        modal = np.asarray(modal, dtype=float)
+        # divergence: non-finite or blown-up parameters (000 §4.7 projection keeps A_i stable, not bounded)
+        if not np.all(np.isfinite(modal[:, :3])):
+            self.note("divergence", t, "divergence: non-finite estimate")
+        elif self.reference_modal is not None:
+            ref = self.reference_modal
+            with np.errstate(divide="ignore", invalid="ignore"):
+                ratio = np.abs(modal[:, :3] / ref)
+            cols = [0, 2]
+            r = ratio[:, cols]
+            ok = np.isfinite(r) & (r > 0)
+            bad = ok & ((r > s.health_max_parameter_ratio) | (r < 1.0 / s.health_max_parameter_ratio))
+            bad |= ~ok & (ref[:, cols] != 0)
+            if np.any(bad):
+                i = int(np.argwhere(bad)[0][0])
+                self.note("divergence", t, f"divergence: mode {i + 1} moved by more than a factor "
+                          f"{s.health_max_parameter_ratio:g} from its reference")
+        # loss of excitation: reported relative std of frequency / gain (P_bar winds up without excitation)
+        with np.errstate(divide="ignore", invalid="ignore"):
+            rel_std = np.abs(modal[:, 3:6] / modal[:, :3])
+        rel = np.array([[rel_std[i, 0] if self.structures[i].n == 2 else 0.0, rel_std[i, 2]] for i in range(self.K)])
+        values["max_relative_std"] = float(np.nanmax(rel)) if np.any(np.isfinite(rel)) else math.nan
+        if np.any(rel > s.health_max_relative_std):
+            i = int(np.argwhere(rel > s.health_max_relative_std)[0][0])
+            self.note("loss_of_excitation", t, f"loss of excitation: mode {i + 1} relative std "
+                      f"{np.nanmax(rel[i]):.2g} > {s.health_max_relative_std:g}")
+        cond = _first(est, ("condition", "cond", "condition_number", "iv_condition"))
+        if cond is not None:
+            c = float(np.nanmax(np.atleast_1d(np.asarray(cond, float))))
+            values["condition"] = c
+            if not c <= s.health_max_condition:
+                self.note("loss_of_excitation", t, f"loss of excitation: IV condition number {c:.3g} > "
+                          f"{s.health_max_condition:.3g}")
+        # projection storm: fraction of updates that needed the stability projection (000 §4.7)
+        proj = _first(est, ("projections",))
+        samples = _first(est, ("updates", "samples"))
+        if proj is not None and samples is not None:
+            p_now = float(np.sum(np.asarray(proj, float)))
+            n_now = float(samples)
+            if self.last_projections is not None and self.last_samples is not None and n_now > self.last_samples:
+                frac = (p_now - self.last_projections) / (n_now - self.last_samples)
+                values["projection_fraction"] = frac
+                if frac > s.health_max_projection_fraction:
+                    self.note("projection_storm", t, f"projection storm: {frac:.1%} of updates needed the "
+                              "stability projection")
+            self.last_projections, self.last_samples = p_now, n_now
+        # residual variance jump against a slow reference learned while healthy
+        res = _first(est, ("residual_var", "residual_variance"))
+        if res is not None:
+            rv = float(np.nanmax(np.atleast_1d(np.asarray(res, float))))
+            values["residual_var"] = rv
+            if math.isfinite(rv) and rv >= 0:
+                if math.isnan(self.residual_ref):
+                    self.residual_ref = rv
+                ratio_r = rv / self.residual_ref if self.residual_ref > 0 else 1.0
+                values["residual_ratio"] = ratio_r
+                if ratio_r > s.health_residual_jump_ratio:
+                    self.note("residual_jump", t, f"residual variance jumped x{ratio_r:.3g} over its healthy level")
+                elif (not self.active and ratio_r < 1.5) or ratio_r < 1.0:
+                    # the healthy level follows slow benign changes only: never absorbs a jump
+                    dt = 0.0 if math.isnan(self.t_last) else max(t - self.t_last, 0.0)
+                    a = min(1.0, dt / (10.0 * float(self.memory_s.max())))
+                    self.residual_ref += a * (rv - self.residual_ref)
+            elif not math.isfinite(rv):
+                self.note("divergence", t, "divergence: non-finite residual variance")
+        self.t_last = t
+        status = self.status(t)
+        status.values.update(values)
+        return status
+
+    def status(self, t: float) -> HealthStatus:
+        """Active issues at ``t`` (expired ones are dropped); ``values['new_issues']`` were seen at ``t``."""
+        hold_s = self.holdoff_s
+        reasons = []
+        level = Level.OK
+        new = []
+        hold = False
+        advisory_since: float | None = None
+        for kind, (t_seen, msg) in list(self.active.items()):
+            if t - t_seen > hold_s:
+                del self.active[kind]
+                continue
+            if t_seen >= t:
+                new.append(kind)
+            suffix = "" if t_seen >= t else f" (recovering, hold-off until t={t_seen + hold_s:.1f} s)"
+            reasons.append(msg + suffix)
+            level = max(level, Level.ERROR if kind in self.ERROR_KINDS else Level.WARN)
+            if kind in self.ADVISORY_KINDS:
+                first = self.first_seen.get(kind, t_seen)
+                advisory_since = first if advisory_since is None else min(advisory_since, first)
+            else:
+                hold = True
+        for kind in list(self.first_seen):
+            if kind not in self.active:
+                del self.first_seen[kind]
+        values = {"counts": dict(self.counts), "issues": sorted(self.active), "new_issues": sorted(new),
+                  "advisory_since": advisory_since}
+        return HealthStatus(level, reasons, hold, values)
+
+    def get_state(self) -> dict[str, Any]:
+        return {"active": {k: list(v) for k, v in self.active.items()}, "counts": dict(self.counts),
+                "first_seen": dict(self.first_seen),
+                "residual_ref": self.residual_ref, "last_projections": self.last_projections,
+                "last_samples": self.last_samples, "t_last": self.t_last,
+                "reference_modal": None if self.reference_modal is None else self.reference_modal.tolist()}
+
+    def set_state(self, d: Mapping[str, Any]) -> None:
+        self.active = {k: (float(v[0]), str(v[1])) for k, v in d["active"].items()}
+        self.counts = {k: int(v) for k, v in d["counts"].items()}
+        self.first_seen = {k: float(v) for k, v in d.get("first_seen", {}).items()}
+        self.residual_ref = float(d["residual_ref"])
+        self.last_projections, self.last_samples = d["last_projections"], d["last_samples"]
+        self.t_last = float(d["t_last"])
+        rm = d.get("reference_modal")
+        self.reference_modal = None if rm is None else np.asarray(rm, float)
+
+
+def _first(d: Mapping[str, Any], keys: Sequence[str]) -> Any:
+    for k in keys:
+        if k in d and d[k] is not None:
+            return d[k]
+    return None
