@@ -4,7 +4,9 @@ The reference below is written independently of core/kernel.py: per sample and p
 filters' ``Phi, Gamma`` with scipy's matrix exponential (core.zoh.zoh_matrices, not the closed form),
 forms the residual output (000 eq. 22), regressor and instrument (eqs. 26-28, 33), the IV-RLS update of
 Algorithm 2 lines 7-9 (1/lambda, no factor 1/2: NOTES erratum 2) and the stability projection with
-numpy's polynomial roots (model.reflect_unstable). Only round-off separates the two (expm vs closed
+numpy's polynomial roots (model.reflect_unstable). The optional filter model (recursive.set_filter_memory:
+the prefilters use ``A_f = mu_f A_f + (1 - mu_f) A``, b0 follows the estimate) is reproduced too; mu_f = 0 is
+Algorithm 2 as printed. Only round-off separates the two (expm vs closed
 form agree to ~1e-13), so the estimates must agree far below any statistical scale (1e-8 relative).
 """
 import json
@@ -20,7 +22,7 @@ from test_recursive_sim import PAPER_THETA, PID, paper_reference, simulate_modal
 
 from additive_rsrivc_ros.core.kernel import project_second_order
 from additive_rsrivc_ros.core.model import SubmodelStructure, reflect_unstable
-from additive_rsrivc_ros.core.recursive import RecursiveAdditiveSRIVC, p0_diagonal
+from additive_rsrivc_ros.core.recursive import FILTER_PERIODS, RecursiveAdditiveSRIVC, p0_diagonal
 from additive_rsrivc_ros.core.zoh import companion, zoh_matrices
 
 Y, U, Z, X = range(4)
@@ -29,10 +31,12 @@ Y, U, Z, X = range(4)
 class ReferenceAlgorithm2:
     """Readable numpy implementation of one Algorithm 2 step per sample (second-order modes only)."""
 
-    def __init__(self, thetas, rate, lam, controller, delay, sweeps, refinements):
+    def __init__(self, thetas, rate, lam, controller, delay, sweeps, refinements, mu_f=None):
         self.h = 1.0 / rate
         self.K = len(thetas)
         self.th = [np.array(t, dtype=float) for t in thetas]
+        self.af = [t[:2].copy() for t in self.th]   # filter model of A_i (a1, a2)
+        self.mu_f = np.zeros(self.K) if mu_f is None else np.asarray(mu_f, dtype=float)
         self.P = [np.diag(p0_diagonal(t, 0, (0.016, 1.1e-6))) for t in thetas]
         self.lam = lam
         self.ctrl = controller
@@ -51,8 +55,8 @@ class ReferenceAlgorithm2:
         phi, gam = zoh_matrices(A, B, self.h)
         return phi, gam[:, 0]
 
-    def propagate(self, i, th, ud, zd):
-        phi, gam = self.zoh(th)
+    def propagate(self, i, af, ud, zd):
+        phi, gam = self.zoh(af)
         inputs = {Y: self.v_ytil[i], U: ud, Z: zd, X: self.v_xhat[i]}
         return np.array([phi @ self.S[i, b] + gam * inputs[b] for b in range(4)])
 
@@ -61,17 +65,19 @@ class ReferenceAlgorithm2:
         ud = self.ubuf[0]
         zd = self.zbuf[0] if closed else ud
         zb = Z if closed else U
-        T = [self.propagate(i, self.th[i], ud, zd) for i in range(self.K)]
+        T = [self.propagate(i, self.af[i], ud, zd) for i in range(self.K)]
         xhat = [self.th[i][2] * T[i][zb][0] for i in range(self.K)]    # B/A(theta(t_{k-1})) z at t_k
         th_prev = [t.copy() for t in self.th]
         P_prev = [p.copy() for p in self.P]
         it = [t.copy() for t in self.th]
+        af_prev = [a.copy() for a in self.af]
+        af_it = [a.copy() for a in self.af]
         ytil = np.zeros(self.K)
         for _l in range(self.sweeps):
             for i in range(self.K):
                 for _s in range(self.refinements + 1):
                     ytil[i] = y - sum(it[j][2] * T[j][U][0] for j in range(self.K) if j != i)     # eq. 22
-                    a1, a2 = it[i][0], it[i][1]
+                    a1, a2 = af_it[i]                    # the filters' A
                     w, dw = T[i][Y]
                     wx, dwx = T[i][X]
                     yf = w                                                                     # eq. 26
@@ -84,8 +90,10 @@ class ReferenceAlgorithm2:
                     a_proj, _ = reflect_unstable(np.array([1.0, new[0], new[1]]))
                     new[:2] = a_proj[1:]
                     it[i], self.P[i] = new, Pn
-                    T[i] = self.propagate(i, new, ud, zd)
+                    af_it[i] = self.mu_f[i] * af_prev[i] + (1.0 - self.mu_f[i]) * new[:2]
+                    T[i] = self.propagate(i, af_it[i], ud, zd)
         self.th = it
+        self.af = af_it
         self.S = np.array(T)
         self.v_ytil, self.v_xhat = ytil.copy(), np.array(xhat)
         if closed:
@@ -115,16 +123,21 @@ def _paper_data(n, closed, delay, seed=3):
     return r, u, y, start
 
 
+@pytest.mark.parametrize("filter_memory", ["algorithm2", "auto"])
 @pytest.mark.parametrize("closed,delay,sweeps,refine", [(True, 1, 1, 0), (True, 2, 2, 1), (False, 0, 1, 2)])
-def test_kernel_matches_numpy_reference(closed, delay, sweeps, refine):
+def test_kernel_matches_numpy_reference(closed, delay, sweeps, refine, filter_memory):
     n = 300
     r, u, y, start = _paper_data(n, closed, delay)
     lam = np.array([0.995, 0.99, 0.999])
+    kw = {"filter_memory_s": 0.0 if filter_memory == "algorithm2" else None}
     est = RecursiveAdditiveSRIVC([SubmodelStructure()] * 3, start, 20.0, forgetting=lam,
                                  controller=PID if closed else None, input_delay=delay, block_sweeps=sweeps,
-                                 refinements=refine)
+                                 refinements=refine, **kw)
     tr = est.update(r, u, y, trace=True)
-    ref = ReferenceAlgorithm2(start, 20.0, lam, PID if closed else None, delay, sweeps, refine)
+    # auto filter model: one period 2 pi sqrt(a2) of each start mode, mu_f = 1 - 1/(tau rate) per update
+    mu_f = None if filter_memory == "algorithm2" else np.array(
+        [1.0 - 1.0 / (FILTER_PERIODS * 2 * np.pi * np.sqrt(t[1]) * 20.0) for t in start])
+    ref = ReferenceAlgorithm2(start, 20.0, lam, PID if closed else None, delay, sweeps, refine, mu_f)
     ref_tr = np.array([ref.step(r[k], u[k], y[k]) for k in range(n)])
     # the estimates do move (the comparison is not trivially satisfied by a frozen estimator)
     assert np.max(np.abs(ref_tr[-1] / ref_tr[0] - 1)) > 1e-3

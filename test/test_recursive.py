@@ -253,3 +253,44 @@ def test_bad_arguments():
         est.update(None, [0.0], [0.0])
     with pytest.raises(ValueError):
         est.update([0.0], [0.0, 1.0], [0.0])
+
+
+@pytest.mark.parametrize("closed", [False, True])
+def test_filter_model_exact_at_truth_noise_free(closed):
+    """With the filter model on (set_filter_memory(None): one period per mode) the fixed point is unchanged:
+    started at the truth with noise-free data every equation error is zero, theta never moves, so A_f = A
+    stays exact (1e-9 over 1e5 samples, as for Algorithm 2)."""
+    n = 100_000
+    r, u, y = _data(n, closed)
+    est = _est(PAPER_THETA, closed, filter_memory_s=None)
+    assert np.all(est.filter_memory_s > 0)
+    tr = est.update(r, u, y, trace=True)
+    for i, th in enumerate(PAPER_THETA):
+        assert np.max(np.abs(tr[:, i, :] / th - 1.0)) < 1e-9
+        assert np.max(np.abs(est.filter_thetas[i] / th - 1.0)) < 1e-9
+
+
+def test_filter_model_snapshot_and_version1_state(tmp_path):
+    """Filter model state round-trips bit-identically; a snapshot without it (version 1) loads as Algorithm 2."""
+    n = 3000
+    r, u, y = _data(n, True, delay=2, noise_std=0.1)
+    start = [th * 1.03 for th in PAPER_THETA]
+    ref = _est(start, True, delay=2, filter_memory_s=[5.0, 2.0, 1.0])
+    ref.update(r, u, y)
+    a = _est(start, True, delay=2, filter_memory_s=[5.0, 2.0, 1.0])
+    a.update(r[:1111], u[:1111], y[:1111])
+    b = RecursiveAdditiveSRIVC.from_state(a.get_state())
+    b.update(r[1111:], u[1111:], y[1111:])
+    for key, v in ref.get_state().items():
+        assert np.array_equal(v, b.get_state()[key]), key
+    np.testing.assert_allclose(b.filter_memory_s, [5.0, 2.0, 1.0], rtol=1e-12)
+    # version-1 snapshot: no "thf"/"muf" -> thf = theta, muf = 0 (Algorithm 2), continuation equals Algorithm 2
+    alg = _est(start, True, delay=2)
+    alg.update(r[:1111], u[:1111], y[:1111])
+    old = {k: v for k, v in alg.get_state().items() if k not in ("thf", "muf")}
+    c = _est(start, True, delay=2, filter_memory_s=None)
+    c.set_state(old)
+    assert np.all(c.filter_memory_s == 0.0)
+    c.update(r[1111:], u[1111:], y[1111:])
+    alg.update(r[1111:], u[1111:], y[1111:])
+    assert all(np.array_equal(x, z) for x, z in zip(alg.thetas, c.thetas, strict=True))

@@ -17,6 +17,14 @@ Per mode i (000 eqs. 26-28, 33-35) four filter banks share the ZOH discretizatio
 * bank X on the sampled auxiliary output ``x^_i(t_k) = b0 w_z,i(t_k)`` (model of t_{k-1}, eq. 28/33):
   ``-p/A x^``, ``-p^2/A x^``.
 
+Filter model (option, ``muf``): the filters are built from ``A_f,i``, an exponential average of the estimated
+``A_i`` with per-update factor ``mu_f,i`` (``a_f <- mu_f a_f + (1 - mu_f) a``); ``b0`` always follows the estimate.
+``mu_f = 0`` is Algorithm 2 as printed (``theta_f = theta``). Remark 4.4 carries the filter states across
+coefficient changes, which presumes coefficients that are nearly constant over the filters' response; on the
+lightly damped beam mode with a memory below its decay time ``1/(zeta omega)`` the estimate <-> prefilter loop
+(through ``A`` only) was found to be unstable (``scripts/study_short_memory.py``); a filter model averaged over a
+few periods of the mode removes that loop while keeping the same fixed point (``A_f = A`` in steady state).
+
 Filter states are physical ``[w, w']``; ``p^2/A v`` at ``t_k`` is the direct term ``(v_k - w - a1 w')/a2``.
 States are carried across coefficient changes (000 Remark 4.4). Within a sample (NOTES, "Ordering")
 every bank is propagated from its ``t_{k-1}`` state to ``t_k`` with the *latest iterate* of its mode
@@ -122,9 +130,10 @@ def _propagate_mode(i: int, phi: np.ndarray, gam: np.ndarray, xs: np.ndarray, T:
 
 @njit(cache=True)
 def run_block(r: np.ndarray, u: np.ndarray, y: np.ndarray, valid: np.ndarray, allow_update: bool,
-              kind: np.ndarray, lam: np.ndarray, cnum: np.ndarray, cden: np.ndarray,
+              kind: np.ndarray, lam: np.ndarray, muf: np.ndarray, cnum: np.ndarray, cden: np.ndarray,
               cfg_i: np.ndarray, cfg_f: np.ndarray, p0diag: np.ndarray,
-              theta: np.ndarray, P: np.ndarray, xs: np.ndarray, vin: np.ndarray, phi: np.ndarray,
+              theta: np.ndarray, thf: np.ndarray, P: np.ndarray, xs: np.ndarray, vin: np.ndarray,
+              phi: np.ndarray,
               gam: np.ndarray, ubuf: np.ndarray, zbuf: np.ndarray, ce: np.ndarray, cz: np.ndarray,
               ist: np.ndarray, fst: np.ndarray, proj: np.ndarray, rej: np.ndarray,
               trace: np.ndarray) -> None:
@@ -156,6 +165,7 @@ def run_block(r: np.ndarray, u: np.ndarray, y: np.ndarray, valid: np.ndarray, al
     phi_it = np.empty((K, 2, 2))
     gam_it = np.empty((K, 2))
     th_it = np.empty((K, NT))
+    tf_it = np.empty((K, NT))
     P_it = np.empty((K, NT, NT))
     xu = np.empty(K)
     xh = np.empty(K)
@@ -206,8 +216,8 @@ def run_block(r: np.ndarray, u: np.ndarray, y: np.ndarray, valid: np.ndarray, al
             ist[I_REPRIMES] += 1
         yhat = 0.0
         for i in range(K):
-            xu[i] = theta[i, ib0[i]] * T[i, BU, 0]
-            xh[i] = theta[i, ib0[i]] * T[i, zb, 0]
+            xu[i] = thf[i, ib0[i]] * T[i, BU, 0]
+            xh[i] = thf[i, ib0[i]] * T[i, zb, 0]
             yhat += xh[i]
         ysim = 0.0
         for i in range(K):
@@ -233,6 +243,7 @@ def run_block(r: np.ndarray, u: np.ndarray, y: np.ndarray, valid: np.ndarray, al
             for i in range(K):
                 for a in range(NT):
                     th_it[i, a] = theta[i, a]
+                    tf_it[i, a] = thf[i, a]
                     for c in range(NT):
                         P_it[i, a, c] = P[i, a, c]
                 for a in range(2):
@@ -243,16 +254,17 @@ def run_block(r: np.ndarray, u: np.ndarray, y: np.ndarray, valid: np.ndarray, al
                 for i in range(K):
                     nt = ntk[i]
                     lam_i = lam[i]
+                    mu_f = muf[i]
                     for _s in range(refine + 1):
                         # residual output with the other modes' latest iterates (000 eq. 22)
                         yt = yk
                         for j in range(K):
                             if j != i:
-                                yt -= th_it[j, ib0[j]] * T[j, BU, 0]
+                                yt -= tf_it[j, ib0[j]] * T[j, BU, 0]
                         ytil[i] = yt
                         if kind[i] == 0:
-                            a1 = th_it[i, 0]
-                            a2 = th_it[i, 1]
+                            a1 = tf_it[i, 0]                          # the filters' A (filter model)
+                            a2 = tf_it[i, 1]
                             wy = T[i, BY, 0]
                             dwy = T[i, BY, 1]
                             wx = T[i, BX, 0]
@@ -315,17 +327,23 @@ def run_block(r: np.ndarray, u: np.ndarray, y: np.ndarray, valid: np.ndarray, al
                             ist[I_CAPPED] += 1
                         for a in range(nt):
                             th_it[i, a] = thn[a]
+                            # filter model of A_i: a_f = mu_f a_f_bar + (1 - mu_f) a (mu_f = 0: Algorithm 2)
+                            if mu_f == 0.0 or kind[i] != 0 or a == 2:
+                                tf_it[i, a] = thn[a]
+                            else:
+                                tf_it[i, a] = mu_f * thf[i, a] + (1.0 - mu_f) * thn[a]
                             for c in range(nt):
                                 P_it[i, a, c] = Pn[a, c]
-                        # filters of this mode follow the new iterate (re-run from the t_{k-1} states)
+                        # filters of this mode follow the new filter model (re-run from the t_{k-1} states)
                         if kind[i] == 0:
-                            second_order_zoh(thn[0], thn[1], h, phi_it[i], gam_it[i])
+                            second_order_zoh(tf_it[i, 0], tf_it[i, 1], h, phi_it[i], gam_it[i])
                             _propagate_mode(i, phi_it, gam_it, xs, T, vin[i, 0], ud_prev, zd_prev, vin[i, 1])
                             if not finite:
                                 T[i, :, :] = 0.0
             for i in range(K):
                 for a in range(NT):
                     theta[i, a] = th_it[i, a]
+                    thf[i, a] = tf_it[i, a]
                     for c in range(NT):
                         P[i, a, c] = P_it[i, a, c]
                 for a in range(2):

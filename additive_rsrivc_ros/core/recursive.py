@@ -32,10 +32,15 @@ import numpy as np
 from . import kernel as kn
 from .model import SubmodelStructure, modal_from_theta, modal_std
 
-STATE_KEYS = ("kind", "lam", "cnum", "cden", "cfg_i", "cfg_f", "p0diag", "theta", "P", "xs", "vin", "phi", "gam",
-              "ubuf", "zbuf", "ce", "cz", "ist", "fst", "proj", "rej")
+STATE_KEYS = ("kind", "lam", "muf", "cnum", "cden", "cfg_i", "cfg_f", "p0diag", "theta", "thf", "P", "xs", "vin", "phi",
+              "gam", "ubuf", "zbuf", "ce", "cz", "ist", "fst", "proj", "rej")
 _INT_KEYS = ("kind", "cfg_i", "ist", "proj", "rej")
-STATE_VERSION = 1
+STATE_VERSION = 2  # 2: filter model "thf", "muf"; version-1 snapshots load with thf = theta, muf = 0 (Algorithm 2)
+FILTER_PERIODS = 1.0  # default filter-model time constant in periods of each mode (set_filter_memory)
+# "auto" filter policy: smooth the prefilter denominator of a mode only where the slow-variation approximation of
+# 000 Remark 4.4 fails, i.e. where the forgetting memory is shorter than this many decay times 1/(zeta omega)
+AUTO_DECAY_FACTOR = 3.0
+FILTER_POLICIES = ("auto", "on", "off")
 
 
 def _kind_of(s: SubmodelStructure) -> int:
@@ -96,17 +101,31 @@ class RecursiveAdditiveSRIVC:
     p_cap:
         Stop dividing by lambda once a diagonal of P exceeds ``p_cap`` times its P(0) (wind-up guard; off by
         default: 1e4-1e8 slowed the tracking of the 000 §5 and beam scenarios).
+    filter_memory_s:
+        Time constant (s, scalar or per mode) of the *filter model* ``A_f,i`` that builds the prefilters
+        ``1/A_i`` of eqs. 26-28/33 (and the other modes' simulated outputs, eq. 22): ``a_f <- mu_f a_f + (1 -
+        mu_f) a`` per update, ``mu_f = 1 - subsampling/(filter_memory_s rate)``; ``b0`` follows the estimate.
+        ``None``: ``FILTER_PERIODS`` periods ``2 pi sqrt(a2)`` of each mode's current model, set again on
+        :meth:`reset`/:meth:`initialize` (recommended when a memory is shorter than the mode's decay time
+        ``1/(zeta omega)``, e.g. the beam's mode 2). 0 (default) = 000 Algorithm 2 as printed (the filters follow
+        the latest estimate): the filter lag cost 1 of 10 divergences on the 000 §5 open-loop 10-20 % far start,
+        so it is not the default. ``inf`` freezes the filters (fixed-prefilter IV-RLS). See
+        :meth:`set_filter_memory`.
     reprime_s:
         Samples (in s) without updates after a gap or a filter reset; default 5 slowest time constants.
     init_method, init_max_iterations, init_samples:
         Offline initialization used by :meth:`initialize` (``"none"`` keeps the guesses).
+    filter_policy:
+        ``"auto"``, ``"on"`` or ``"off"`` (:meth:`set_filter_policy`); overrides ``filter_memory_s`` when given.
     """
 
     def __init__(self, structures: Sequence[SubmodelStructure], theta0: Sequence[np.ndarray], rate_hz: float, *,
                  forgetting: np.ndarray | Sequence[float] | float, controller: Any,
                  input_delay: int = 0, block_sweeps: int = 1, refinements: int = 0, projection: bool = True,
                  subsampling: int = 1, p0_relative: tuple[float, float] = (0.016, 1.1e-6),
-                 max_step: float = 0.0, p_cap: float = math.inf, reprime_s: float | None = None,
+                 max_step: float = 0.0, p_cap: float = math.inf, filter_memory_s: float | Sequence[float] | None = 0.0,
+                 filter_policy: str | None = None,
+                 reprime_s: float | None = None,
                  init_method: str = "auto", init_max_iterations: int = 30, init_samples: int | None = None) -> None:
         structures = list(structures)
         K = len(structures)
@@ -156,13 +175,15 @@ class RecursiveAdditiveSRIVC:
         s = {
             "kind": kind,
             "lam": np.zeros(K),
+            "muf": np.zeros(K),
             "cnum": np.ascontiguousarray(cnum),
             "cden": np.ascontiguousarray(cden),
             "cfg_i": np.array([K, d, int(block_sweeps), int(refinements), int(bool(projection)), int(subsampling),
                                int(controller is not None), hold_len], dtype=np.int64),
-            "cfg_f": np.array([h, 0.0, float(max_step), float(p_cap)]),
+            "cfg_f": np.array([h, 0.0, float(max_step), float(p_cap), 0.0]),
             "p0diag": np.zeros((K, kn.NT)),
             "theta": theta,
+            "thf": theta.copy(),
             "P": np.zeros((K, kn.NT, kn.NT)),
             "xs": np.zeros((K, kn.N_BANKS, 2)),
             "vin": np.zeros((K, 2)),
@@ -179,6 +200,9 @@ class RecursiveAdditiveSRIVC:
         }
         self._s = s
         self.set_forgetting(forgetting)
+        self.set_filter_memory(filter_memory_s)
+        if filter_policy is not None:
+            self.set_filter_policy(filter_policy)
         self._reset_covariance()
         self._refresh_filters()
 
@@ -194,7 +218,8 @@ class RecursiveAdditiveSRIVC:
                    block_sweeps=est.block_sweeps, refinements=est.refinements, projection=est.stability_projection,
                    subsampling=sub, p0_relative=(est.p0_relative_a, est.p0_relative_b),
                    init_method=est.init_method, init_max_iterations=est.init_max_iterations,
-                   init_samples=int(round(cfg.init_duration_s * cfg.loop_rate_hz)))
+                   init_samples=int(round(cfg.init_duration_s * cfg.loop_rate_hz)),
+                   filter_policy=est.filter_smoothing)
 
     @classmethod
     def from_state(cls, state: dict[str, np.ndarray]) -> RecursiveAdditiveSRIVC:
@@ -213,7 +238,8 @@ class RecursiveAdditiveSRIVC:
                   input_delay=int(cfg_i[kn.C_DELAY]), block_sweeps=int(cfg_i[kn.C_SWEEPS]),
                   refinements=int(cfg_i[kn.C_REFINE]), projection=bool(cfg_i[kn.C_PROJ]),
                   subsampling=int(cfg_i[kn.C_SUBSAMPLE]), max_step=float(cfg_f[kn.C_MAXSTEP]),
-                  p_cap=float(cfg_f[kn.C_PCAP]))
+                  p_cap=float(cfg_f[kn.C_PCAP]), filter_memory_s=0.0)
+        # the filter model's factors muf are restored by set_state (stored per mode, not as a time constant)
         est.set_state(state)
         return est
 
@@ -225,11 +251,11 @@ class RecursiveAdditiveSRIVC:
             s["P"][i] = np.diag(diag)
 
     def _refresh_filters(self) -> None:
-        """Cache ``Phi, Gamma`` of the current theta (the kernel keeps them in step afterwards)."""
+        """Cache ``Phi, Gamma`` of the current filter model (the kernel keeps them in step afterwards)."""
         s = self._s
         h = float(s["cfg_f"][kn.C_H])
         for i in range(self.K):
-            th = s["theta"][i]
+            th = s["thf"][i]
             kn.discretize_mode(int(s["kind"][i]), float(th[0]), float(th[1]), h, s["phi"][i], s["gam"][i])
 
     def _reset_filters(self) -> None:
@@ -323,6 +349,88 @@ class RecursiveAdditiveSRIVC:
         # residual variance: exponential memory of the slowest mode, per sample
         sub = int(self._s["cfg_i"][kn.C_SUBSAMPLE])
         self._s["cfg_f"][kn.C_LAMSIG] = 1.0 - (1.0 - float(lam.max())) / sub
+        if getattr(self, "_filter_policy", None) == "auto":
+            self._apply_filter_policy()
+
+    def set_filter_policy(self, policy: str) -> None:
+        """Choose when the prefilters use the smoothed filter model ``A_f`` (see :meth:`set_filter_memory`).
+
+        ``"off"``: 000 Algorithm 2 as printed. ``"on"``: every mode, one period of the mode. ``"auto"``: only the
+        modes whose forgetting memory is shorter than ``AUTO_DECAY_FACTOR`` decay times ``1/(zeta omega) =
+        2 a2/a1`` of their current model, where the slow-variation approximation of 000 Remark 4.4 behind the
+        carried filter states fails (the estimate <-> prefilter loop then oscillates and grows; measured in
+        ``scripts/study_short_memory.py``). Re-evaluated on :meth:`reset`, :meth:`initialize` and memory changes.
+        """
+        if policy not in FILTER_POLICIES:
+            raise ValueError(f"filter policy must be one of {', '.join(FILTER_POLICIES)}, got {policy!r}")
+        self._filter_policy = policy
+        self._apply_filter_policy()
+
+    def _apply_filter_policy(self) -> None:
+        policy = getattr(self, "_filter_policy", None)
+        if policy is None:
+            return
+        if policy == "off":
+            self.set_filter_memory(0.0)
+        elif policy == "on":
+            self.set_filter_memory(None)
+        else:
+            th, lam, kind = self._s["theta"], self._s["lam"], self._s["kind"]
+            sub = int(self._s["cfg_i"][kn.C_SUBSAMPLE])
+            tau = np.zeros(self.K)
+            for i in range(self.K):
+                a1, a2 = th[i, 0], th[i, 1]
+                if kind[i] != 0 or not (a1 > 0.0 and a2 > 0.0) or lam[i] >= 1.0:
+                    continue
+                memory_s = sub / ((1.0 - lam[i]) * self.rate_hz)
+                if memory_s < AUTO_DECAY_FACTOR * 2.0 * a2 / a1:
+                    tau[i] = FILTER_PERIODS * 2.0 * math.pi * math.sqrt(a2)
+            self.set_filter_memory(tau)
+        self._filter_policy = policy
+
+    def set_filter_memory(self, filter_memory_s: float | Sequence[float] | None) -> None:
+        """Time constant (s) of the filter model ``A_f,i`` per mode; ``None`` = ``FILTER_PERIODS`` periods.
+
+        000 Remark 4.4 carries the filter states across coefficient changes, which is exact only while the
+        coefficients are nearly constant over the filters' response. With a memory shorter than the decay time
+        ``1/(zeta omega)`` of a lightly damped mode the estimate <-> prefilter loop of Algorithm 2 (through
+        ``A_i`` alone) oscillates and grows (``scripts/study_short_memory.py``); averaging the estimated ``A_i``
+        over a few periods of the mode before it builds the filters breaks that loop. The fixed point is
+        unchanged (``A_f = A`` when the estimate is stationary). 0 = Algorithm 2, ``inf`` = frozen filters.
+        Rigid-body modes have no ``A`` (000 §4.6) and ignore it.
+        """
+        K = self.K
+        sub = int(self._s["cfg_i"][kn.C_SUBSAMPLE])
+        if filter_memory_s is None:
+            self._filter_memory_auto = True
+            th = self._s["theta"]
+            tau = np.array([FILTER_PERIODS * 2.0 * math.pi * math.sqrt(th[i, 1]) if self._s["kind"][i] == 0
+                            and th[i, 1] > 0.0 else 0.0 for i in range(K)])
+        else:
+            self._filter_memory_auto = False
+            tau = np.broadcast_to(np.asarray(filter_memory_s, dtype=float), (K,)).copy()
+        if not np.all(tau >= 0.0):
+            raise ValueError(f"filter_memory_s must be >= 0, got {filter_memory_s}")
+        mu = np.zeros(K)
+        for i in range(K):
+            if math.isinf(tau[i]):
+                mu[i] = 1.0
+            elif tau[i] > 0.0:
+                mu[i] = max(0.0, 1.0 - sub / (tau[i] * self.rate_hz))
+        self._s["muf"][:] = mu
+
+    @property
+    def filter_memory_s(self) -> np.ndarray:
+        """Filter-model time constant per mode in s (0: Algorithm 2, inf: frozen filters)."""
+        mu = self._s["muf"]
+        sub = int(self._s["cfg_i"][kn.C_SUBSAMPLE])
+        with np.errstate(divide="ignore"):
+            return np.where(mu == 0.0, 0.0, sub / ((1.0 - mu) * self.rate_hz))
+
+    @property
+    def filter_thetas(self) -> list[np.ndarray]:
+        """``[a_f1, a_f2, b0]`` of the filter model per mode (equal to :attr:`thetas` with ``filter_memory_s = 0``)."""
+        return [self._s["thf"][i, :s.n_theta].copy() for i, s in enumerate(self.structures)]
 
     def set_memory(self, memory_s: np.ndarray | Sequence[float] | float) -> None:
         """``lambda_i = 1 - subsampling/(memory_s_i rate)`` (NOTES: lambda scales with the rate)."""
@@ -355,9 +463,9 @@ class RecursiveAdditiveSRIVC:
     def _run(self, r: np.ndarray, u: np.ndarray, y: np.ndarray, valid: np.ndarray, allow_update: bool,
              trace: np.ndarray) -> None:
         s = self._s
-        kn.run_block(r, u, y, valid, allow_update, s["kind"], s["lam"], s["cnum"], s["cden"], s["cfg_i"],
-                     s["cfg_f"], s["p0diag"], s["theta"], s["P"], s["xs"], s["vin"], s["phi"], s["gam"], s["ubuf"],
-                     s["zbuf"], s["ce"], s["cz"], s["ist"], s["fst"], s["proj"], s["rej"], trace)
+        kn.run_block(r, u, y, valid, allow_update, s["kind"], s["lam"], s["muf"], s["cnum"], s["cden"], s["cfg_i"],
+                     s["cfg_f"], s["p0diag"], s["theta"], s["thf"], s["P"], s["xs"], s["vin"], s["phi"], s["gam"],
+                     s["ubuf"], s["zbuf"], s["ce"], s["cz"], s["ist"], s["fst"], s["proj"], s["rej"], trace)
 
     def update(self, r: Any, u: Any, y: Any, valid: Any = None, *, trace: bool = False) -> np.ndarray | None:
         """Process any number of samples (000 Algorithm 2 lines 2-16 per sample).
@@ -389,6 +497,11 @@ class RecursiveAdditiveSRIVC:
         if theta0 is not None:
             for i, th in enumerate(theta0):
                 self._s["theta"][i, :np.size(th)] = np.asarray(th, dtype=float)
+        self._s["thf"][...] = self._s["theta"]
+        if getattr(self, "_filter_policy", None) is not None:
+            self._apply_filter_policy()
+        elif self._filter_memory_auto:
+            self.set_filter_memory(None)
         self._reset_covariance()
         self._refresh_filters()
         self._reset_filters()
@@ -461,7 +574,15 @@ class RecursiveAdditiveSRIVC:
         return out
 
     def set_state(self, state: dict[str, np.ndarray]) -> None:
-        """Restore a :meth:`get_state` snapshot; continuation is bit-identical. Shapes must match."""
+        """Restore a :meth:`get_state` snapshot; continuation is bit-identical. Shapes must match.
+
+        Version-1 snapshots (before the filter model) load with ``theta_f = theta`` and ``mu_f = 0``.
+        """
+        state = dict(state)
+        if "thf" not in state and "theta" in state:
+            state["thf"] = np.asarray(state["theta"], dtype=float).copy()
+        if "muf" not in state and "lam" in state:
+            state["muf"] = np.zeros(np.asarray(state["lam"]).shape)
         for k in STATE_KEYS:
             if k not in state:
                 raise ValueError(f"state is missing '{k}'")
