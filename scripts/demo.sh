@@ -8,5 +8,5 @@ bash "$ROOT/scripts/bootstrap.sh" >/dev/null
 # shellcheck source=/dev/null
 source "$ROOT/scripts/env.sh"
 cd "$ROOT"
-rsrivc_diagnose bags/beam_fault --params-file config/beam.yaml --out out/beam_fault "$@"
+rsrivc_diagnose bags/beam_fault --params-file config/beam_fault.yaml --out out/beam_fault "$@"
 echo "report: $ROOT/out/beam_fault/report.html"

@@ -20,7 +20,7 @@ make_bag() {  # name, then rsrivc_simulate arguments
 make_bag beam --scenario beam --duration 20 --seed 0 \
   --set manipulation_start_s=5 --set manipulation_end_s=19
 # beam_fault: 20 s, healthy until 10 s, then a 5 % step drop of mode 2's frequency; params config/beam_fault.yaml
-make_bag beam_fault --scenario beam_fault --duration 20 --seed 0 --set fault_time_s=10
+make_bag beam_fault --scenario beam_fault --duration 30 --seed 0 --set fault_time_s=20
 
 (cd "$OUT" && find beam beam_fault -type f | LC_ALL=C sort | xargs sha256sum) > "$OUT/SHA256SUMS.new"
 if [[ $CHECK == 1 ]]; then

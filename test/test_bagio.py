@@ -235,11 +235,11 @@ def test_atomic_writer_refuses_existing_and_cleans_up(tmp_path, sim):
     assert sorted(p.name for p in tmp_path.iterdir()) == ["bag"]  # no temp or half-written bag left
 
 
-@pytest.mark.parametrize("name,overrides", [
-    ("beam", {"manipulation_start_s": 5.0, "manipulation_end_s": 19.0}),
-    ("beam_fault", {"fault_time_s": 10.0}),
+@pytest.mark.parametrize("name,duration,overrides", [
+    ("beam", 20, {"manipulation_start_s": 5.0, "manipulation_end_s": 19.0}),
+    ("beam_fault", 30, {"fault_time_s": 20.0}),
 ])
-def test_bundled_bags_match_their_scenario(repo, name, overrides):
+def test_bundled_bags_match_their_scenario(repo, name, duration, overrides):
     """bags/ (scripts/make_bags.sh) holds exactly the scenario's samples and truth, within the size budget."""
     from additive_rsrivc_ros.config import load_config
     from additive_rsrivc_ros.core.scenarios import build
@@ -249,8 +249,8 @@ def test_bundled_bags_match_their_scenario(repo, name, overrides):
     total = sum(p.stat().st_size for p in (repo / "bags").rglob("*") if p.is_file())
     assert total < 25e6
     sig = read_signals(bag, load_config(repo / "config" / f"{name}.yaml"))
-    data = build(name, duration_s=20.0, seed=0, **overrides)
-    assert sig.n == data.t.size == 20 * 4096 and sig.nonfinite == 0
+    data = build(name, duration_s=float(duration), seed=0, **overrides)
+    assert sig.n == data.t.size == duration * 4096 and sig.nonfinite == 0
     np.testing.assert_array_equal(_bits(sig.y), _bits(data.y))
     np.testing.assert_array_equal(_bits(sig.u), _bits(data.u))
     np.testing.assert_array_equal(_bits(sig.r), _bits(data.r))
