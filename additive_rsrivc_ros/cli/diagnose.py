@@ -1,0 +1,352 @@
+"""``rsrivc_diagnose BAG --params-file YAML [--out DIR]``: offline diagnosis of a rosbag2 (MCAP or sqlite3).
+
+Runs the same :class:`..core.pipeline.MonitorPipeline` as the node (``rsrivc_monitor``), configured by
+the node's own params file, over the samples of a bag read by :func:`..bagio.read_signals` (which
+checks topics, types, counts, sample spacing and reports NaNs). Writes into DIR (default
+``./rsrivc_out/<bag name>``), as specified in ../shared/CONTRACT.md "Offline results":
+
+* ``estimates.csv``: one row per mode per output instant at which an estimate exists;
+* ``events.csv``: one row per structural fault event (empty clear time while open);
+* ``summary.json``: verdict, per-mode final values, events, timings, health and parameters;
+* ``report.html`` (self-contained, :mod:`..report`) and ``modes.png``.
+
+Prints a verdict and a per-mode summary table to stdout. Bad input (params file, bag) gives one line
+on stderr and exit status 2; ``--fail-on-fault`` makes a detected fault exit with status 3.
+"""
+
+from __future__ import annotations
+
+import argparse
+import csv
+import json
+import math
+import os
+import sys
+import time
+from collections.abc import Sequence
+from pathlib import Path
+from typing import Any, TextIO
+
+import numpy as np
+
+PROG = "rsrivc_diagnose"
+ESTIMATES_HEADER = ("time_s", "mode", "natural_frequency_hz", "damping_ratio", "gain", "natural_frequency_hz_std",
+                    "damping_ratio_std", "gain_std", "fault_natural_frequency", "fault_damping", "fault_gain")
+EVENTS_HEADER = ("onset_time_s", "clear_time_s", "mode", "quantity", "direction", "baseline", "value")
+
+
+class _Parser(argparse.ArgumentParser):
+    def error(self, message: str) -> None:  # one line instead of a usage dump
+        print(f"{PROG}: error: {message}", file=sys.stderr)
+        raise SystemExit(2)
+
+
+def _parser() -> argparse.ArgumentParser:
+    p = _Parser(prog=PROG, description="Diagnose a rosbag2 offline with the monitor's estimator and fault logic.")
+    p.add_argument("bag", help="rosbag2 directory (mcap or sqlite3)")
+    p.add_argument("--params-file", required=True, help="the node's params YAML (additive_rsrivc_monitor: ...)")
+    p.add_argument("--out", help="output directory (default: ./rsrivc_out/<bag name>)")
+    p.add_argument("--node-name", default=None, help="node name whose section of the params file is used")
+    prog = p.add_mutually_exclusive_group()
+    prog.add_argument("--progress", dest="progress", action="store_true", default=None,
+                      help="show a progress bar on stderr (default: only when stderr is a terminal)")
+    prog.add_argument("--no-progress", dest="progress", action="store_false", help="never show a progress bar")
+    p.add_argument("--no-report", action="store_true", help="skip report.html and modes.png (CSV/JSON only)")
+    p.add_argument("--chunk-s", type=float, default=1.0, help="seconds of data per pipeline call (default 1)")
+    p.add_argument("--fail-on-fault", action="store_true", help="exit with status 3 when a fault event was found")
+    p.add_argument("--quiet", action="store_true", help="print only the verdict line")
+    return p
+
+
+# ------------------------------------------------------------------------------------------------- progress
+class Progress:
+    """A one-line progress bar on a stream (refreshed at most 10 times per second)."""
+
+    def __init__(self, total_s: float, stream: TextIO, enabled: bool, width: int = 30) -> None:
+        self.total = max(total_s, 1e-12)
+        self.stream = stream
+        self.enabled = enabled
+        self.width = width
+        self.t_start = time.monotonic()
+        self._last = -1.0
+
+    def update(self, done_s: float, force: bool = False) -> None:
+        if not self.enabled:
+            return
+        now = time.monotonic()
+        if not force and now - self._last < 0.1:
+            return
+        self._last = now
+        frac = min(max(done_s / self.total, 0.0), 1.0)
+        fill = int(round(frac * self.width))
+        el = now - self.t_start
+        speed = done_s / el if el > 0 else 0.0
+        eta = (self.total - done_s) / speed if speed > 0 else float("nan")
+        self.stream.write(f"\r{PROG}: [{'#' * fill}{'.' * (self.width - fill)}] {frac * 100:5.1f} % "
+                          f"{done_s:8.1f}/{self.total:.1f} s  {speed:6.1f}x real time  ETA {eta:5.1f} s ")
+        self.stream.flush()
+
+    def close(self) -> None:
+        if self.enabled:
+            self.update(self.total, force=True)
+            self.stream.write("\n")
+            self.stream.flush()
+
+
+# ------------------------------------------------------------------------------------------------- running
+def run_pipeline(sig: Any, cfg: Any, *, chunk_s: float = 1.0, progress: Progress | None = None,
+                 ) -> tuple[list[Any], list[Any]]:
+    """Feed the bag's samples through a fresh :class:`MonitorPipeline`; return ``(reports, events)``.
+
+    Events are collected from the reports' ``events_opened``/``events_closed`` (as the node sees them),
+    keyed by (mode, quantity, alarm time), in order of onset.
+    """
+    from ..core.pipeline import MonitorPipeline
+
+    pipe = MonitorPipeline(cfg)
+    n = sig.t.size
+    step = max(1, int(round(chunk_s * cfg.loop_rate_hz)))
+    reports: list[Any] = []
+    events: dict[tuple, Any] = {}
+    r = sig.r if cfg.closed_loop else None
+    for a in range(0, n, step):
+        b = min(a + step, n)
+        for rep in pipe.push(sig.t[a:b], None if r is None else r[a:b], sig.u[a:b], sig.y[a:b]):
+            reports.append(rep)
+            for e in (*rep.events_opened, *rep.events_closed):
+                events[(e.mode, e.quantity, e.alarm_time_s)] = e
+        if progress is not None:
+            progress.update(float(sig.t[b - 1]))
+    ordered = sorted(events.values(), key=lambda e: (e.onset_time_s, e.mode, e.quantity))
+    return reports, ordered
+
+
+def _f(v: Any) -> str:
+    """Lossless decimal for CSV (shortest round-trip repr); NaN as ``nan``."""
+    x = float(v)
+    return repr(x) if math.isfinite(x) else ("nan" if math.isnan(x) else ("inf" if x > 0 else "-inf"))
+
+
+def write_estimates_csv(path: Path, reports: Sequence[Any]) -> int:
+    """CONTRACT estimates.csv; one row per mode per report with an estimate. Returns the row count."""
+    rows = 0
+    with path.open("w", newline="", encoding="utf-8") as fh:
+        w = csv.writer(fh, lineterminator="\n")
+        w.writerow(ESTIMATES_HEADER)
+        for rep in reports:
+            if not rep.estimating:
+                continue
+            m = np.asarray(rep.modal, float)
+            fl = np.asarray(rep.flags, bool)
+            for i in range(m.shape[0]):
+                w.writerow([_f(rep.time_s), i + 1, *(_f(v) for v in m[i, :6]), *(int(x) for x in fl[i, :3])])
+                rows += 1
+    return rows
+
+
+def event_dict(e: Any) -> dict[str, Any]:
+    """An event as plain data: the events.csv columns plus alarm time and z."""
+    return {"onset_time_s": float(e.onset_time_s), "clear_time_s": None if e.clear_time_s is None else
+            float(e.clear_time_s), "mode": int(e.mode), "quantity": str(e.quantity), "direction": str(e.direction),
+            "baseline": float(e.baseline), "value": float(e.value), "alarm_time_s": float(e.alarm_time_s),
+            "z": float(getattr(e, "z", math.nan))}
+
+
+def write_events_csv(path: Path, events: Sequence[dict[str, Any]]) -> None:
+    """CONTRACT events.csv (empty clear time while open)."""
+    with path.open("w", newline="", encoding="utf-8") as fh:
+        w = csv.writer(fh, lineterminator="\n")
+        w.writerow(EVENTS_HEADER)
+        for e in events:
+            w.writerow([_f(e["onset_time_s"]), "" if e["clear_time_s"] is None else _f(e["clear_time_s"]), e["mode"],
+                        e["quantity"], e["direction"], _f(e["baseline"]), _f(e["value"])])
+
+
+def _json_safe(v: Any) -> Any:
+    if isinstance(v, dict):
+        return {str(k): _json_safe(x) for k, x in v.items()}
+    if isinstance(v, list | tuple):
+        return [_json_safe(x) for x in v]
+    if isinstance(v, np.ndarray):
+        return _json_safe(v.tolist())
+    if isinstance(v, np.generic):
+        return _json_safe(v.item())
+    if isinstance(v, float) and not math.isfinite(v):
+        return None
+    if isinstance(v, Path):
+        return str(v)
+    return v
+
+
+def _out_dir(bag: Path, out: str | None) -> Path:
+    if out:
+        return Path(out)
+    name = bag.name if bag.is_dir() or bag.suffix == "" else (bag.parent.name if bag.name == "metadata.yaml"
+                                                                 else bag.stem)
+    return Path("rsrivc_out") / (name or "bag")
+
+
+# ------------------------------------------------------------------------------------------------- table
+def format_table(rows: Sequence[dict[str, Any]]) -> str:
+    """Plain-text per-mode summary (rows from :func:`..report.summary_rows`)."""
+    def num(v: Any, d: int = 6) -> str:
+        return "-" if v is None or not math.isfinite(float(v)) else f"{float(v):.{d}g}"
+
+    head = ("mode", "quantity", "final", "± std", "baseline", "change", "truth", "fault")
+    body = [(str(r["mode"]), r["quantity"], num(r["final"]), num(r["std"], 3), num(r["baseline"]),
+             "-" if r["change_pct"] is None else f"{r['change_pct']:+.2f} %", num(r["truth"]), r["fault"])
+            for r in rows]
+    widths = [max(len(h), *(len(b[j]) for b in body)) if body else len(h) for j, h in enumerate(head)]
+    lines = ["  ".join(h.ljust(w) for h, w in zip(head, widths, strict=True)),
+             "  ".join("-" * w for w in widths)]
+    lines += ["  ".join(c.rjust(w) if j in (2, 3, 4, 5, 6) else c.ljust(w) for j, (c, w) in
+                        enumerate(zip(b, widths, strict=True))) for b in body]
+    return "\n".join(ln.rstrip() for ln in lines)
+
+
+# ------------------------------------------------------------------------------------------------- main
+def diagnose(args: argparse.Namespace, stdout: TextIO, stderr: TextIO) -> int:
+    """The work behind :func:`main`; raises the tools' one-line errors."""
+    from .. import report as rp
+    from ..bagio import read_signals
+    from ..config import DEFAULT_NODE_NAME, load_config, param_table
+
+    t_start = time.monotonic()
+    if not (math.isfinite(args.chunk_s) and args.chunk_s > 0):
+        raise ValueError(f"--chunk-s must be > 0, got {args.chunk_s}")
+    cfg = load_config(args.params_file, args.node_name or DEFAULT_NODE_NAME)
+    bag = Path(args.bag)
+    sig = read_signals(bag, cfg)
+    t_read = time.monotonic()
+    out = _out_dir(bag, args.out)
+    if out.exists() and not out.is_dir():
+        raise OSError(f"output path {out} exists and is not a directory")
+    out.mkdir(parents=True, exist_ok=True)
+    if sig.nonfinite:
+        by = ", ".join(f"{k}: {v}" for k, v in sig.nonfinite_by_signal.items() if v)
+        print(f"{PROG}: warning: {sig.nonfinite} non-finite samples ({by}); the estimator skips them", file=stderr)
+    n = sig.t.size
+    duration = float(sig.t[-1]) + 1.0 / cfg.loop_rate_hz if n else 0.0
+    show = args.progress if args.progress is not None else stderr.isatty()
+    bar = Progress(float(sig.t[-1]) if n else 0.0, stderr, bool(show))
+    reports, ev_objs = run_pipeline(sig, cfg, chunk_s=args.chunk_s, progress=bar)
+    bar.close()
+    t_est = time.monotonic()
+    events = [event_dict(e) for e in ev_objs]
+    n_rows = write_estimates_csv(out / "estimates.csv", reports)
+    write_events_csv(out / "events.csv", events)
+
+    series = rp.DiagnosisSeries.from_reports(reports, cfg.K)
+    truth = rp.TruthData(sig.truth_t, sig.truth_modes, sig.truth_fault)
+    table = param_table()
+    info = {"bag": str(bag), "storage": sig.storage or "?", "params file": str(args.params_file),
+            "samples": n, "duration [s]": f"{duration:.6g}", "loop rate [Hz]": f"{cfg.loop_rate_hz:g}",
+            "loop": "closed" if cfg.closed_loop else "open", "modes (K)": cfg.K, "reports": len(reports),
+            "non-finite samples": sig.nonfinite,
+            **{k.replace("additive_rsrivc.", "bag "): v for k, v in sig.metadata.items()
+               if k != "additive_rsrivc.parameters"}}
+    inp = rp.ReportInput(title=_out_dir(bag, None).name, series=series, events=events, structures=cfg.structures,
+                         rate_hz=cfg.loop_rate_hz, closed_loop=cfg.closed_loop,
+                         input_delay_samples=cfg.input_delay_samples, duration_s=duration, params=dict(cfg.params),
+                         info=info, truth=truth, param_help={k: p.description for k, p in table.items()})
+    level, text = rp.verdict(events, series, duration)
+    rows = rp.summary_rows(inp)
+    t_report = t_est
+    if not args.no_report and n:
+        w0, w1 = rp.frf_windows(n, cfg.loop_rate_hz, cfg.init_duration_s)
+        for attr, w in (("frf_start", w0), ("frf_end", w1)):
+            try:
+                est = rp.nonparametric_frf(sig.u[w], sig.y[w], cfg.loop_rate_hz,
+                                           sig.r[w] if cfg.closed_loop and sig.r is not None else None,
+                                           t_start_s=float(sig.t[w][0]))
+            except ValueError:
+                est = None
+            setattr(inp, attr, est)
+        info["processing [s]"] = f"read {t_read - t_start:.2f}, estimate {t_est - t_read:.2f}"
+        rp.write_report(inp, out)
+        t_report = time.monotonic()
+    timings = {"read_s": t_read - t_start, "estimate_s": t_est - t_read, "report_s": t_report - t_est,
+               "total_s": time.monotonic() - t_start}
+    j = series.last_estimate()
+    modes = []
+    for i in range(cfg.K):
+        mr = [r for r in rows if r["mode"] == i + 1]
+        modes.append({
+            "mode": i + 1,
+            "final": {k: (float(series.modal[j, i, q]) if j is not None else None)
+                      for q, k in enumerate(ESTIMATES_HEADER[2:8])},
+            "baseline": {k: float(series.baseline[-1, i, q]) if series.n else None
+                         for q, k in enumerate(ESTIMATES_HEADER[2:5])},
+            "truth_final": ({k: float(sig.truth_modes[-1, i, q]) for q, k in enumerate(ESTIMATES_HEADER[2:5])}
+                            if sig.truth_modes is not None and i < sig.truth_modes.shape[1] else None),
+            "fault": {q: bool(series.flags[-1, i, k]) if series.n else False for k, q in enumerate(rp.QUANTITIES)},
+            "change_percent": {r["quantity"]: r["change_pct"] for r in mr},
+        })
+    last = reports[-1] if reports else None
+    summary = {
+        "bag": str(bag), "params_file": str(args.params_file), "storage": sig.storage, "verdict": level,
+        "verdict_text": text, "samples": n, "duration_s": duration, "loop_rate_hz": cfg.loop_rate_hz,
+        "closed_loop": cfg.closed_loop, "K": cfg.K, "reports": len(reports), "estimate_rows": n_rows,
+        "first_estimate_time_s": float(series.time_s[series.first_estimate()]) if series.first_estimate() is not None
+        else None,
+        "modes": modes, "events": events, "nonfinite_samples": sig.nonfinite,
+        "health": {"final": last.health if last is not None else None,
+                   "level_counts": {rp.LEVEL_NAMES[k]: int(np.sum(series.health_level == k)) for k in range(4)}},
+        "phase_final": last.phase if last is not None else None,
+        "timings_s": timings,
+        "realtime_factor": duration / timings["estimate_s"] if timings["estimate_s"] > 0 else None,
+        "truth_fault": sig.truth_fault, "bag_metadata": sig.metadata, "parameters": dict(cfg.params),
+        "files": {k: str(out / k) for k in ("estimates.csv", "events.csv", "summary.json", "report.html", "modes.png")
+                  if k in ("estimates.csv", "events.csv", "summary.json") or not args.no_report},
+    }
+    (out / "summary.json").write_text(json.dumps(_json_safe(summary), indent=2, allow_nan=False) + "\n",
+                                      encoding="utf-8")
+    print(f"{level}: {text}", file=stdout)
+    if not args.quiet:
+        print(f"\n{bag}: {duration:.4g} s, {n} samples at {cfg.loop_rate_hz:g} Hz, "
+              f"{'closed' if cfg.closed_loop else 'open'} loop, K = {cfg.K}\n", file=stdout)
+        print(format_table(rows), file=stdout)
+        print(f"\ntime: read {timings['read_s']:.2f} s, estimate+diagnose {timings['estimate_s']:.2f} s "
+              f"({duration / max(timings['estimate_s'], 1e-9):.0f}x real time), report {timings['report_s']:.2f} s, "
+              f"total {timings['total_s']:.2f} s", file=stdout)
+        print(f"wrote {out}/: estimates.csv ({n_rows} rows), events.csv ({len(events)} events), summary.json"
+              f"{'' if args.no_report else ', report.html, modes.png'}", file=stdout)
+    return 3 if (args.fail_on_fault and events) else 0
+
+
+def main(argv: list[str] | None = None) -> int:
+    """Console entry point: 0 on success, 2 on bad input (one line on stderr), 3 with --fail-on-fault."""
+    args = _parser().parse_args(argv)
+    from ..bagio import BagError
+    from ..config import ParamError
+
+    try:
+        from ..core.pipeline import PipelineError
+    except ImportError:  # pragma: no cover - the pipeline module is part of the package
+        PipelineError = ValueError  # noqa: N806
+    try:
+        return diagnose(args, sys.stdout, sys.stderr)
+    except (BagError, ParamError, PipelineError) as exc:
+        print(f"{PROG}: error: {_line(exc)}", file=sys.stderr)
+        return 2
+    except (OSError, ValueError) as exc:
+        print(f"{PROG}: error: {_line(exc)}", file=sys.stderr)
+        return 2
+    except KeyboardInterrupt:
+        print(f"{PROG}: interrupted", file=sys.stderr)
+        return 130
+    except Exception as exc:  # noqa: BLE001 - never a traceback for users; RSRIVC_DEBUG=1 shows it
+        if os.environ.get("RSRIVC_DEBUG"):
+            raise
+        print(f"{PROG}: internal error: {type(exc).__name__}: {_line(exc)} (set RSRIVC_DEBUG=1 for a traceback)",
+              file=sys.stderr)
+        return 1
+
+
+def _line(exc: BaseException) -> str:
+    text = str(exc).strip().splitlines()
+    return text[0] if text else type(exc).__name__
+
+
+if __name__ == "__main__":
+    sys.exit(main())

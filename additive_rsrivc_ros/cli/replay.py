@@ -1,0 +1,354 @@
+"""``rsrivc_replay BAG [--rate X] [--clock [HZ]] [--loop] [--topics ...] [--stats]``.
+
+Publishes a rosbag2 (MCAP or sqlite3, read with ``rosbags``) over DDS at its recorded timing: a
+stand-in for ``ros2 bag play``, which is not available from PyPI (../shared/NOTES.md). Messages are
+forwarded as the raw CDR stored in the bag (``Publisher.publish`` accepts ``bytes`` in Jazzy and calls
+``publish_raw``), so no (de)serialization happens in Python and 4096 Hz x 3 topics are easy to keep up
+with. Timing: every message has an absolute deadline ``start + (log_time - bag_start) / rate`` on the
+monotonic clock; all due messages are published as a batch and the process sleeps until the next
+deadline (at least ``--min-sleep``), so sleep overshoot never accumulates into drift.
+
+``--clock`` also publishes ``/clock`` (``rosgraph_msgs/msg/Clock``) with the bag time, so nodes run
+with ``use_sim_time`` follow the bag. With ``--loop`` the bag time keeps increasing over passes (the
+clock never jumps back); message contents (e.g. header stamps) are replayed unchanged.
+
+Ctrl-C and SIGTERM stop playback cleanly (exit status 0, a one-line note on stderr).
+"""
+
+from __future__ import annotations
+
+import argparse
+import importlib
+import signal
+import sys
+import threading
+import time
+from collections.abc import Callable, Iterable, Iterator
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any
+
+PROG = "rsrivc_replay"
+
+
+class ReplayError(RuntimeError):
+    """A bag or option that cannot be replayed; the message is one line."""
+
+
+@dataclass
+class BagPlan:
+    """What will be replayed: topic -> message type, message count, time span (ns)."""
+
+    path: Path
+    topics: dict[str, str]
+    counts: dict[str, int]
+    start_ns: int
+    end_ns: int
+
+    @property
+    def duration_s(self) -> float:
+        return (self.end_ns - self.start_ns) * 1e-9
+
+    @property
+    def n_messages(self) -> int:
+        return sum(self.counts.values())
+
+
+@dataclass
+class PlayStats:
+    """Timing figures of one playback (wall clock, monotonic)."""
+
+    published: int = 0
+    batches: int = 0
+    wall_s: float = 0.0
+    bag_s: float = 0.0
+    max_late_s: float = 0.0
+    sum_late_s: float = 0.0
+    passes: int = 0
+    interrupted: bool = False
+    per_topic: dict[str, int] = field(default_factory=dict)
+
+    @property
+    def msgs_per_s(self) -> float:
+        return self.published / self.wall_s if self.wall_s > 0 else 0.0
+
+    @property
+    def realtime_factor(self) -> float:
+        """Bag time covered per wall second (1.0 = recorded speed)."""
+        return self.bag_s / self.wall_s if self.wall_s > 0 else 0.0
+
+    @property
+    def mean_late_s(self) -> float:
+        return self.sum_late_s / self.published if self.published else 0.0
+
+
+def _open_reader(path: Path) -> Any:
+    """Open a rosbags reader; every failure becomes a one-line :class:`ReplayError`."""
+    from rosbags.rosbag2 import Reader
+
+    if not path.exists():
+        raise ReplayError(f"bag not found: {path}")
+    if path.is_dir() and not (path / "metadata.yaml").exists():
+        raise ReplayError(f"{path} is a directory without metadata.yaml (not a rosbag2 bag)")
+    try:
+        reader = Reader(path)
+        reader.open()
+    except Exception as exc:  # rosbags raises several types for corrupt/truncated files
+        msg = str(exc).strip().splitlines()[0] if str(exc).strip() else type(exc).__name__
+        raise ReplayError(f"cannot open bag {path}: {msg}") from None
+    return reader
+
+
+def inspect_bag(path: str | Path, topics: Iterable[str] | None = None) -> BagPlan:
+    """Check that the bag opens and holds the requested topics; return the replay plan."""
+    path = Path(path)
+    reader = _open_reader(path)
+    try:
+        available = {c.topic: c.msgtype for c in reader.connections}
+        if topics:
+            wanted = list(dict.fromkeys(topics))
+            missing = [t for t in wanted if t not in available]
+            if missing:
+                raise ReplayError(f"topic(s) not in bag {path}: {', '.join(missing)} "
+                                  f"(bag has {', '.join(sorted(available)) or 'no topics'})")
+        else:
+            wanted = sorted(available)
+        counts = dict.fromkeys(wanted, 0)
+        for c in reader.connections:
+            if c.topic in counts:
+                counts[c.topic] += int(c.msgcount)
+        if sum(counts.values()) == 0:
+            raise ReplayError(f"bag {path} has no messages to replay")
+        return BagPlan(path, {t: available[t] for t in wanted}, counts, int(reader.start_time), int(reader.end_time))
+    finally:
+        reader.close()
+
+
+def iter_bag(plan: BagPlan) -> Iterator[tuple[str, int, bytes]]:
+    """Yield ``(topic, log_time_ns, raw_cdr)`` in log-time order for the plan's topics."""
+    reader = _open_reader(plan.path)
+    try:
+        conns = [c for c in reader.connections if c.topic in plan.topics]
+        try:
+            for conn, stamp, raw in reader.messages(connections=conns):
+                yield conn.topic, int(stamp), bytes(raw)
+        except Exception as exc:
+            msg = str(exc).strip().splitlines()[0] if str(exc).strip() else type(exc).__name__
+            raise ReplayError(f"bag {plan.path} is truncated or corrupt: {msg}") from None
+    finally:
+        reader.close()
+
+
+def _tick(clock: Callable[[int], None], bag_ns: int, last_ns: int) -> int:
+    """Publish the clock only forwards in time; return the last published value."""
+    if bag_ns > last_ns:
+        clock(bag_ns)
+        return bag_ns
+    return last_ns
+
+
+def play(
+    messages: Callable[[], Iterable[tuple[str, int, bytes]]],
+    publish: Callable[[str, bytes], None],
+    *,
+    rate: float = 1.0,
+    loop: bool = False,
+    loop_period_ns: int = 0,
+    stop: threading.Event | None = None,
+    clock: Callable[[int], None] | None = None,
+    clock_period_s: float = 0.01,
+    min_sleep_s: float = 0.001,
+    max_sleep_s: float = 0.1,
+    now: Callable[[], float] = time.monotonic,
+) -> PlayStats:
+    """Publish messages at their recorded timing scaled by ``1/rate``; ROS-free (callbacks do the I/O).
+
+    Deadlines are absolute (no drift); messages whose deadline has passed are published in one batch,
+    then the loop sleeps until the next deadline but at least ``min_sleep_s``. ``clock(bag_time_ns)``
+    is called before the first message and then every ``clock_period_s`` of wall time (never backwards).
+    With ``loop``, each pass starts ``loop_period_ns`` after the previous pass's last message in bag
+    time, so that the bag time stays monotonic.
+    """
+    if not rate > 0.0:
+        raise ReplayError(f"--rate must be > 0, got {rate}")
+    stop = stop or threading.Event()
+    stats = PlayStats()
+    t_wall0: float | None = None
+    bag0: int | None = None
+    last_clock = -1e300
+    last_clock_ns = -1
+    offset = 0
+    last_bag_ns = 0
+    while not stop.is_set():
+        n_before = stats.published
+        for topic, stamp, raw in messages():
+            if stop.is_set():
+                break
+            if bag0 is None or t_wall0 is None:
+                bag0, t_wall0 = stamp, now()
+            bag_ns = stamp + offset
+            deadline = t_wall0 + (bag_ns - bag0) * 1e-9 / rate
+            t = now()
+            if deadline > t:
+                stats.batches += 1
+                while not stop.is_set():  # sleep in slices so that a stop request is honoured quickly
+                    if clock is not None and stats.published and t - last_clock >= clock_period_s:
+                        last_clock_ns = _tick(clock, min(bag0 + int((t - t_wall0) * rate * 1e9), bag_ns), last_clock_ns)
+                        last_clock = t
+                    wait = deadline - t
+                    if wait <= 0:
+                        break
+                    stop.wait(min(max(wait, min_sleep_s), max_sleep_s, clock_period_s if clock else max_sleep_s))
+                    t = now()
+                if stop.is_set():
+                    break
+                t = now()
+            if clock is not None and (stats.published == 0 or t - last_clock >= clock_period_s):
+                last_clock_ns = _tick(clock, bag_ns, last_clock_ns)
+                last_clock = t
+            publish(topic, raw)
+            late = t - deadline
+            stats.published += 1
+            stats.per_topic[topic] = stats.per_topic.get(topic, 0) + 1
+            stats.sum_late_s += max(late, 0.0)
+            stats.max_late_s = max(stats.max_late_s, late)
+            last_bag_ns = bag_ns
+        if stop.is_set():
+            break
+        stats.passes += 1
+        if not loop or stats.published == n_before or bag0 is None:
+            break
+        offset = last_bag_ns + max(loop_period_ns, 1) - bag0
+    stats.interrupted = stop.is_set()
+    if t_wall0 is not None:
+        stats.wall_s = now() - t_wall0
+        stats.bag_s = (last_bag_ns - bag0) * 1e-9 if bag0 is not None else 0.0
+    return stats
+
+
+def _msg_class(msgtype: str) -> Any:
+    """Import the rclpy message class of ``pkg/msg/Name``."""
+    parts = msgtype.split("/")
+    if len(parts) != 3:
+        raise ReplayError(f"cannot handle message type {msgtype!r}")
+    try:
+        return getattr(importlib.import_module(f"{parts[0]}.{parts[1]}"), parts[2])
+    except (ImportError, AttributeError):
+        raise ReplayError(f"message type {msgtype} is not installed in this environment") from None
+
+
+def _parser() -> argparse.ArgumentParser:
+    ap = argparse.ArgumentParser(prog=PROG, description="Publish a rosbag2 (mcap/sqlite3) over DDS at its "
+                                 "recorded timing (raw CDR); a stand-in for 'ros2 bag play'.")
+    ap.add_argument("bag", help="bag directory (with metadata.yaml) or a single .mcap/.db3 file")
+    ap.add_argument("--rate", type=float, default=1.0, help="playback speed factor (default 1.0)")
+    ap.add_argument("--clock", nargs="?", type=float, const=100.0, default=None, metavar="HZ",
+                    help="also publish /clock (rosgraph_msgs/Clock) with the bag time at HZ (default 100)")
+    ap.add_argument("--loop", action="store_true", help="replay the bag again and again until stopped")
+    ap.add_argument("--topics", nargs="+", metavar="TOPIC", help="replay only these topics (default: all)")
+    ap.add_argument("--qos-depth", type=int, default=10000, help="KEEP_LAST depth of the reliable publishers")
+    ap.add_argument("--delay", type=float, default=0.0, help="seconds to wait after creating publishers")
+    ap.add_argument("--wait-for-subscribers", type=float, default=None, metavar="TIMEOUT_S", const=30.0,
+                    nargs="?", help="before playing, wait until every topic has a subscriber (default 30 s)")
+    ap.add_argument("--stats", action="store_true", help="print achieved message rate and lateness")
+    ap.add_argument("--node-name", default="rsrivc_replay", help="ROS node name")
+    return ap
+
+
+def _install_stop_handlers(stop: threading.Event) -> None:
+    def handler(signum: int, _frame: Any) -> None:
+        stop.set()
+
+    signal.signal(signal.SIGINT, handler)
+    signal.signal(signal.SIGTERM, handler)
+
+
+def main(argv: list[str] | None = None) -> int:
+    """Console entry point; returns the exit status (0 also after Ctrl-C/SIGTERM)."""
+    args = _parser().parse_args(argv)
+    try:
+        if not args.rate > 0.0:
+            raise ReplayError(f"--rate must be > 0, got {args.rate}")
+        if args.clock is not None and not args.clock > 0.0:
+            raise ReplayError(f"--clock rate must be > 0 Hz, got {args.clock}")
+        if args.qos_depth < 1:
+            raise ReplayError(f"--qos-depth must be >= 1, got {args.qos_depth}")
+        plan = inspect_bag(args.bag, args.topics)
+        classes = {t: _msg_class(m) for t, m in plan.topics.items()}
+    except ReplayError as exc:
+        print(f"{PROG}: error: {exc}", file=sys.stderr)
+        return 2
+
+    stop = threading.Event()
+    _install_stop_handlers(stop)
+
+    import rclpy
+    from rclpy.qos import DurabilityPolicy, HistoryPolicy, QoSProfile, ReliabilityPolicy
+    from rclpy.signals import SignalHandlerOptions
+
+    context = rclpy.Context()
+    rclpy.init(args=[], context=context, signal_handler_options=SignalHandlerOptions.NO)
+    node = None
+    try:
+        node = rclpy.create_node(args.node_name, context=context)
+        qos = QoSProfile(history=HistoryPolicy.KEEP_LAST, depth=args.qos_depth,
+                         reliability=ReliabilityPolicy.RELIABLE, durability=DurabilityPolicy.VOLATILE)
+        pubs = {t: node.create_publisher(classes[t], t, qos) for t in plan.topics}
+        clock_cb = None
+        if args.clock is not None:
+            from builtin_interfaces.msg import Time
+            from rosgraph_msgs.msg import Clock
+
+            clock_pub = node.create_publisher(Clock, "/clock", QoSProfile(depth=100,
+                                                                           reliability=ReliabilityPolicy.RELIABLE))
+
+            def clock_cb(bag_ns: int) -> None:
+                clock_pub.publish(Clock(clock=Time(sec=bag_ns // 1_000_000_000, nanosec=bag_ns % 1_000_000_000)))
+
+        if args.wait_for_subscribers is not None:
+            t_end = time.monotonic() + args.wait_for_subscribers
+            while not stop.is_set() and any(p.get_subscription_count() == 0 for p in pubs.values()):
+                if time.monotonic() > t_end:
+                    missing = [t for t, p in pubs.items() if p.get_subscription_count() == 0]
+                    print(f"{PROG}: error: no subscriber on {', '.join(missing)} within "
+                          f"{args.wait_for_subscribers:g} s", file=sys.stderr)
+                    return 3
+                stop.wait(0.02)
+        if args.delay > 0:
+            stop.wait(args.delay)
+
+        def publish(topic: str, raw: bytes) -> None:
+            pubs[topic].publish(raw)
+
+        print(f"{PROG}: playing {plan.path} ({plan.n_messages} messages on {len(plan.topics)} topic(s), "
+              f"{plan.duration_s:.3f} s) at rate {args.rate:g}{', looping' if args.loop else ''}", file=sys.stderr)
+        period_ns = int(round((plan.end_ns - plan.start_ns) / max(plan.n_messages / len(plan.topics) - 1, 1)))
+        try:
+            stats = play(lambda: iter_bag(plan), publish, rate=args.rate, loop=args.loop, loop_period_ns=period_ns,
+                         stop=stop, clock=clock_cb, clock_period_s=1.0 / args.clock if args.clock else 0.01)
+        except ReplayError as exc:
+            print(f"{PROG}: error: {exc}", file=sys.stderr)
+            return 2
+        for p in pubs.values():  # let reliable subscribers receive the tail before the process exits
+            p.wait_for_all_acked(rclpy.duration.Duration(seconds=2.0))
+        if stats.interrupted:
+            print(f"{PROG}: stopped after {stats.published} messages", file=sys.stderr)
+        if args.stats:
+            expected = plan.n_messages / plan.duration_s * args.rate if plan.duration_s > 0 else float("nan")
+            print(f"published {stats.published} messages in {stats.wall_s:.3f} s: {stats.msgs_per_s:.0f} msg/s "
+                  f"(recorded rate x {args.rate:g}: {expected:.0f} msg/s), realtime factor "
+                  f"{stats.realtime_factor:.4f} (target {args.rate:g}), {stats.batches} sleeps, "
+                  f"lateness mean {stats.mean_late_s * 1e3:.3f} ms max {stats.max_late_s * 1e3:.3f} ms, "
+                  f"passes {stats.passes}")
+            for t, n in stats.per_topic.items():
+                print(f"  {t}: {n}")
+        return 0
+    finally:
+        if node is not None:
+            node.destroy_node()
+        if context.ok():
+            rclpy.shutdown(context=context)
+
+
+if __name__ == "__main__":
+    sys.exit(main())
