@@ -128,6 +128,7 @@ class _Data:
     h: float
     controller: DiscreteController | None
     delay: int
+    skip: int = 0          # filter warm-up samples left out of the normal equations and the cost
 
     @property
     def closed_loop(self) -> bool:
@@ -263,7 +264,8 @@ def _build(data: _Data, thetas, structures, closed_loop: bool, only: int | None 
             Z[:, sl.start + st.n: sl.stop] = Phi[:, sl.start + st.n: sl.stop]
         else:
             dss[i].run(z, rows=range(st.m + 1), out=Z[:, sl.start + st.n: sl.stop])
-    return _Step(Z, Phi, Ups, xhat, data.y - total)
+    s = data.skip  # the filters start from rest: leave their warm-up out (see warmup_samples)
+    return _Step(Z[s:], Phi[s:], Ups[s:], xhat, (data.y - total)[s:])
 
 
 def _equilibrated_solve(M: np.ndarray, R: np.ndarray, zn: np.ndarray, pn: np.ndarray) -> tuple[np.ndarray, float]:
@@ -456,8 +458,8 @@ def additive_iv(data: _Data, structures, thetas0, *, closed_loop: bool, method: 
 
 
 def _cost(data: _Data, xhat_sum: np.ndarray) -> float:
-    e = data.y - xhat_sum
-    return float(e @ e) / data.n
+    e = (data.y - xhat_sum)[data.skip:]
+    return float(e @ e) / e.size
 
 
 def bcd_srivc(data: _Data, structures, thetas0, *, max_iterations: int = 50, tol: float = 1e-7,
@@ -660,16 +662,47 @@ def lssvf(data: _Data, structures, thetas0, *, method: str = "lssvf") -> Identif
 # entry point
 
 
+WARMUP_DECAY_TIMES = 5.0  # default warm-up: this many decay times of the slowest mode of the initial model
+
+
+def warmup_samples(thetas, structures, rate_hz: float, n: int, warmup_s: float | None = None) -> int:
+    """Samples at the start of the record left out of the IV normal equations and the cost.
+
+    The prefilters, the simulated submodel outputs and the closed-loop instrument start from rest, while
+    a recording usually starts with the plant in motion: until those transients have decayed the
+    regression equations (001 eq. 21) hold only up to the initial-condition response. For a lightly damped
+    mode driven near resonance that transient carries as much energy as all the noise of a long record and
+    biases b0 and zeta together (the resonance peak b0/(2 zeta) stays right). Default: ``WARMUP_DECAY_TIMES``
+    decay times ``1/|Re pole|`` of the slowest asymptotically stable submodel of the initial model, at most a
+    quarter of the record. Integrators never decay and do not count.
+    """
+    if warmup_s is None:
+        tau = 0.0
+        for th, st in zip(thetas, structures, strict=True):
+            if st.n == 0:
+                continue
+            a, _ = split_theta(th, st)
+            poles = np.roots(a[::-1])
+            re = -poles.real[poles.real < 0]
+            if re.size:
+                tau = max(tau, 1.0 / float(np.min(re)))
+        warmup_s = WARMUP_DECAY_TIMES * tau
+    if not (np.isfinite(warmup_s) and warmup_s >= 0):
+        raise ValueError(f"warmup_s must be >= 0, got {warmup_s!r}")
+    return int(min(round(warmup_s * rate_hz), n // 4))
+
+
 def identify(u, y, rate_hz: float, structures, thetas0, *, r=None, controller: DiscreteController | None = None,
              input_delay: int = 0, method: str = "auto", max_iterations: int = 50, tol: float = 1e-7,
-             projection: bool = True) -> IdentificationResult:
+             projection: bool = True, warmup_s: float | None = None) -> IdentificationResult:
     """Identify the additive continuous-time model ``sum_i B_i/(p^l_i A_i)`` from sampled data.
 
     ``u`` is the plant input (held between samples, reaching the plant ``input_delay`` samples late),
     ``y`` the measured output, ``r`` the reference (closed loop, with the discrete ``controller``
     ``u = C_d (r - y)``). ``method``: see :data:`METHODS`; ``auto`` is ``additive-clsrivc`` when ``r`` and
     ``controller`` are given, else ``additive-srivc``. Bad input raises ``ValueError``; non-convergence is
-    reported in the result (``converged=False``, ``message``).
+    reported in the result (``converged=False``, ``message``). The first ``warmup_s`` seconds only warm up
+    the filters (:func:`warmup_samples`; default from the initial model, 0 uses every sample).
     """
     if method not in METHODS:
         raise ValueError(f"unknown method {method!r}; choose one of {', '.join(METHODS)}")
@@ -679,6 +712,7 @@ def identify(u, y, rate_hz: float, structures, thetas0, *, r=None, controller: D
         raise ValueError(f"tol must be positive, got {tol!r}")
     data, thetas = _check_inputs(u, y, rate_hz, structures, thetas0, r, controller, input_delay)
     structures = list(structures)
+    data.skip = warmup_samples(thetas, structures, rate_hz, data.n, warmup_s)
     if method == "auto":
         method = "additive-clsrivc" if data.closed_loop else "additive-srivc"
     needs_cl = method in ("additive-clsrivc", "clsrivc", "clsrivc-uns", "clsrivc-uns-monic")
