@@ -84,6 +84,10 @@ CORE_PARAMS: list[Param] = [
           "loop, additive-srivc in open loop), or one of the rsrivc_identify methods, or none (use the "
           "guesses as they are).", read_only=True,
           choices=("auto", "none", "additive-clsrivc", "additive-srivc", "bcd-srivc", "srivc", "clsrivc")),
+    Param("estimator.filter_smoothing", "string", "auto", "Prefilter denominator from the estimate (off: 000 "
+          "Algorithm 2 as printed) or smoothed over one period of the mode (on); auto: only for modes whose memory is "
+          "shorter than 3 decay times 1/(zeta omega), where the carried filter states (000 Remark 4.4) otherwise make "
+          "the estimate oscillate.", read_only=True, choices=("auto", "on", "off")),
     Param("estimator.init_max_iterations", "int", 30, "Iteration limit of the offline initialization.", 1, 1000,
           True),
 ]
@@ -101,10 +105,96 @@ for _sig, _topic in (("reference", "/reference"), ("input", "/plant_input"), ("o
     ]
 
 # Fault-diagnosis parameters: owned by core/faults.py (appended there or here by its owner).
-FAULT_PARAMS: list[Param] = []
+FAULT_PARAMS: list[Param] = [
+    Param("faults.enabled", "bool", True, "Run the structural fault tests (estimation and health run regardless)."),
+    Param("faults.settle_memory_lengths", "double", 3.0, "Wait this many (longest) memory lengths after the "
+          "recursion starts before the baseline window or the tests begin.", 0.0, 1000.0),
+    Param("faults.settle_max_memory_lengths", "double", 30.0, "Start the baseline window after this many "
+          "(longest) memory lengths even if the estimate has not converged (std still growing or estimate "
+          "still moving).", 0.0, 1e5),
+    Param("faults.baseline_duration_s", "double", 0.0, "Length of the healthy window the baseline is learned "
+          "over (s); 0: faults.baseline_memory_lengths x the longest memory.", 0.0, 1e7),
+    Param("faults.baseline_memory_lengths", "double", 5.0, "Baseline window in (longest) memory lengths when "
+          "faults.baseline_duration_s is 0.", 0.5, 1000.0),
+    *[Param(f"faults.baseline.{_k}", "double[]", [], f"Given baseline {_k} per mode (empty: learn it; give all "
+            "three lists or none).", read_only=True) for _k in ("natural_frequency_hz", "damping_ratio", "gain")],
+    *[Param(f"faults.baseline.{_k}_std", "double[]", [], f"Uncertainty of the given baseline {_k} per mode "
+            "(empty: exact).", 0.0, None, True) for _k in ("natural_frequency_hz", "damping_ratio", "gain")],
+    Param("faults.min_change.natural_frequency", "double", 0.02, "Minimum relevant relative change of a natural "
+          "frequency for a fault.", 1e-6, 10.0),
+    Param("faults.min_change.damping", "double", 0.20, "Minimum relevant relative change of a damping ratio for "
+          "a fault.", 1e-6, 10.0),
+    Param("faults.min_change.gain", "double", 0.10, "Minimum relevant relative change of a modal gain for a "
+          "fault.", 1e-6, 10.0),
+    Param("faults.min_change.spread_factor", "double", 3.0, "A change is relevant only if it also exceeds this many "
+          "times the healthy fluctuation (spread) of the estimate seen while the baseline was learned; 0 disables.",
+          0.0, 100.0),
+    Param("faults.cusum.reference_sigma", "double", 0.5, "CUSUM reference value k: deviations below k standard "
+          "deviations do not accumulate evidence.", 0.0, 100.0),
+    Param("faults.cusum.false_alarm_interval_days", "double", 100.0, "Mean time between false alarms of one "
+          "CUSUM side (per mode and quantity) on healthy data, before the relevance and persistence checks; sets "
+          "the CUSUM threshold (Siegmund's approximation).", 1e-6, 1e9),
+    Param("faults.cusum.threshold", "double", 0.0, "Fixed CUSUM threshold h in independent estimates (one per two "
+          "memory lengths); 0: derived from faults.cusum.false_alarm_interval_days.", 0.0, 1e4),
+    Param("faults.persistence_s", "double", 0.0, "A suspected fault must persist this long (s) to be confirmed; "
+          "the larger of this and faults.persistence_memory_lengths x the mode's memory is used.", 0.0, 1e6),
+    Param("faults.persistence_memory_lengths", "double", 1.0, "Persistence before confirming, in memory "
+          "lengths of the mode.", 0.0, 1000.0),
+    Param("faults.clear_s", "double", 0.0, "A fault clears after its deviation stayed away this long (s); the "
+          "larger of this and faults.clear_memory_lengths x the mode's memory is used.", 0.0, 1e6),
+    Param("faults.clear_memory_lengths", "double", 2.0, "Hysteresis before clearing, in memory lengths of the "
+          "mode.", 0.0, 1000.0),
+    Param("faults.clear_fraction", "double", 0.5, "A fault counts as gone when its deviation is below this "
+          "fraction of the minimum relevant change.", 0.01, 0.99),
+    Param("faults.health.holdoff_memory_lengths", "double", 2.0, "Structural alarms stay held back this many "
+          "(longest) memory lengths after an estimator-health or data problem ended.", 0.0, 1000.0),
+    Param("faults.health.holdoff_min_s", "double", 0.5, "Minimum hold-off after a health problem (s).", 0.0, 1e6),
+    Param("faults.health.max_condition", "double", 1e12, "Loss of excitation when the estimator's IV condition "
+          "number exceeds this.", 1.0, 1e300),
+    Param("faults.health.max_projection_fraction", "double", 0.01, "Projection storm when more than this "
+          "fraction of updates needed the stability projection (000 §4.7).", 0.0, 1.0),
+    Param("faults.health.residual_jump_ratio", "double", 3.0, "Residual-variance jump when the residual "
+          "variance exceeds its healthy level by this factor (advisory: a fault is then confirmed only if it "
+          "began together with the jump).", 1.0, 1e12),
+    Param("faults.health.max_relative_std", "double", 0.25, "Loss of excitation when a mode's frequency or "
+          "gain std exceeds this fraction of its value.", 1e-6, 1e6),
+    Param("faults.health.max_parameter_ratio", "double", 10.0, "Divergence when a frequency or gain moves by "
+          "more than this factor from its initial estimate.", 1.01, 1e6),
+    Param("faults.health.stuck_s", "double", 0.25, "Stuck sensor when the output repeats the exact same value "
+          "for this long (s).", 0.0, 1e6),
+    Param("faults.health.stuck_min_samples", "int", 10, "... and for at least this many samples.", 2, 100000000),
+    Param("faults.health.gap_tolerance", "double", 0.5, "A data gap is a sample spacing above (1 + this) / "
+          "loop_rate_hz; the estimator is re-primed after it.", 0.01, 1000.0),
+    Param("faults.health.repeated_output_is_missing", "bool", True, "An output exactly equal to the previous one "
+          "is a dropped sample held by the receiver: skip it (set false for coarsely quantized sensors)."),
+    Param("faults.health.max_repeated_fraction", "double", 0.01, "Health warning when more than this fraction of "
+          "the outputs between two reports repeat their previous value.", 0.0, 1.0),
+]
 
 # Node-only parameters (autostart, state_file, ...): owned by node.py.
-NODE_PARAMS: list[Param] = []
+NODE_PARAMS: list[Param] = [
+    Param("autostart", "bool", True, "Configure and activate the lifecycle node on start.", read_only=True),
+    Param("state_file", "string", "", "JSON file the estimator, baseline and fault state are saved to on shutdown "
+          "(and by ~/save_state) and restored from on start; empty: no persistence.", read_only=True),
+    Param("stale_timeout_s", "double", 1.0, "A signal topic without a message for this long is silent: /diagnostics "
+          "goes STALE.", 0.01, 3600.0),
+    Param("qos_depth", "int", 0, "Keep-last depth of the reliable signal subscriptions; 0: five seconds of samples "
+          "(at least 100), enough to ride out a stalled executor without losing data.", 0, 10000000, True),
+    Param("qos_reliable", "bool", True, "Subscribe RELIABLE (no loss; does not match BEST_EFFORT publishers) or "
+          "BEST_EFFORT (matches any publisher, may lose samples under load).", read_only=True),
+    Param("block_period_s", "double", 0.002, "Period of the estimation worker: queued samples are aligned and "
+          "fed to the estimator in blocks at this period.", 1e-4, 1.0, True),
+    Param("sync.max_backlog_s", "double", 0.25, "Float64 topics: one topic ahead of another by more than this much "
+          "data for over 1 s (or with the other topic silent) is a count mismatch (resynchronize).", 1e-3, 100.0),
+    Param("sync.gap_s", "double", 0.0, "Float64 topics: a jump of the samples' lateness by more than this that a "
+          "catch-up burst does not take back is an input pause (time gap, filters re-primed); 0: max(0.1 s, 10 "
+          "samples).", 0.0, 100.0),
+    Param("sync.hold_s", "double", 0.2, "Float64 topics: wait this long for a catch-up burst before a late "
+          "sample is declared a pause (only delays estimation while such a decision is pending).", 0.0, 10.0),
+    Param("sync.quiet_s", "double", 0.5, "Float64 topics: when every topic has been quiet this long, unequal "
+          "message counts are a count mismatch (the unmatched messages are discarded); must exceed the largest "
+          "delay between the publications of one sample's r, u and y.", 0.01, 100.0),
+]
 
 
 def all_params() -> list[Param]:
@@ -252,6 +342,7 @@ class EstimatorOptions:
     p0_relative_b: float = 1.1e-6
     init_method: str = "auto"
     init_max_iterations: int = 30
+    filter_smoothing: str = "auto"
 
 
 @dataclass(frozen=True)
@@ -331,6 +422,7 @@ class MonitorConfig:
             output_subsampling=p["estimator.output_subsampling"],
             p0_relative_a=p["estimator.p0_relative_a"], p0_relative_b=p["estimator.p0_relative_b"],
             init_method=p["estimator.init_method"], init_max_iterations=p["estimator.init_max_iterations"],
+            filter_smoothing=p["estimator.filter_smoothing"],
         )
         signals = {
             s: SignalConfig(p[f"{s}.topic"], p[f"{s}.type"], p[f"{s}.joint"], p[f"{s}.field"])

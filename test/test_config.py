@@ -20,10 +20,11 @@ def test_paper_example_loads_with_truth_modes():
     assert cfg.controller.numerator == (0.02329, -0.02058, 0.00454)
 
 
-@pytest.mark.parametrize("path", sorted(CONFIG_DIR.glob("*.yaml")))
-def test_every_bundled_config_is_valid(path):
-    if path.name.startswith("diagnostic_aggregator"):
-        pytest.skip("aggregator analyzer file, not a monitor params file")
+MONITOR_CONFIGS = sorted(p for p in CONFIG_DIR.glob("*.yaml") if not p.name.startswith("diagnostic_aggregator"))
+
+
+@pytest.mark.parametrize("path", MONITOR_CONFIGS, ids=lambda p: p.name)
+def test_every_bundled_monitor_config_is_valid(path):
     load_config(path)
 
 

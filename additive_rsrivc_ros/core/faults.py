@@ -79,6 +79,7 @@ class FaultSettings:
     baseline_value: tuple[tuple[float, ...], ...] = ((), (), ())      # per quantity, per mode (empty: learn)
     baseline_std: tuple[tuple[float, ...], ...] = ((), (), ())
     min_change: tuple[float, float, float] = (0.02, 0.20, 0.10)
+    relevance_spread_factor: float = 3.0  # relevant change >= this x the estimate's healthy spread too
     cusum_reference_sigma: float = 0.5
     cusum_threshold: float = 0.0          # 0: from cusum_false_alarm_interval_days (Siegmund)
     cusum_false_alarm_interval_days: float = 100.0
@@ -118,6 +119,7 @@ class FaultSettings:
             baseline_memory_lengths=float(g("baseline_memory_lengths", d.baseline_memory_lengths)),
             baseline_value=base, baseline_std=base_std,
             min_change=tuple(float(g(f"min_change.{q}", d.min_change[i])) for i, q in enumerate(QUANTITIES)),
+            relevance_spread_factor=float(g("min_change.spread_factor", d.relevance_spread_factor)),
             cusum_reference_sigma=float(g("cusum.reference_sigma", d.cusum_reference_sigma)),
             cusum_threshold=float(g("cusum.threshold", d.cusum_threshold)),
             cusum_false_alarm_interval_days=float(g("cusum.false_alarm_interval_days",
@@ -527,6 +529,7 @@ class FaultMonitor:
         }
         for q, name in enumerate(QUANTITIES):
             out[f"faults.min_change.{name}"] = s.min_change[q]
+        out["faults.min_change.spread_factor"] = s.relevance_spread_factor
         for q, key in enumerate(BASELINE_KEYS):
             out[f"faults.baseline.{key}"] = list(s.baseline_value[q])
             out[f"faults.baseline.{key}_std"] = list(s.baseline_std[q])
@@ -646,8 +649,13 @@ class FaultMonitor:
         sx = np.maximum(modal[:, 3:6], base.spread)
         sigma = np.maximum(np.sqrt(sx * sx + base.std ** 2), 1e-9 * np.abs(base.value))
         with np.errstate(divide="ignore", invalid="ignore"):
+            # relevant change: the user's minimum, and well above the estimate's own healthy fluctuation (a mode
+            # that wanders by 1 % with the operating point must not alarm on a 2 % excursion)
+            rho = np.maximum(np.asarray(s.min_change)[None, :],
+                             s.relevance_spread_factor * base.spread / np.abs(base.value))
+            rho = np.where(np.isfinite(rho), rho, np.asarray(s.min_change)[None, :])
             dev = modal[:, :3] - base.value
-            relevant = np.abs(dev) >= np.asarray(s.min_change) * np.abs(base.value)
+            relevant = np.abs(dev) >= rho * np.abs(base.value)
             score = np.where(relevant, np.abs(dev) / sigma, -1.0)
         score = np.where(np.isfinite(score), score, -1.0)
         for i in range(self.K):
@@ -691,7 +699,7 @@ class FaultMonitor:
                 else:       # isolation under stress: only the mode's dominant deviation can be the fault
                     test.confirm_before = -math.inf
                 opened, closed = test.step(
-                    t, w, float(modal[i, q]), sigma_d, b, s.min_change[q], s.cusum_reference_sigma,
+                    t, w, float(modal[i, q]), sigma_d, b, float(rho[i, q]), s.cusum_reference_sigma,
                     s.cusum_threshold, s.clear_fraction, self.persistence_s(i), self.clear_time_s(i),
                     arl0=self.arl0_samples(i))
                 if opened is not None:
