@@ -1,0 +1,645 @@
+"""``rsrivc_monitor``: the ROS 2 lifecycle node that runs :class:`MonitorPipeline` on live r, u, y topics.
+
+A thin shell (../shared/CONTRACT.md, docs/ARCHITECTURE.md): subscription callbacks only append
+``(value, arrival)`` to per-topic deques; an estimation worker thread aligns the streams
+(:mod:`.ros.sync`), feeds the samples in blocks to the pipeline (validation, recursive additive SRIVC of
+000 Algorithm 2, fault logic) and publishes ``/diagnostics`` and ``~/modes``. The executor is
+``rclpy.experimental.EventsExecutor`` driven by ``spin_once`` (in this rclpy build ``spin()`` of the
+EventsExecutor never returns control to Python timers or other threads; ``spin_once`` does), because the
+default executor loses Float64 messages above ~1 kHz (../shared/NOTES.md).
+
+Inputs (../shared/CONTRACT.md): Float64 topics are aligned by arrival order on a nominal sample grid,
+JointState topics by header stamp (exact: unmatched or out-of-order stamps are dropped); see
+:mod:`.ros.sync` for pauses, count mismatches and resynchronization. Limitation: Float64 carries no
+sequence information, so a single message lost on one topic while all topics keep streaming is only
+detected at the next moment all topics go quiet (``sync.quiet_s``) or when the imbalance lasts; use
+JointState (stamped) inputs when that matters, and give the controller's publishers a RELIABLE history deep
+enough for the longest expected stall (a KEEP_LAST writer silently overwrites unacknowledged samples;
+DDS reports no "message lost" event for that, measured).
+
+Outputs: ``/diagnostics`` (one ``<node>: mode <i>`` status per mode with exactly the CONTRACT keys, one
+``<node>: estimator`` status with counters, condition numbers, real-time factor, CPU, and the delay from a
+sample's arrival to the return of the pipeline update that includes it), ``~/modes``; services ``~/reset``,
+``~/rebaseline``, ``~/save_state``; ``state_file`` persistence across restarts.
+
+QoS of the signal subscriptions: RELIABLE, KEEP_LAST with a depth of five seconds of samples (param
+``qos_depth``). Reliable delivery over loopback never drops a sample by itself; the only loss left is a
+reader history overflow when the executor falls behind (a loaded CPU), and five seconds of history cover
+such stalls (Float64 messages are 8 bytes of payload; 4096 Hz x 3 topics x 5 s is a few MB). The
+EventsExecutor serves bursts topic by topic (measured: 3000 messages of one topic before the next), so the
+alignment tolerates large temporary count differences between the topics.
+"""
+
+from __future__ import annotations
+
+import json
+import math
+import os
+import sys
+import threading
+import time
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+USAGE = """usage: rsrivc_monitor [-h] [--ros-args [--params-file FILE.yaml] [-p NAME:=VALUE] [-r __node:=NAME]]
+
+ROS 2 lifecycle node: online closed-loop additive recursive SRIVC of mechanical resonances with fault
+diagnosis. Subscribes /reference, /plant_input, /plant_output (std_msgs/msg/Float64 or
+sensor_msgs/msg/JointState), publishes /diagnostics and ~/modes, serves ~/reset, ~/rebaseline,
+~/save_state (std_srvs/srv/Trigger). Default node name: additive_rsrivc_monitor. Parameters: see
+config/template.yaml (the YAML key must be the node name or /**).
+
+example:
+  rsrivc_monitor --ros-args --params-file my_plant.yaml
+  rsrivc_monitor --ros-args --params-file my_plant.yaml -p use_sim_time:=true -p state_file:=/tmp/s.json
+"""
+
+ALLOWED_EXTRA_PARAMS = ("use_sim_time", "start_type_description_service")
+
+
+def _import_ros() -> None:
+    """Import rclpy and the message packages lazily (``--help`` must work without ROS)."""
+    global rclpy, LifecycleNode, TransitionCallbackReturn, LifecycleState, EventsExecutor
+    global ExternalShutdownException, QoSProfile, ReliabilityPolicy, HistoryPolicy, DurabilityPolicy
+    global Float64, JointState, Float64MultiArray, DiagnosticArray, Trigger, SetParametersResult, Parameter, cv
+    import rclpy  # noqa: F401
+    import rclpy.lifecycle
+    from diagnostic_msgs.msg import DiagnosticArray
+    from rcl_interfaces.msg import SetParametersResult
+    from rclpy.executors import ExternalShutdownException
+    from rclpy.experimental import EventsExecutor
+    from rclpy.lifecycle import LifecycleNode, LifecycleState, TransitionCallbackReturn
+    from rclpy.parameter import Parameter
+    from rclpy.qos import DurabilityPolicy, HistoryPolicy, QoSProfile, ReliabilityPolicy
+    from sensor_msgs.msg import JointState
+    from std_msgs.msg import Float64, Float64MultiArray
+    from std_srvs.srv import Trigger
+
+    from .ros import convert as cv
+
+
+class _RingStats:
+    """Last ``n`` values of a float series (delays) with median / percentile."""
+
+    def __init__(self, n: int = 1 << 16) -> None:
+        self.buf = np.empty(n)
+        self.i = 0
+        self.full = False
+
+    def extend(self, x: np.ndarray) -> None:
+        x = np.asarray(x, dtype=float).ravel()[-self.buf.size:]
+        n = x.size
+        j = self.i + n
+        if j <= self.buf.size:
+            self.buf[self.i:j] = x
+        else:
+            k = self.buf.size - self.i
+            self.buf[self.i:] = x[:k]
+            self.buf[: n - k] = x[k:]
+            self.full = True
+        self.i = j % self.buf.size
+        if j == self.buf.size:
+            self.full = True
+
+    def values(self) -> np.ndarray:
+        return self.buf if self.full else self.buf[: self.i]
+
+    def percentile(self, q: float) -> float:
+        v = self.values()
+        return float(np.percentile(v, q)) if v.size else math.nan
+
+
+def make_node_class() -> type:
+    """Build the node class after rclpy has been imported (keeps ``--help`` free of ROS imports)."""
+    _import_ros()
+    from .config import DEFAULT_NODE_NAME, MonitorConfig, ParamError, all_params, param_table, validate_params
+    from .core.faults import FaultSettings, Level
+    from .core.pipeline import MonitorPipeline, PipelineError
+    from .ros.sync import InputSync
+
+    class MonitorNode(LifecycleNode):
+        """Managed node around :class:`MonitorPipeline`; see the module docstring."""
+
+        def __init__(self, node_name: str = DEFAULT_NODE_NAME, **kwargs: Any) -> None:
+            super().__init__(node_name, **kwargs)
+            self._table = param_table()
+            self._declare_all()
+            self.add_pre_set_parameters_callback(self._pre_set)
+            self.add_on_set_parameters_callback(self._on_set)
+            self.add_post_set_parameters_callback(self._post_set)
+            self.lock = threading.RLock()
+            self.pipeline: MonitorPipeline | None = None
+            self.cfg: MonitorConfig | None = None
+            self.sync: InputSync | None = None
+            self.config_error = ""
+            self._active = False
+            self._subs: list[Any] = []
+            self._srvs: list[Any] = []
+            self._modes_pub = None
+            self._diag_pub = None
+            self._worker: threading.Thread | None = None
+            self._stop = threading.Event()
+            self.idle_since_ns = 0
+            self._closed = False
+            self._reset_stats()
+
+        # ------------------------------------------------------------------------------------ parameters
+        def _declare_all(self) -> None:
+            """Declare every Param row with its descriptor; integer YAML values of double params are coerced."""
+            for name, ov in list(self._parameter_overrides.items()):
+                if name in self._table:
+                    self._parameter_overrides[name] = cv.coerce_int_to_double(self._table[name], ov)
+            for p in all_params():
+                if isinstance(p.default, list) and not p.default:
+                    # an empty list has no inferable type: declare typed, then give it the typed empty default
+                    self.declare_parameter(p.name, cv.PARAM_TYPE[p.type], cv.descriptor(p))
+                    if self.get_parameter_or(p.name).type_ == Parameter.Type.NOT_SET:
+                        self._parameters[p.name] = Parameter(p.name, cv.PARAM_TYPE[p.type], [])
+                else:
+                    self.declare_parameter(p.name, p.default, cv.descriptor(p))
+
+        def values(self) -> dict[str, Any]:
+            """Current parameter values, flat ``{name: plain value}``."""
+            return {name: cv.plain(self.get_parameter(name).value) for name in self._table}
+
+        def _pre_set(self, params: list) -> list:
+            return [cv.coerce_int_to_double(self._table[p.name], p) if p.name in self._table else p for p in params]
+
+        def _on_set(self, params: list) -> Any:
+            cand = self.values()
+            for p in params:
+                if p.name in self._table:
+                    cand[p.name] = cv.plain(p.value)
+            try:
+                valid = validate_params(cand, strict=False)
+                cfg = MonitorConfig.from_params(valid)
+                FaultSettings.from_params(valid).check(cfg.K)
+            except (ParamError, ValueError) as exc:
+                return SetParametersResult(successful=False, reason=f"rejected: {exc}")
+            return SetParametersResult(successful=True)
+
+        def _post_set(self, params: list) -> None:
+            changed = {p.name: cv.plain(p.value) for p in params if p.name in self._table}
+            runtime = {k: v for k, v in changed.items()
+                       if k in ("modes.memory_s", "publish_rate_hz") or k.startswith("faults.")}
+            with self.lock:
+                if self.pipeline is not None and runtime:
+                    try:
+                        self.pipeline.update_params(runtime)
+                    except PipelineError as exc:   # validated before; keep running and say so
+                        self.get_logger().error(f"runtime parameter change not applied: {exc}")
+                    else:
+                        self.get_logger().info("applied " + ", ".join(f"{k}={v}" for k, v in runtime.items()))
+                if "publish_rate_hz" in changed:
+                    self._publish_period_s = 1.0 / float(changed["publish_rate_hz"])
+                if "stale_timeout_s" in changed:
+                    self._stale_timeout_s = float(changed["stale_timeout_s"])
+                    if self.sync is not None:
+                        self.sync.silent_ns = int(self._stale_timeout_s * 1e9)
+                if self.sync is not None and self.cfg is not None:
+                    if "sync.max_backlog_s" in changed:
+                        self.sync.max_backlog = self._backlog_samples(float(changed["sync.max_backlog_s"]))
+                    if "sync.gap_s" in changed:
+                        self.sync.gap_ns = int(self._gap_s(float(changed["sync.gap_s"])) * 1e9)
+                    if "sync.quiet_s" in changed:
+                        self.sync.quiet_ns = int(float(changed["sync.quiet_s"]) * 1e9)
+                    if "sync.hold_s" in changed:
+                        self.sync.hold_ns = int(float(changed["sync.hold_s"]) * 1e9)
+
+        def _backlog_samples(self, s: float) -> int:
+            return max(8, int(math.ceil(s * self.cfg.loop_rate_hz)))
+
+        def _gap_s(self, s: float) -> float:
+            return s if s > 0.0 else max(0.1, 10.0 / self.cfg.loop_rate_hz)
+
+        # ------------------------------------------------------------------------------------ lifecycle
+        def on_configure(self, state: Any) -> Any:
+            unknown = sorted(n for n in self._parameter_overrides
+                             if n not in self._table and n not in ALLOWED_EXTRA_PARAMS
+                             and not n.startswith("qos_overrides."))
+            try:
+                if unknown:
+                    raise ParamError(f"unknown parameter(s): {', '.join(unknown)}")
+                values = validate_params(self.values())
+                cfg = MonitorConfig.from_params(values)
+                FaultSettings.from_params(values).check(cfg.K)
+            except (ParamError, ValueError) as exc:
+                self.config_error = str(exc)
+                self.get_logger().error(f"configuration rejected: {exc}")
+                return TransitionCallbackReturn.FAILURE
+            self.cfg = cfg
+            v = values
+            pipeline = None
+            state_file = v["state_file"]
+            if state_file and Path(state_file).is_file():
+                try:
+                    saved = json.loads(Path(state_file).read_text())
+                    pipeline = MonitorPipeline(cfg, state=saved["pipeline"])
+                    self.get_logger().info(f"state restored from {state_file} (estimating: {pipeline.initialized})")
+                except (OSError, ValueError, KeyError, TypeError, PipelineError) as exc:
+                    self.get_logger().warning(f"state file {state_file} not restored ({exc}); starting fresh")
+                    pipeline = None
+            try:
+                self.pipeline = pipeline or MonitorPipeline(cfg)
+            except (PipelineError, ValueError) as exc:
+                self.config_error = str(exc)
+                self.get_logger().error(f"configuration rejected: {exc}")
+                return TransitionCallbackReturn.FAILURE
+            self.signals = ("reference", "input", "output") if cfg.closed_loop else ("input", "output")
+            types = [cfg.signals[s].type for s in self.signals]
+            self.sync = InputSync(
+                self.signals, cfg.loop_rate_hz, stamped=all(t == "sensor_msgs/msg/JointState" for t in types),
+                max_backlog=self._backlog_samples(v["sync.max_backlog_s"]),
+                quiet_s=v["sync.quiet_s"], gap_s=self._gap_s(v["sync.gap_s"]), hold_s=v["sync.hold_s"],
+                silent_s=v["stale_timeout_s"])
+            if self.pipeline.t_last is not None:
+                self.sync.set_time_floor(self.pipeline.t_last)
+            self._stale_timeout_s = v["stale_timeout_s"]
+            self._publish_period_s = 1.0 / cfg.publish_rate_hz
+            self._block_period_s = v["block_period_s"]
+            self._reset_stats()
+            depth = v["qos_depth"] or max(100, int(math.ceil(5.0 * cfg.loop_rate_hz)))
+            qos = QoSProfile(history=HistoryPolicy.KEEP_LAST, depth=depth,
+                             reliability=ReliabilityPolicy.RELIABLE if v["qos_reliable"]
+                             else ReliabilityPolicy.BEST_EFFORT, durability=DurabilityPolicy.VOLATILE)
+            for i, s in enumerate(self.signals):
+                sc = cfg.signals[s]
+                if sc.type == "sensor_msgs/msg/JointState":
+                    self._subs.append(self.create_subscription(JointState, sc.topic, self._joint_cb(i, s, sc), qos))
+                else:
+                    self._subs.append(self.create_subscription(Float64, sc.topic, self._float_cb(i), qos))
+            self._modes_pub = self.create_lifecycle_publisher(Float64MultiArray, "~/modes", 10)
+            self._diag_pub = self.create_lifecycle_publisher(DiagnosticArray, "/diagnostics", 10)
+            self._srvs = [self.create_service(Trigger, "~/reset", self._srv_reset),
+                          self.create_service(Trigger, "~/rebaseline", self._srv_rebaseline),
+                          self.create_service(Trigger, "~/save_state", self._srv_save)]
+            self.get_logger().info(
+                f"configured: K={cfg.K}, {cfg.loop_rate_hz:g} Hz, {'closed' if cfg.closed_loop else 'open'} loop, "
+                f"inputs {', '.join(cfg.signals[s].topic for s in self.signals)} "
+                f"({'stamped' if self.sync.stamped else 'arrival order'}), QoS depth {depth}")
+            return TransitionCallbackReturn.SUCCESS
+
+        def on_activate(self, state: Any) -> Any:
+            self._stop.clear()
+            self._active = True
+            self._worker = threading.Thread(target=self._run_worker, name="rsrivc_worker", daemon=True)
+            self._worker.start()
+            return super().on_activate(state)
+
+        def on_deactivate(self, state: Any) -> Any:
+            self._stop_worker()
+            return super().on_deactivate(state)
+
+        def on_cleanup(self, state: Any) -> Any:
+            self._stop_worker()
+            self.save_state()
+            self._destroy_interfaces()
+            return TransitionCallbackReturn.SUCCESS
+
+        def on_shutdown(self, state: Any) -> Any:
+            self.close()
+            return TransitionCallbackReturn.SUCCESS
+
+        def _stop_worker(self) -> None:
+            self._active = False
+            self._stop.set()
+            if self._worker is not None and self._worker is not threading.current_thread():
+                self._worker.join(timeout=10.0)
+            self._worker = None
+
+        def _destroy_interfaces(self) -> None:
+            for s in self._subs:
+                self.destroy_subscription(s)
+            for s in self._srvs:
+                self.destroy_service(s)
+            for p in (self._modes_pub, self._diag_pub):
+                if p is not None:
+                    self.destroy_lifecycle_publisher(p)
+            self._subs, self._srvs, self._modes_pub, self._diag_pub = [], [], None, None
+            self.pipeline = self.sync = None
+
+        def close(self) -> None:
+            """Stop the worker and save the state once; called on shutdown."""
+            self._stop_worker()
+            if not self._closed:
+                self._closed = True
+                self.save_state()
+
+        def save_state(self) -> str:
+            """Write the pipeline state to ``state_file`` atomically; returns a one-line result."""
+            path = self.get_parameter("state_file").value
+            if not path:
+                return "state_file is empty: nothing saved"
+            with self.lock:
+                if self.pipeline is None:
+                    return "not configured: nothing saved"
+                doc = {"node": self.get_fully_qualified_name(), "saved_unix_s": time.time(),
+                       "pipeline": self.pipeline.get_state()}
+            tmp = f"{path}.tmp{os.getpid()}"
+            Path(tmp).write_text(json.dumps(doc))
+            os.replace(tmp, path)
+            self.get_logger().info(f"state saved to {path}")
+            return f"state saved to {path}"
+
+        # ------------------------------------------------------------------------------------ callbacks
+        def _float_cb(self, i: int) -> Any:
+            q = self.sync.queues[i]
+            mono = time.monotonic_ns
+
+            def cb(msg: Any) -> None:
+                if self._active:
+                    q.append((msg.data, mono()))
+            return cb
+
+        def _joint_cb(self, i: int, sig: str, sc: Any) -> Any:
+            q = self.sync.queues[i]
+            mono = time.monotonic_ns
+            joint, fld = sc.joint, sc.field
+
+            def cb(msg: Any) -> None:
+                if not self._active:
+                    return
+                try:
+                    k = msg.name.index(joint) if joint else 0
+                    value = float(getattr(msg, fld)[k])
+                except (ValueError, IndexError):
+                    self._malformed[sig] = self._malformed.get(sig, 0) + 1
+                    return
+                st = msg.header.stamp
+                q.append((value, mono(), st.sec * 1_000_000_000 + st.nanosec))
+            return cb
+
+        def _srv_reset(self, request: Any, response: Any) -> Any:
+            with self.lock:
+                if self.pipeline is None:
+                    response.success, response.message = False, "not configured"
+                    return response
+                self.pipeline.reset()
+                self.sync.resync(time.monotonic_ns(), "reset requested", count=False)
+                self.sync.set_time_floor(None)
+            response.success, response.message = True, "estimator, baseline and fault state reset"
+            return response
+
+        def _srv_rebaseline(self, request: Any, response: Any) -> Any:
+            with self.lock:
+                if self.pipeline is None:
+                    response.success, response.message = False, "not configured"
+                    return response
+                closed = self.pipeline.rebaseline()
+            response.success = True
+            response.message = f"learning a new baseline; {len(closed)} open fault event(s) closed"
+            return response
+
+        def _srv_save(self, request: Any, response: Any) -> Any:
+            path = self.get_parameter("state_file").value
+            if not path:
+                response.success, response.message = False, "parameter state_file is empty"
+                return response
+            try:
+                response.message = self.save_state()
+                response.success = True
+            except OSError as exc:
+                response.success, response.message = False, f"cannot write {path}: {exc}"
+            return response
+
+        # ------------------------------------------------------------------------------------ worker
+        def _reset_stats(self) -> None:
+            self.delays_ms = _RingStats()
+            self._busy_s = 0.0
+            self._data_s = 0.0
+            self._cpu0 = (time.process_time(), time.monotonic())
+            self._cpu_fraction = math.nan
+            self._malformed: dict[str, int] = {}
+            self._wrong_types: list[str] = []
+            self._errors = 0
+            self._last_error = ""
+            self._last_pub_ns = 0
+            self._next_graph_ns = 0
+
+        def _run_worker(self) -> None:
+            while not self._stop.wait(self._block_period_s):
+                try:
+                    self.step()
+                except Exception as exc:  # noqa: BLE001 - the node must keep running; the error is reported
+                    self._errors += 1
+                    msg = f"{type(exc).__name__}: {exc}"
+                    if msg != self._last_error:
+                        self.get_logger().error(f"estimation step failed ({msg}); continuing")
+                    self._last_error = msg
+
+        def _ros_now_s(self) -> float:
+            return self.get_clock().now().nanoseconds * 1e-9
+
+        def step(self) -> None:
+            """Align what arrived, feed it to the pipeline, publish due reports and periodic diagnostics."""
+            now = time.monotonic_ns()
+            with self.lock:
+                sync, pipe = self.sync, self.pipeline
+                if sync is None or pipe is None:
+                    return
+                n_ev = sync.n_events
+                blk = sync.collect(now, idle_since_ns=self.idle_since_ns, ros_now_s=self._ros_now_s())
+                for ev in list(sync.events)[-min(sync.n_events - n_ev, len(sync.events)):] if sync.n_events > n_ev \
+                        else []:
+                    self.get_logger().warning(f"input: {ev}")
+                reports = []
+                if blk is not None:
+                    was_init = pipe.initialized
+                    c0 = time.perf_counter()
+                    reports = pipe.push(blk.t, blk.r, blk.u, blk.y)
+                    self._busy_s += time.perf_counter() - c0
+                    self._data_s += len(blk) / self.cfg.loop_rate_hz
+                    if was_init and pipe.initialized:
+                        self.delays_ms.extend((time.monotonic_ns() - blk.arrival_ns) * 1e-6)
+            if now >= self._next_graph_ns:
+                self._check_graph()
+                c = (time.process_time(), time.monotonic())
+                if c[1] > self._cpu0[1]:
+                    self._cpu_fraction = (c[0] - self._cpu0[0]) / (c[1] - self._cpu0[1])
+                self._cpu0 = c
+                self._next_graph_ns = now + 1_000_000_000
+            for rep in reports:
+                self._publish(rep)
+            if not reports and now - self._last_pub_ns > 1.5 * self._publish_period_s * 1e9:
+                self._publish(None)
+
+        def _check_graph(self) -> None:
+            """A configured topic carrying another message type: name the topic and both types."""
+            found = dict(self.get_topic_names_and_types())
+            wrong = []
+            for s in self.signals:
+                sc = self.cfg.signals[s]
+                others = [t for t in found.get(sc.topic, []) if t != sc.type]
+                if others:
+                    wrong.append(f"topic {sc.topic} ({s}) carries {', '.join(others)} but {s}.type is {sc.type}")
+            if wrong and wrong != self._wrong_types:
+                for w in wrong:
+                    self.get_logger().error(f"wrong message type: {w}")
+            self._wrong_types = wrong
+
+        # ------------------------------------------------------------------------------------ output
+        def _publish(self, rep: Any) -> None:
+            """Publish one report (``None``: no data is flowing; the current estimate with level STALE)."""
+            self._last_pub_ns = time.monotonic_ns()
+            name = self.get_name()
+            hw = self.get_fully_qualified_name()
+            now_mono = time.monotonic_ns()
+            silent = self.sync.silent(now_mono, self._stale_timeout_s)
+            with self.lock:
+                if rep is None:
+                    rep = self.pipeline.last_report
+                    modal = self.pipeline._modal()
+                else:
+                    modal = rep.modal
+                    self._modes_pub.publish(cv.modes_array(modal))
+                stale = bool(silent) or rep is None or not rep.estimating
+            arr = DiagnosticArray()
+            arr.header.stamp = self.get_clock().now().to_msg()
+            K = self.cfg.K
+            for i in range(K):
+                vals = {f: float(modal[i, j]) for j, f in enumerate(cv.MODE_FIELDS)}
+                level, msg = int(Level.STALE), "no data"
+                if rep is not None:
+                    md = rep.mode_dict(i)
+                    vals.update({k: md[k] for k in (*cv.BASELINE_FIELDS, *cv.FLAG_FIELDS)})
+                    level = int(rep.mode_levels[i])
+                    msg = self._mode_message(rep, i)
+                if silent:
+                    level, msg = int(Level.STALE), "no data on " + ", ".join(self.cfg.signals[s].topic for s in silent)
+                elif rep is None or not rep.estimating:
+                    level = int(Level.STALE)
+                    msg = "initializing" if rep is not None else "no data"
+                arr.status.append(cv.mode_status(f"{name}: mode {i + 1}", hw, vals, level, msg))
+            arr.status.append(self._estimator_status(rep, silent, stale, hw))
+            self._diag_pub.publish(arr)
+
+        @staticmethod
+        def _mode_message(rep: Any, i: int) -> str:
+            q = ("natural_frequency", "damping", "gain")
+            faults = [f"{q[j]} {rep.directions[i][j]}".strip() for j in range(3) if rep.flags[i, j]]
+            if faults:
+                return "fault: " + ", ".join(faults)
+            return rep.phase
+
+        def _estimator_status(self, rep: Any, silent: list[str], stale: bool, hw: str) -> Any:
+            sync, pipe = self.sync, self.pipeline
+            sc = sync.counters
+            h = dict(rep.health) if rep is not None else {}
+            h.update(pipe.counters.to_dict())      # live counters (the report may be older)
+            est = h.get("estimator", {}) or {}
+            cond = [c for c in est.get("cond", []) if c is not None]
+            rtf = self._data_s / self._busy_s if self._busy_s > 0 else math.nan
+            vals: dict[str, Any] = {
+                "phase": rep.phase if rep is not None else pipe.phase,
+                "samples_received": sum(sc.received),
+                "samples_aligned": sc.aligned,
+                "samples_processed": int(h.get("samples_processed", 0)),
+                "samples_dropped": int(h.get("samples_dropped", 0)) + sc.dropped,
+                "samples_skipped": int(h.get("samples_skipped", 0)),
+                "nonfinite_samples": int(h.get("nonfinite", 0)),
+                "out_of_order": int(h.get("out_of_order", 0)) + sc.out_of_order,
+                "duplicate_stamps": int(h.get("duplicates", 0)),
+                "gaps": int(h.get("gaps", 0)),
+                "input_pauses": sc.gaps,
+                "misaligned_events": sc.mismatches,
+                "unmatched_messages": sc.unmatched,
+                "malformed_messages": sum(self._malformed.values()),
+                "queue_backlog": max((len(q) + len(p) for q, p in zip(sync.queues, sync.pending, strict=True)),
+                                     default=0),
+                "projections": int(sum(est.get("projections", []) or [0])),
+                "reprimes": int(est.get("reprimes", 0) or 0),
+                "condition_number": float(max(cond)) if cond else math.nan,
+                "condition_number_per_mode": " ".join(cv.num(c) for c in cond),
+                "residual_variance": float(est.get("residual_var", math.nan) or math.nan),
+                "initializations": int(h.get("initializations", 0)),
+                "reinitializations": int(h.get("reinitializations", 0)),
+                "real_time_factor": float(rtf),
+                "cpu_fraction": float(self._cpu_fraction),
+                "delay_median_ms": self.delays_ms.percentile(50),
+                "delay_p95_ms": self.delays_ms.percentile(95),
+                "delay_max_ms": self.delays_ms.percentile(100),
+                "internal_errors": self._errors,
+                "silent_topics": " ".join(self.cfg.signals[s].topic for s in silent),
+                "wrong_types": "; ".join(self._wrong_types),
+            }
+            reasons = list(h.get("reasons", []))
+            level = int(h.get("level", 0)) if rep is not None else int(Level.STALE)
+            recent = time.monotonic_ns() - sync.last_event_ns < 5e9 and sync.last_event_ns > 0
+            if recent:
+                reasons.append(sync.events[-1])
+                level = max(level, int(Level.WARN)) if level != int(Level.STALE) else level
+            if self._errors and self._last_error:
+                reasons.append(f"internal error: {self._last_error}")
+                level = max(level, int(Level.ERROR)) if level != int(Level.STALE) else level
+            if silent:
+                reasons.insert(0, "no data on " + ", ".join(f"{self.cfg.signals[s].topic} for more than "
+                                                            f"{self._stale_timeout_s:g} s" for s in silent))
+                level = int(Level.STALE)
+            elif stale and rep is None:
+                level = int(Level.STALE)
+            if self._wrong_types:
+                reasons.insert(0, "wrong message type: " + "; ".join(self._wrong_types))
+                level = int(Level.ERROR)
+            vals["reasons"] = "; ".join(reasons)
+            msg = "; ".join(reasons) if reasons else (vals["phase"] if rep is not None else "no data")
+            return cv.status(f"{self.get_name()}: estimator", hw, vals, level, msg)
+
+    return MonitorNode
+
+
+def spin(node: Any, executor: Any) -> None:
+    """``spin_once`` loop (see module docstring); records when the executor was idle (input pause checks)."""
+    while rclpy.ok():
+        t0 = time.monotonic_ns()
+        executor.spin_once(timeout_sec=0.05)
+        t1 = time.monotonic_ns()
+        if t1 - t0 >= 40_000_000:
+            node.idle_since_ns = t1
+
+
+def main(argv: list[str] | None = None) -> int:
+    """Console script ``rsrivc_monitor``."""
+    args = list(sys.argv[1:] if argv is None else argv)
+    own = args[: args.index("--ros-args")] if "--ros-args" in args else args
+    if "-h" in own or "--help" in own:
+        print(USAGE)
+        return 0
+    if own:
+        print(f"rsrivc_monitor: unknown argument(s) {' '.join(own)} (ROS arguments go after --ros-args; see --help)",
+              file=sys.stderr)
+        return 2
+    _import_ros()
+    rclpy.init(args=["rsrivc_monitor", *args])
+    node = None
+    code = 0
+    try:
+        node = make_node_class()()
+        executor = EventsExecutor()
+        executor.add_node(node)
+        if node.get_parameter("autostart").value:
+            node.trigger_configure()
+            if node.pipeline is None:
+                print(f"rsrivc_monitor: configuration rejected: {node.config_error}", file=sys.stderr)
+                return 1
+            node.trigger_activate()
+        spin(node, executor)
+    except (KeyboardInterrupt, ExternalShutdownException):
+        pass
+    except Exception as exc:  # noqa: BLE001 - parameter declaration errors etc.: one line, non-zero exit
+        print(f"rsrivc_monitor: {type(exc).__name__}: {exc}", file=sys.stderr)
+        code = 1
+    finally:
+        if node is not None:
+            try:
+                node.close()
+            except Exception as exc:  # noqa: BLE001
+                print(f"rsrivc_monitor: saving state failed: {exc}", file=sys.stderr)
+            node.destroy_node()
+        rclpy.try_shutdown()
+    return code
+
+
+if __name__ == "__main__":
+    sys.exit(main())

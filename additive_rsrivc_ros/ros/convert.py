@@ -1,0 +1,111 @@
+"""Conversions between the parameter table / pipeline reports and ROS 2 messages."""
+
+from __future__ import annotations
+
+import math
+import sys
+from typing import Any
+
+from diagnostic_msgs.msg import DiagnosticStatus, KeyValue
+from rcl_interfaces.msg import FloatingPointRange, IntegerRange, ParameterDescriptor
+from rclpy.parameter import Parameter
+from std_msgs.msg import Float64MultiArray, MultiArrayDimension
+
+from ..config import Param
+
+PARAM_TYPE = {
+    "bool": Parameter.Type.BOOL, "int": Parameter.Type.INTEGER, "double": Parameter.Type.DOUBLE,
+    "string": Parameter.Type.STRING, "bool[]": Parameter.Type.BOOL_ARRAY, "int[]": Parameter.Type.INTEGER_ARRAY,
+    "double[]": Parameter.Type.DOUBLE_ARRAY, "string[]": Parameter.Type.STRING_ARRAY,
+}
+MODE_FIELDS = ("natural_frequency_hz", "damping_ratio", "gain", "natural_frequency_hz_std", "damping_ratio_std",
+               "gain_std")
+BASELINE_FIELDS = ("baseline_natural_frequency_hz", "baseline_damping_ratio", "baseline_gain")
+FLAG_FIELDS = ("fault_natural_frequency", "fault_damping", "fault_gain")
+MODE_KEYS = (*MODE_FIELDS, *BASELINE_FIELDS, *FLAG_FIELDS)   # exactly the CONTRACT keys of a mode status
+_INT_MAX = 2**63 - 1
+
+
+def descriptor(p: Param) -> ParameterDescriptor:
+    """ParameterDescriptor of a table row: description, read-only, range (scalars) and constraints text."""
+    d = ParameterDescriptor(name=p.name, type=PARAM_TYPE[p.type].value, description=p.description,
+                            read_only=p.read_only)
+    notes = []
+    if p.min is not None or p.max is not None:
+        lo = p.min if p.min is not None else -math.inf
+        hi = p.max if p.max is not None else math.inf
+        if p.type == "double":
+            d.floating_point_range = [FloatingPointRange(from_value=float(max(lo, -sys.float_info.max)),
+                                                         to_value=float(min(hi, sys.float_info.max)), step=0.0)]
+        elif p.type == "int":
+            d.integer_range = [IntegerRange(from_value=int(max(lo, -_INT_MAX)), to_value=int(min(hi, _INT_MAX)),
+                                            step=0)]
+        else:
+            notes.append(f"every element in [{lo:g}, {hi:g}]")
+    if p.choices:
+        notes.append("one of: " + ", ".join(p.choices))
+    if p.read_only:
+        notes.append("read-only: changing it needs a restart")
+    d.additional_constraints = "; ".join(notes)
+    return d
+
+
+def coerce_int_to_double(p: Param, param: Parameter) -> Parameter:
+    """An integer (array) given for a double (array) parameter becomes a double (YAML ``3`` for ``3.0``)."""
+    if p.type == "double" and param.type_ == Parameter.Type.INTEGER:
+        return Parameter(param.name, Parameter.Type.DOUBLE, float(param.value))
+    if p.type == "double[]" and param.type_ == Parameter.Type.INTEGER_ARRAY:
+        return Parameter(param.name, Parameter.Type.DOUBLE_ARRAY, [float(v) for v in param.value])
+    return param
+
+
+def plain(value: Any) -> Any:
+    """Parameter value as plain Python (arrays -> lists)."""
+    if hasattr(value, "tolist"):
+        return value.tolist()
+    if isinstance(value, tuple):
+        return list(value)
+    return value
+
+
+def num(v: float) -> str:
+    """Decimal string of a number (``nan`` when unknown)."""
+    v = float(v)
+    return repr(v) if math.isfinite(v) else ("nan" if math.isnan(v) else ("inf" if v > 0 else "-inf"))
+
+
+def mode_status(name: str, hardware_id: str, values: dict[str, Any], level: int, message: str) -> DiagnosticStatus:
+    """One ``<node>: mode <i>`` status with exactly the CONTRACT keys (flags 'true'/'false')."""
+    kv = []
+    for k in MODE_KEYS:
+        v = values.get(k, math.nan if k not in FLAG_FIELDS else False)
+        kv.append(KeyValue(key=k, value=("true" if v else "false") if k in FLAG_FIELDS else num(v)))
+    return DiagnosticStatus(level=bytes([int(level)]), name=name, message=message, hardware_id=hardware_id,
+                            values=kv)
+
+
+def status(name: str, hardware_id: str, values: dict[str, Any], level: int, message: str) -> DiagnosticStatus:
+    """A status with arbitrary key/values (numbers as decimal strings, bools as 'true'/'false')."""
+    kv = []
+    for k, v in values.items():
+        if isinstance(v, bool):
+            s = "true" if v else "false"
+        elif isinstance(v, int | float):
+            s = num(v) if isinstance(v, float) else str(v)
+        else:
+            s = str(v)
+        kv.append(KeyValue(key=k, value=s))
+    return DiagnosticStatus(level=bytes([int(level)]), name=name, message=message, hardware_id=hardware_id,
+                            values=kv)
+
+
+def modes_array(modal: Any) -> Float64MultiArray:
+    """``~/modes``: dim[0] 'mode' (K), dim[1] 'field' (6), row-major (../shared/CONTRACT.md)."""
+    rows = [[float(x) for x in row[:6]] for row in modal]
+    k = len(rows)
+    msg = Float64MultiArray()
+    msg.layout.dim = [MultiArrayDimension(label="mode", size=k, stride=6 * k),
+                      MultiArrayDimension(label="field", size=6, stride=6)]
+    msg.layout.data_offset = 0
+    msg.data = [x for row in rows for x in row]
+    return msg

@@ -1,0 +1,341 @@
+"""Alignment of the r, u, y input streams into samples (ROS-free, used by the monitor node).
+
+Two modes (../shared/CONTRACT.md "Signals in"):
+
+* **order** (``std_msgs/Float64``, no stamps): the k-th message of every topic is sample k. Sample
+  times are synthesized on the nominal grid ``t_k = t_anchor + (k - k_anchor) / loop_rate_hz``; arrival
+  times only decide whether a *real* pause happened: when the lateness of the samples relative to the
+  grid jumps by more than ``gap_s`` between two samples and is not taken back by a catch-up burst within
+  ``hold_s`` (a stalled publisher or executor delivers the held samples quickly), the grid is re-anchored
+  and the pipeline sees a time gap (its filters are re-primed). Count mismatches between the
+  topics (one topic ahead of the others by more than ``max_backlog`` samples, or unequal leftovers when
+  every topic has gone quiet) trigger a resynchronization: the pending samples are discarded (never fed),
+  the heads are re-aligned by arrival time and the grid restarts after a gap.
+* **stamped** (all signals ``sensor_msgs/JointState``): the header stamp is the sample time. Samples are
+  matched by equal stamps; a head whose stamp is older than another topic's head can never be matched
+  (topics arrive in order) and is dropped. Out-of-order or repeated stamps on a topic are dropped.
+
+Callbacks only append ``(value, arrival_ns[, stamp_ns])`` tuples to :attr:`InputSync.queues` (a deque
+append is atomic under the GIL); :meth:`InputSync.collect` runs in the estimation worker.
+"""
+
+from __future__ import annotations
+
+from collections import deque
+from dataclasses import dataclass, field
+
+import numpy as np
+
+
+@dataclass
+class Aligned:
+    """Samples ready for the pipeline: times (s), signals (r is None when not configured) and completion
+    arrival times (monotonic ns, the arrival of the last of a sample's messages)."""
+
+    t: np.ndarray
+    r: np.ndarray | None
+    u: np.ndarray
+    y: np.ndarray
+    arrival_ns: np.ndarray
+
+    def __len__(self) -> int:
+        return int(self.t.size)
+
+
+@dataclass
+class SyncCounters:
+    """Input-side counters reported on /diagnostics."""
+
+    received: list[int] = field(default_factory=list)   # messages per signal
+    aligned: int = 0                                     # samples handed to the pipeline
+    dropped: int = 0                                     # messages discarded (unmatched, resync, stale)
+    mismatches: int = 0                                  # count-mismatch / misalignment events
+    out_of_order: int = 0                                # stamped mode: stamps not increasing on a topic
+    unmatched: int = 0                                   # stamped mode: stamps without partners
+    gaps: int = 0                                        # order mode: pauses turned into time gaps
+
+    def to_dict(self) -> dict[str, int | list[int]]:
+        return dict(self.__dict__)
+
+
+class InputSync:
+    """Turns per-topic message queues into aligned samples; see the module docstring.
+
+    ``signals`` are the names in the order the pipeline wants them, e.g. ``("reference", "input", "output")``
+    or ``("input", "output")`` in open loop.
+    """
+
+    def __init__(self, signals: tuple[str, ...], rate_hz: float, *, stamped: bool, max_backlog: int,
+                 quiet_s: float, gap_s: float, hold_s: float, skew_s: float | None = None,
+                 silent_s: float | None = None) -> None:
+        if not signals or not all(s in ("reference", "input", "output") for s in signals):
+            raise ValueError(f"signals must be a non-empty subset of reference/input/output, got {signals}")
+        if not (rate_hz > 0.0):
+            raise ValueError(f"rate_hz must be > 0, got {rate_hz}")
+        if max_backlog < 1 or quiet_s <= 0.0 or gap_s <= 0.0 or hold_s < 0.0:
+            raise ValueError("max_backlog >= 1, quiet_s > 0, gap_s > 0 and hold_s >= 0 are required")
+        self.signals = tuple(signals)
+        self.n = len(signals)
+        self.rate = float(rate_hz)
+        self.h_ns = 1e9 / self.rate
+        self.stamped = stamped
+        self.max_backlog = int(max_backlog)
+        self.quiet_ns = int(quiet_s * 1e9)
+        self.silent_ns = int((quiet_s if silent_s is None else silent_s) * 1e9)
+        self.gap_ns = int(gap_s * 1e9)
+        self.hold_ns = int(hold_s * 1e9)
+        self.skew_ns = int((0.5 / self.rate if skew_s is None else skew_s) * 1e9)
+        self.queues: list[deque] = [deque() for _ in signals]
+        self.pending: list[list[tuple]] = [[] for _ in signals]
+        self.last_arrival_ns = [0] * self.n
+        self.counters = SyncCounters(received=[0] * self.n)
+        self.events: deque[str] = deque(maxlen=20)
+        self.n_events = 0
+        self.last_event_ns = 0
+        self.time_floor: float | None = None
+        self._last_stamp = [-1] * self.n
+        self._offset_s: float | None = None
+        self._restart_grid()
+        self._last_t: float | None = None
+        self._last_arr = 0
+        self._align_heads = False
+        self._imbalance_since: int | None = None
+        self._last_lag = 0
+        self.persist_ns = max(1_000_000_000, 2 * self.quiet_ns)
+
+    # ----------------------------------------------------------------------------------------- control
+    def _restart_grid(self) -> None:
+        self._anchor_k = 0
+        self._anchor_t: float | None = None
+        self._anchor_arr = 0
+        self._k = 0
+
+    def _event(self, now_ns: int, msg: str) -> None:
+        self.events.append(msg)
+        self.n_events += 1
+        self.last_event_ns = now_ns
+
+    def set_time_floor(self, t_floor: float | None) -> None:
+        """Emit times above ``t_floor + 1 s`` from now on (after restoring a saved estimator state)."""
+        self.time_floor = t_floor
+        self._offset_s = None
+        self._restart_grid()
+
+    def resync(self, now_ns: int, reason: str, *, count: bool = True) -> None:
+        """Discard everything pending; re-align the heads and restart the time grid after a gap."""
+        n_drop = sum(len(p) for p in self.pending)
+        self.pending = [[] for _ in self.signals]
+        self.counters.dropped += n_drop
+        if count:
+            self.counters.mismatches += 1
+        self._event(now_ns, f"{reason}; {n_drop} pending messages discarded, streams resynchronized")
+        self._restart_grid()
+        self._align_heads = not self.stamped
+
+    def _drain(self, now_ns: int) -> None:
+        for i, q in enumerate(self.queues):
+            m = len(q)
+            if m:
+                items = [q.popleft() for _ in range(m)]
+                self.counters.received[i] += m
+                self.last_arrival_ns[i] = items[-1][1]
+                if self.stamped:
+                    items = self._increasing(i, items, now_ns)
+                self.pending[i].extend(items)
+
+    def _increasing(self, i: int, items: list[tuple], now_ns: int) -> list[tuple]:
+        """Stamped mode: drop messages whose stamp does not increase on their topic."""
+        keep = []
+        last = self._last_stamp[i]
+        for item in items:
+            if item[2] > last:
+                keep.append(item)
+                last = item[2]
+        self._last_stamp[i] = last
+        bad = len(items) - len(keep)
+        if bad:
+            self.counters.out_of_order += bad
+            self.counters.dropped += bad
+            self._event(now_ns, f"{self.signals[i]}: {bad} out-of-order or repeated stamps dropped")
+        return keep
+
+    def silent(self, now_ns: int, timeout_s: float) -> list[str]:
+        """Signals without a message for ``timeout_s`` (never received counts as silent)."""
+        lim = int(timeout_s * 1e9)
+        return [s for s, a in zip(self.signals, self.last_arrival_ns, strict=True) if a == 0 or now_ns - a > lim]
+
+    # ----------------------------------------------------------------------------------------- alignment
+    def collect(self, now_ns: int, *, idle_since_ns: int = 0, ros_now_s: float = 0.0) -> Aligned | None:
+        """Align what has arrived; ``idle_since_ns``: last time the executor had nothing to do (pause check)."""
+        self._drain(now_ns)
+        if self.stamped:
+            return self._collect_stamped(now_ns)
+        return self._collect_order(now_ns, idle_since_ns, ros_now_s)
+
+    def _bound_backlog(self, now_ns: int, lens: list[int]) -> bool:
+        """One topic ahead of another by more than ``max_backlog``: drop (silent partner) or resync."""
+        if max(lens) - min(lens) <= self.max_backlog:
+            self._imbalance_since = None
+            return False
+        behind = [s for s, n_ in zip(self.signals, lens, strict=True) if n_ == min(lens)]
+        silent = [s for s, i in ((s, self.signals.index(s)) for s in behind)
+                  if self.last_arrival_ns[i] == 0 or now_ns - self.last_arrival_ns[i] > self.silent_ns]
+        if not silent:
+            # executors deliver bursts topic by topic: only a lasting imbalance is a count mismatch
+            if self._imbalance_since is None:
+                self._imbalance_since = now_ns
+            if now_ns - self._imbalance_since < self.persist_ns:
+                return False
+        self._imbalance_since = None
+        if silent:
+            n_drop = sum(len(p) for p in self.pending)
+            self.pending = [[] for _ in self.signals]
+            self.counters.dropped += n_drop
+            self._event(now_ns, f"no data on {', '.join(silent)} while the other topics continue; "
+                        f"{n_drop} unmatched messages discarded")
+            self._restart_grid()
+            self._align_heads = not self.stamped
+        else:
+            self.resync(now_ns, "count mismatch: " + ", ".join(f"{s} {n_}" for s, n_ in zip(self.signals, lens,
+                                                                                           strict=True))
+                        + " pending messages")
+        return True
+
+    def _collect_order(self, now_ns: int, idle_since_ns: int, ros_now_s: float) -> Aligned | None:
+        if self._align_heads:
+            if not all(self.pending):
+                return None
+            # after a resync: drop heads that arrived well before the newest head (their partners are gone)
+            while all(self.pending):
+                heads = [p[0][1] for p in self.pending]
+                newest = max(heads)
+                stale = [i for i, a in enumerate(heads) if a < newest - self.skew_ns]
+                if not stale:
+                    break
+                for i in stale:
+                    self.pending[i].pop(0)
+                    self.counters.dropped += 1
+            if not all(self.pending):
+                return None
+            self._align_heads = False
+        lens = [len(p) for p in self.pending]
+        if self._bound_backlog(now_ns, lens):
+            return None
+        n = min(lens)
+        if n == 0 or min(lens) != max(lens):
+            # pause check: every topic quiet and the executor idle since -> the leftovers can never match
+            last = max(self.last_arrival_ns)
+            if (max(lens) > n and now_ns - last > self.quiet_ns and idle_since_ns > last):
+                taken = self._take_order(n, now_ns, ros_now_s) if n else None
+                self.resync(now_ns, "count mismatch after all topics went quiet: "
+                            + ", ".join(f"{s} +{n_ - n}" for s, n_ in zip(self.signals, lens, strict=True)))
+                return taken
+            if n == 0:
+                return None
+        return self._take_order(n, now_ns, ros_now_s)
+
+    def _take_order(self, n: int, now_ns: int, ros_now_s: float) -> Aligned | None:
+        vals = np.empty((self.n, n))
+        arr = np.zeros(n, dtype=np.int64)
+        for i, p in enumerate(self.pending):
+            block = p[:n]
+            del p[:n]
+            vals[i] = [b[0] for b in block]
+            np.maximum(arr, np.fromiter((b[1] for b in block), dtype=np.int64, count=n), out=arr)
+        # time grid. A pause is a jump of the lateness between consecutive samples by more than gap_s that
+        # is not taken back by a catch-up burst (a stalled publisher or executor delivers the held samples
+        # quickly, bringing the lateness back); wait hold_s for such a burst before deciding.
+        h = 1.0 / self.rate
+        t = np.empty(n)
+        j = 0
+        while j < n:
+            if self._anchor_t is None:
+                t0 = ros_now_s
+                if self._last_t is not None:
+                    t0 = max(t0, self._last_t + max(2.0 * h, (arr[j] - self._last_arr) * 1e-9))
+                if self.time_floor is not None:
+                    t0 = max(t0, self.time_floor + 1.0)
+                self._anchor_t, self._anchor_k, self._anchor_arr = t0, self._k, int(arr[j])
+                self._last_lag = 0
+            kk = self._k + np.arange(n - j) - self._anchor_k
+            lag = arr[j:] - (self._anchor_arr + np.round(kk * self.h_ns).astype(np.int64))
+            base = np.concatenate(([self._last_lag], lag[:-1]))
+            stop = n - j
+            pause = False
+            for jl in np.flatnonzero(lag - base > self.gap_ns):
+                if lag[-1] - base[jl] <= self.gap_ns // 2:
+                    continue                      # taken back by a burst: a stall, not a pause
+                if now_ns - int(arr[j + jl]) < self.hold_ns:   # decide hold_s after the late sample arrived
+                    self._give_back(vals[:, j + jl:], arr[j + jl:])
+                    n = j + int(jl)
+                else:
+                    pause = True
+                    self.counters.gaps += 1
+                    self._event(now_ns, f"input pause of {(lag[jl] - base[jl]) * 1e-9:.3g} s: time gap, "
+                                "estimator re-primed")
+                stop = int(jl)
+                break
+            t[j:j + stop] = self._anchor_t + kk[:stop] * h
+            if stop:
+                self._last_lag = int(lag[stop - 1])
+            self._k += stop
+            j += stop
+            if pause:
+                if j:
+                    self._last_t, self._last_arr = float(t[j - 1]), int(arr[j - 1])
+                self._anchor_t = None            # the next sample starts a new grid after a time gap
+        if n == 0:
+            return None
+        self._last_t, self._last_arr = float(t[n - 1]), int(arr[n - 1])
+        self.counters.aligned += n
+        r = vals[self.signals.index("reference"), :n] if "reference" in self.signals else None
+        return Aligned(t[:n].copy(), None if r is None else r.copy(), vals[self.signals.index("input"), :n].copy(),
+                       vals[self.signals.index("output"), :n].copy(), arr[:n].copy())
+
+    def _give_back(self, vals: np.ndarray, arr: np.ndarray) -> None:
+        """Return aligned-but-held samples to the front of the pending lists (arrival = completion time)."""
+        for i in range(self.n):
+            self.pending[i][:0] = [(float(v), int(a)) for v, a in zip(vals[i], arr, strict=True)]
+
+    def _collect_stamped(self, now_ns: int) -> Aligned | None:
+        out_v: list[list[float]] = [[] for _ in self.signals]
+        out_s: list[int] = []
+        out_a: list[int] = []
+        idx = [0] * self.n
+        unmatched = 0
+        while all(idx[i] < len(p) for i, p in enumerate(self.pending)):
+            heads = [p[idx[i]] for i, p in enumerate(self.pending)]
+            stamps = [hd[2] for hd in heads]
+            top = max(stamps)
+            if min(stamps) == top:
+                for i, hd in enumerate(heads):
+                    out_v[i].append(hd[0])
+                    idx[i] += 1
+                out_s.append(top)
+                out_a.append(max(hd[1] for hd in heads))
+                continue
+            for i, s in enumerate(stamps):
+                if s < top:   # the topic with stamp `top` is past s: s can never be matched
+                    idx[i] += 1
+                    unmatched += 1
+        for i, p in enumerate(self.pending):
+            del p[:idx[i]]
+        if unmatched:
+            self.counters.unmatched += unmatched
+            self.counters.dropped += unmatched
+            self._event(now_ns, f"{unmatched} messages without partners (stamps missing on another topic) dropped")
+        self._bound_backlog(now_ns, [len(p) for p in self.pending])
+        if not out_s:
+            return None
+        stamps_s = np.asarray(out_s, dtype=np.int64)
+        if self._offset_s is None:
+            self._offset_s = 0.0
+            first = stamps_s[0] * 1e-9
+            if self.time_floor is not None and first <= self.time_floor + 1.0:
+                self._offset_s = self.time_floor + 1.0 - first
+        t = stamps_s * 1e-9 + self._offset_s
+        vals = np.asarray(out_v, dtype=float)
+        self.counters.aligned += t.size
+        r = vals[self.signals.index("reference")] if "reference" in self.signals else None
+        return Aligned(t, r, vals[self.signals.index("input")], vals[self.signals.index("output")],
+                       np.asarray(out_a, dtype=np.int64))

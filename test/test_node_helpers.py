@@ -1,0 +1,123 @@
+"""Test-side ROS 2 helpers for the monitor-node tests (no tests here): a client node in its own context, the node
+process."""
+from __future__ import annotations
+
+import subprocess
+import threading
+import time
+from collections.abc import Callable
+
+import rclpy
+from diagnostic_msgs.msg import DiagnosticArray
+from rcl_interfaces.msg import Parameter as ParameterMsg
+from rcl_interfaces.srv import GetParameters, SetParameters
+from rclpy.context import Context
+from rclpy.executors import SingleThreadedExecutor
+from rclpy.parameter import Parameter
+from rclpy.qos import HistoryPolicy, QoSProfile, ReliabilityPolicy
+from std_msgs.msg import Float64MultiArray
+from std_srvs.srv import Trigger
+
+NODE = "additive_rsrivc_monitor"
+TOPICS = {"reference": "/reference", "input": "/plant_input", "output": "/plant_output"}
+DATA_QOS = QoSProfile(depth=20000, reliability=ReliabilityPolicy.RELIABLE, history=HistoryPolicy.KEEP_LAST)
+
+
+def start_node(env: dict, params_file: str, *overrides: str) -> subprocess.Popen:
+    args = ["rsrivc_monitor", "--ros-args", "--params-file", params_file]
+    for o in overrides:
+        args += ["-p", o]
+    return subprocess.Popen(args, env=env, stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True)
+
+
+def stop_node(proc: subprocess.Popen, sig: str = "TERM", timeout: float = 30.0) -> tuple[int, str]:
+    proc.send_signal({"TERM": 15, "INT": 2}[sig])
+    try:
+        out, _ = proc.communicate(timeout=timeout)
+    except subprocess.TimeoutExpired:
+        proc.kill()
+        out, _ = proc.communicate()
+        return -9, out
+    return proc.returncode, out
+
+
+class Client:
+    """Publishers for the signals, subscribers to /diagnostics and ~/modes, service/parameter calls."""
+
+    def __init__(self, domain_id: int, msg_type, node: str = NODE) -> None:
+        self.ctx = Context()
+        rclpy.init(context=self.ctx, domain_id=domain_id)
+        self.node = rclpy.create_node("rsrivc_test_client", context=self.ctx)
+        self.pubs = {s: self.node.create_publisher(msg_type, t, DATA_QOS) for s, t in TOPICS.items()}
+        self.diags: list[DiagnosticArray] = []
+        self.modes: list[Float64MultiArray] = []
+        self.node.create_subscription(DiagnosticArray, "/diagnostics", self.diags.append, 100)
+        self.node.create_subscription(Float64MultiArray, f"/{node}/modes", self.modes.append, 100)
+        self.target = node
+        self.ex = SingleThreadedExecutor(context=self.ctx)
+        self.ex.add_node(self.node)
+        self.thread = threading.Thread(target=self._spin, daemon=True)
+        self.thread.start()
+
+    def _spin(self) -> None:
+        try:
+            while self.ctx.ok():
+                self.ex.spin_once(timeout_sec=0.05)
+        except Exception:  # noqa: BLE001 - context shut down while spinning
+            pass
+
+    def wait_for(self, pred: Callable[[], bool], timeout: float, what: str) -> None:
+        t_end = time.monotonic() + timeout
+        while time.monotonic() < t_end:
+            if pred():
+                return
+            time.sleep(0.05)
+        raise AssertionError(f"timed out after {timeout} s waiting for {what}")
+
+    def wait_matched(self, timeout: float = 30.0) -> None:
+        self.wait_for(lambda: all(p.get_subscription_count() > 0 for p in self.pubs.values()), timeout,
+                      "the node's subscriptions")
+
+    def status(self, suffix: str) -> dict | None:
+        """Latest status named '<node>: <suffix>' as {'level', 'message', 'values'}."""
+        for arr in reversed(self.diags):
+            for st in arr.status:
+                if st.name == f"{self.target}: {suffix}":
+                    return {"level": st.level[0] if isinstance(st.level, bytes) else int(st.level),
+                            "message": st.message, "values": {kv.key: kv.value for kv in st.values},
+                            "keys": [kv.key for kv in st.values]}
+        return None
+
+    def _call(self, srv_type, name: str, req, timeout: float = 20.0):
+        cli = self.node.create_client(srv_type, name)
+        try:
+            if not cli.wait_for_service(timeout_sec=timeout):
+                raise AssertionError(f"service {name} not available")
+            fut = cli.call_async(req)
+            self.wait_for(fut.done, timeout, f"response of {name}")
+            return fut.result()
+        finally:
+            self.node.destroy_client(cli)
+
+    def trigger(self, name: str):
+        return self._call(Trigger, f"/{self.target}/{name}", Trigger.Request())
+
+    def set_params(self, params: list[Parameter]):
+        req = SetParameters.Request()
+        req.parameters = [p.to_parameter_msg() for p in params]
+        return self._call(SetParameters, f"/{self.target}/set_parameters", req).results
+
+    def set_raw(self, msg: ParameterMsg):
+        req = SetParameters.Request()
+        req.parameters = [msg]
+        return self._call(SetParameters, f"/{self.target}/set_parameters", req).results
+
+    def get_params(self, names: list[str]) -> list:
+        req = GetParameters.Request()
+        req.names = names
+        return self._call(GetParameters, f"/{self.target}/get_parameters", req).values
+
+    def close(self) -> None:
+        rclpy.try_shutdown(context=self.ctx)
+        self.thread.join(timeout=5.0)
+        self.node.destroy_node()

@@ -1,0 +1,127 @@
+"""Input synchronization of the monitor node (additive_rsrivc_ros/ros/sync.py), without DDS.
+
+Every message carries its sample index as value, so a misaligned sample is one whose r, u, y differ.
+"""
+
+import numpy as np
+import pytest
+
+from additive_rsrivc_ros.ros.sync import InputSync
+
+RATE = 1000.0
+H_NS = 1_000_000
+SIG = ("reference", "input", "output")
+
+
+def make(stamped: bool = False, **kw) -> InputSync:
+    args = dict(max_backlog=50, quiet_s=0.05, gap_s=0.05, hold_s=0.02)
+    args.update(kw)
+    return InputSync(SIG, RATE, stamped=stamped, **args)
+
+
+def feed(s: InputSync, ks, t0_ns: int, topics=(0, 1, 2), stamped: bool = False) -> None:
+    for k in ks:
+        for i in topics:
+            item = (float(k), t0_ns + k * H_NS + 10 * i)
+            s.queues[i].append(item + ((5_000_000_000 + k * H_NS),) if stamped else item)
+
+
+def collect_all(s: InputSync, now_ns: int, idle_ns: int = 0):
+    blocks = []
+    while (b := s.collect(now_ns, idle_since_ns=idle_ns, ros_now_s=100.0)) is not None:
+        blocks.append(b)
+    return blocks
+
+
+def assert_aligned(blocks) -> np.ndarray:
+    t = np.concatenate([b.t for b in blocks])
+    r, u, y = (np.concatenate([getattr(b, a) for b in blocks]) for a in "ruy")
+    assert np.array_equal(r, u) and np.array_equal(u, y), "misaligned samples were emitted"
+    return t
+
+
+def test_order_mode_regular_stream_is_on_the_nominal_grid():
+    s = make()
+    feed(s, range(500), 0)
+    t = assert_aligned(collect_all(s, 500 * H_NS + 1000))
+    assert t.size == 500
+    np.testing.assert_allclose(np.diff(t), 1.0 / RATE, rtol=1e-9)
+    assert s.counters.mismatches == 0 and s.counters.gaps == 0 and s.counters.dropped == 0
+
+
+def test_order_mode_extra_messages_are_detected_when_streams_pause():
+    s = make()
+    feed(s, range(200), 0)
+    feed(s, range(200, 205), 0, topics=(1,))      # 5 extra input messages, never matched
+    now = 205 * H_NS + 200_000_000               # all topics quiet for 200 ms, executor idle since
+    blocks = collect_all(s, now, idle_ns=now - 1000)
+    blocks += collect_all(s, now + 1000, idle_ns=now)
+    t = assert_aligned(blocks)
+    assert t.size == 200
+    assert s.counters.mismatches == 1 and s.counters.dropped == 5
+    # new data after the resync is aligned again and starts after a time gap
+    feed(s, range(300, 400), 0)
+    t2 = assert_aligned(collect_all(s, 400 * H_NS + 1000))
+    assert t2.size == 100 and t2[0] - t[-1] > 2.0 / RATE
+
+
+def test_order_mode_silent_topic_bounds_the_backlog_and_resynchronizes():
+    s = make(max_backlog=20)
+    feed(s, range(100), 0)
+    assert_aligned(collect_all(s, 100 * H_NS))
+    feed(s, range(100, 400), 0, topics=(1, 2))   # reference silent for 300 ms
+    assert collect_all(s, 400 * H_NS) == []
+    assert s.counters.dropped > 0 and any("no data on reference" in e for e in s.events)
+    feed(s, range(400, 500), 0)                  # reference back
+    t = assert_aligned(collect_all(s, 500 * H_NS + 1000))
+    assert t.size > 90
+
+
+def test_order_mode_pause_becomes_time_gap_but_a_stall_with_catch_up_does_not():
+    s = make()
+    feed(s, range(100), 0)
+    t1 = assert_aligned(collect_all(s, 100 * H_NS))
+    pause_ns = 300_000_000                        # the publisher really stops for 0.3 s
+    feed(s, range(100, 200), pause_ns)
+    blocks = collect_all(s, pause_ns + 200 * H_NS + 50_000_000)
+    t2 = assert_aligned(blocks)
+    assert s.counters.gaps == 1
+    assert t2[0] - t1[-1] == pytest.approx(0.3 + 1.0 / RATE, abs=2e-3)
+    # stall: 100 samples delayed by the executor and delivered in one burst, grid unchanged
+    s2 = make()
+    feed(s2, range(100), 0)
+    burst = 100 * H_NS + 100_000_000
+    for k in range(100, 200):
+        for i in range(3):
+            s2.queues[i].append((float(k), burst + k * 1000))
+    t3 = assert_aligned(collect_all(s2, burst + 200 * 1000))
+    assert t3.size == 200 and s2.counters.gaps == 0
+    np.testing.assert_allclose(np.diff(t3), 1.0 / RATE, rtol=1e-9)
+
+
+def test_stamped_mode_drops_orphans_and_out_of_order_stamps():
+    s = make(stamped=True)
+    feed(s, range(50), 0, stamped=True)
+    feed(s, [50], 0, topics=(0, 2), stamped=True)   # input of sample 50 lost
+    feed(s, range(51, 100), 0, stamped=True)
+    feed(s, [10], 0, topics=(1,), stamped=True)     # a late, out-of-order input message
+    feed(s, range(100, 110), 0, stamped=True)
+    t = assert_aligned(collect_all(s, 200 * H_NS))
+    assert t.size == 109
+    assert s.counters.unmatched == 2 and s.counters.out_of_order == 1
+    assert np.all(np.diff(t) > 0)
+
+
+def test_time_floor_after_restore_keeps_times_increasing():
+    s = make(stamped=True)
+    s.set_time_floor(1e4)
+    feed(s, range(10), 0, stamped=True)
+    t = assert_aligned(collect_all(s, 20 * H_NS))
+    assert t[0] > 1e4 + 0.5 and np.allclose(np.diff(t), 1e-3)
+
+
+def test_bad_construction_is_rejected():
+    with pytest.raises(ValueError, match="signals"):
+        InputSync(("bogus",), RATE, stamped=False, max_backlog=5, quiet_s=0.1, gap_s=0.1, hold_s=0.0)
+    with pytest.raises(ValueError, match="rate_hz"):
+        InputSync(SIG, 0.0, stamped=False, max_backlog=5, quiet_s=0.1, gap_s=0.1, hold_s=0.0)
