@@ -88,6 +88,9 @@ CORE_PARAMS: list[Param] = [
           "Algorithm 2 as printed) or smoothed over one period of the mode (on); auto: only for modes whose memory is "
           "shorter than 3 decay times 1/(zeta omega), where the carried filter states (000 Remark 4.4) otherwise make "
           "the estimate oscillate.", read_only=True, choices=("auto", "on", "off")),
+    Param("estimator.init_warmup_s", "double", -1.0, "Seconds at the start of the initialization data that only "
+          "warm up the offline filters (left out of the fit); -1: automatic (none if the record starts at rest, "
+          "else 5 decay times of the slowest mode).", -1.0, 1e5, True),
     Param("estimator.init_max_iterations", "int", 30, "Iteration limit of the offline initialization.", 1, 1000,
           True),
 ]
@@ -343,6 +346,7 @@ class EstimatorOptions:
     init_method: str = "auto"
     init_max_iterations: int = 30
     filter_smoothing: str = "auto"
+    init_warmup_s: float = -1.0
 
 
 @dataclass(frozen=True)
@@ -422,7 +426,7 @@ class MonitorConfig:
             output_subsampling=p["estimator.output_subsampling"],
             p0_relative_a=p["estimator.p0_relative_a"], p0_relative_b=p["estimator.p0_relative_b"],
             init_method=p["estimator.init_method"], init_max_iterations=p["estimator.init_max_iterations"],
-            filter_smoothing=p["estimator.filter_smoothing"],
+            filter_smoothing=p["estimator.filter_smoothing"], init_warmup_s=p["estimator.init_warmup_s"],
         )
         signals = {
             s: SignalConfig(p[f"{s}.topic"], p[f"{s}.type"], p[f"{s}.joint"], p[f"{s}.field"])

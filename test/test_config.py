@@ -52,3 +52,30 @@ def test_int_for_double_is_accepted_and_bad_values_are_rejected(tmp_path):
     bad.write_text("a: [1, 2\n")
     with pytest.raises(ParamError, match="not valid YAML"):
         load_params_file(bad)
+
+
+def test_template_documents_every_parameter():
+    """config/template.yaml (the file users copy) sets every parameter of the table except those whose default
+    is an empty list (a ROS 2 params file cannot hold one; the template shows them commented out)."""
+    from additive_rsrivc_ros.config import all_params
+
+    flat = load_params_file(CONFIG_DIR / "template.yaml")  # validates every value too
+    text = (CONFIG_DIR / "template.yaml").read_text()
+    import yaml
+
+    section = yaml.safe_load(text)["additive_rsrivc_monitor"]["ros__parameters"]
+
+    def has(name: str) -> bool:
+        node = section
+        for part in name.split("."):
+            if not isinstance(node, dict) or part not in node:
+                return False
+            node = node[part]
+        return True
+
+    missing = [p.name for p in all_params() if not (isinstance(p.default, list) and not p.default) and not has(p.name)]
+    assert not missing, f"template.yaml lacks {missing}"
+    empty = [p.name for p in all_params() if isinstance(p.default, list) and not p.default]
+    for name in empty:
+        assert name.rsplit(".", 1)[-1] in text, f"template.yaml does not mention {name}"
+    assert flat["loop_rate_hz"] > 0

@@ -2,7 +2,7 @@
 import numpy as np
 
 from additive_rsrivc_ros.config import load_config
-from additive_rsrivc_ros.core.offline import identify, warmup_samples
+from additive_rsrivc_ros.core.offline import identify, starts_at_rest, warmup_samples
 from additive_rsrivc_ros.core.scenarios import PAPER_MODES
 from additive_rsrivc_ros.core.simulate import simulate_modes, white_noise
 
@@ -26,6 +26,19 @@ def test_default_warmup_is_five_decay_times_of_the_slowest_mode(repo):
     assert warmup_samples(thetas, cfg.structures, 20.0, 100000) == 800
     assert warmup_samples(thetas, cfg.structures, 20.0, 1000) == 250  # at most a quarter of the record
     assert warmup_samples(thetas, cfg.structures, 20.0, 1000, warmup_s=0.0) == 0
+
+
+def test_no_warmup_for_a_record_that_starts_at_rest(repo):
+    """From rest the start-up transient is information (with the four sines alone it is most of it): nothing is
+    left out. A record cut from the running loop starts with a value or a slope well above the noise floor."""
+    cfg, r, u, y = _segment(repo, 0.0, 300.0)
+    assert starts_at_rest(y)
+    thetas = [m.theta0() for m in cfg.modes]
+    assert warmup_samples(thetas, cfg.structures, 20.0, y.size, y=y) == 0
+    for start in (100.0, 123.45, 200.0):
+        _, _, _, y_cut = _segment(repo, start, 300.0)
+        assert not starts_at_rest(y_cut)
+        assert warmup_samples(thetas, cfg.structures, 20.0, y_cut.size, y=y_cut) == min(800, y_cut.size // 4)
 
 
 def test_record_starting_in_motion_is_unbiased_with_warmup(repo):

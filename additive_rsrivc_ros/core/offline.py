@@ -665,18 +665,36 @@ def lssvf(data: _Data, structures, thetas0, *, method: str = "lssvf") -> Identif
 WARMUP_DECAY_TIMES = 5.0  # default warm-up: this many decay times of the slowest mode of the initial model
 
 
-def warmup_samples(thetas, structures, rate_hz: float, n: int, warmup_s: float | None = None) -> int:
+def starts_at_rest(y: np.ndarray, level: float = 0.10, slope: float = 0.05) -> bool:
+    """Whether a record starts with the plant at rest: its first output sample is within ``level`` and its first
+    increment within ``slope`` of the largest output magnitude (the noise floor of a loop that has not started
+    moving). A plant in motion shows either a value or, near a zero crossing, a slope above that. Heuristic: a
+    start close to a zero crossing of a slow oscillation can pass for rest (set the warm-up explicitly then)."""
+    y = np.asarray(y, dtype=float)
+    if y.size < 2:
+        return True
+    scale = float(np.max(np.abs(y)))
+    return scale == 0.0 or (abs(y[0]) <= level * scale and abs(y[1] - y[0]) <= slope * scale)
+
+
+def warmup_samples(thetas, structures, rate_hz: float, n: int, warmup_s: float | None = None,
+                   y: np.ndarray | None = None) -> int:
     """Samples at the start of the record left out of the IV normal equations and the cost.
 
-    The prefilters, the simulated submodel outputs and the closed-loop instrument start from rest, while
-    a recording usually starts with the plant in motion: until those transients have decayed the
-    regression equations (001 eq. 21) hold only up to the initial-condition response. For a lightly damped
-    mode driven near resonance that transient carries as much energy as all the noise of a long record and
-    biases b0 and zeta together (the resonance peak b0/(2 zeta) stays right). Default: ``WARMUP_DECAY_TIMES``
-    decay times ``1/|Re pole|`` of the slowest asymptotically stable submodel of the initial model, at most a
-    quarter of the record. Integrators never decay and do not count.
+    The prefilters, the simulated submodel outputs and the closed-loop instrument start from rest. When the
+    recording starts with the plant in motion (the usual case for a monitor that attaches to a running
+    machine), the regression equations (001 eq. 21) hold only up to the initial-condition response until
+    those transients have decayed; for a lightly damped mode driven near resonance that transient carries as
+    much energy as all the noise of a long record and biases b0 and zeta together (the resonance peak
+    b0/(2 zeta) stays right). Default (``warmup_s=None``): nothing when the record starts at rest
+    (:func:`starts_at_rest` on ``y``: then the start-up transient is information, and with steady sine
+    excitation often the only one), else ``WARMUP_DECAY_TIMES`` decay times ``1/|Re pole|`` of the slowest
+    asymptotically stable submodel of the initial model, at most a quarter of the record. Integrators never
+    decay and do not count.
     """
     if warmup_s is None:
+        if y is not None and starts_at_rest(y):
+            return 0
         tau = 0.0
         for th, st in zip(thetas, structures, strict=True):
             if st.n == 0:
@@ -702,7 +720,8 @@ def identify(u, y, rate_hz: float, structures, thetas0, *, r=None, controller: D
     ``u = C_d (r - y)``). ``method``: see :data:`METHODS`; ``auto`` is ``additive-clsrivc`` when ``r`` and
     ``controller`` are given, else ``additive-srivc``. Bad input raises ``ValueError``; non-convergence is
     reported in the result (``converged=False``, ``message``). The first ``warmup_s`` seconds only warm up
-    the filters (:func:`warmup_samples`; default from the initial model, 0 uses every sample).
+    the filters (:func:`warmup_samples`; default: none for a record that starts at rest, else five decay
+    times of the initial model's slowest mode; 0 uses every sample).
     """
     if method not in METHODS:
         raise ValueError(f"unknown method {method!r}; choose one of {', '.join(METHODS)}")
@@ -712,7 +731,7 @@ def identify(u, y, rate_hz: float, structures, thetas0, *, r=None, controller: D
         raise ValueError(f"tol must be positive, got {tol!r}")
     data, thetas = _check_inputs(u, y, rate_hz, structures, thetas0, r, controller, input_delay)
     structures = list(structures)
-    data.skip = warmup_samples(thetas, structures, rate_hz, data.n, warmup_s)
+    data.skip = warmup_samples(thetas, structures, rate_hz, data.n, warmup_s, y=data.y)
     if method == "auto":
         method = "additive-clsrivc" if data.closed_loop else "additive-srivc"
     needs_cl = method in ("additive-clsrivc", "clsrivc", "clsrivc-uns", "clsrivc-uns-monic")

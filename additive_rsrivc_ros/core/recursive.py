@@ -113,6 +113,9 @@ class RecursiveAdditiveSRIVC:
         :meth:`set_filter_memory`.
     reprime_s:
         Samples (in s) without updates after a gap or a filter reset; default 5 slowest time constants.
+    init_warmup_s:
+        Seconds of the initialization record that only warm up the offline filters (``None``: automatic, see
+        ``core.offline.warmup_samples``).
     init_method, init_max_iterations, init_samples:
         Offline initialization used by :meth:`initialize` (``"none"`` keeps the guesses).
     filter_policy:
@@ -126,7 +129,8 @@ class RecursiveAdditiveSRIVC:
                  max_step: float = 0.0, p_cap: float = math.inf, filter_memory_s: float | Sequence[float] | None = 0.0,
                  filter_policy: str | None = None,
                  reprime_s: float | None = None,
-                 init_method: str = "auto", init_max_iterations: int = 30, init_samples: int | None = None) -> None:
+                 init_method: str = "auto", init_max_iterations: int = 30, init_samples: int | None = None,
+                 init_warmup_s: float | None = None) -> None:
         structures = list(structures)
         K = len(structures)
         if K == 0:
@@ -146,6 +150,7 @@ class RecursiveAdditiveSRIVC:
         self.init_method = init_method
         self.init_max_iterations = int(init_max_iterations)
         self.init_samples = init_samples
+        self.init_warmup_s = init_warmup_s
         self.controller = controller
         self.last_init: Any = None
         self.init_message = "not initialized"
@@ -219,6 +224,7 @@ class RecursiveAdditiveSRIVC:
                    subsampling=sub, p0_relative=(est.p0_relative_a, est.p0_relative_b),
                    init_method=est.init_method, init_max_iterations=est.init_max_iterations,
                    init_samples=int(round(cfg.init_duration_s * cfg.loop_rate_hz)),
+                   init_warmup_s=None if est.init_warmup_s < 0 else est.init_warmup_s,
                    filter_policy=est.filter_smoothing)
 
     @classmethod
@@ -539,7 +545,7 @@ class RecursiveAdditiveSRIVC:
                     result = identify(u[ok], y[ok], self.rate_hz, self.structures, guesses,
                                       r=r[ok] if self.closed_loop else None, controller=self.controller,
                                       input_delay=int(self._s["cfg_i"][kn.C_DELAY]), method=self.init_method,
-                                      max_iterations=self.init_max_iterations)
+                                      max_iterations=self.init_max_iterations, warmup_s=self.init_warmup_s)
                 except Exception as exc:  # noqa: BLE001 - any failure falls back to the guesses
                     self.init_message = f"offline init failed ({type(exc).__name__}: {exc}); using the guesses"
                     result = None
