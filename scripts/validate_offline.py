@@ -93,15 +93,18 @@ def case_cl52(runs: int, seed: int) -> bool:
     e = np.array(est["additive-clsrivc"])
     bias, sd = e.mean(0) - truth, e.std(0, ddof=1)
     mse = ((e - truth) ** 2).mean(0)
-    # |bias| <= 0.3 sigma, allowing the Monte Carlo error of the mean (sigma/sqrt(runs), 2.5 standard errors)
-    bias_ok = np.all(np.abs(bias) <= 0.3 * sd + 2.5 * sd / np.sqrt(runs))
-    # MSE within 1.3x: the MC estimate of an MSE has relative std ~ sqrt(2/runs); allow 2 of those
-    mse_ok = np.all(mse <= 1.3 * ref * (1 + 2 * np.sqrt(2 / runs)))
+    # strict checks decide; the Monte Carlo allowances (2.5 standard errors of a mean, 2 relative standard errors
+    # sqrt(2/runs) of an MSE) are printed beside them to tell a real shortfall from run-to-run scatter
+    bias_ok = np.all(np.abs(bias) <= 0.3 * sd)
+    bias_mc = np.all(np.abs(bias) <= 0.3 * sd + 2.5 * sd / np.sqrt(runs))
+    mse_ok = np.all(mse <= 1.3 * ref)
+    mse_mc = np.all(mse <= 1.3 * ref * (1 + 2 * np.sqrt(2 / runs)))
     s = np.array(est["srivc"])
     mse_s = ((s - truth) ** 2).mean(0)
     parsimony = mse[1] < mse_s[1] and mse[4] < mse_s[4]
     all_conv = conv["additive-clsrivc"] == runs
-    print(f"checks: all converged {all_conv}; |bias| <= 0.3 sigma {bias_ok}; MSE <= 1.3 ref {mse_ok}; "
+    print(f"checks: all converged {all_conv}; |bias| <= 0.3 sigma {bias_ok} (with MC allowance {bias_mc}); "
+          f"MSE <= 1.3 ref {mse_ok} (worst ratio {np.max(mse / ref):.2f}; with MC allowance {mse_mc}); "
           f"additive beats SRIVC on a12 ({mse[1]:.3g} vs {mse_s[1]:.3g}) and a22 ({mse[4]:.3g} vs {mse_s[4]:.3g}): "
           f"{parsimony}")
     return bool(all_conv and bias_ok and mse_ok and parsimony)
@@ -130,8 +133,10 @@ def case_bcd(runs: int, seed: int) -> bool:
           f"converged {conv}/{runs} ===")
     _table("equivalent unfactored parameters", ["a1", "a2", "a3", "a4", "b0", "b1", "b2"],
            {"truth": list(tu), "002 Table 1 BCD MSE": list(ref), "MSE": list(mse), "MSE/ref": list(mse / ref)})
-    ok = np.all(mse <= 1.3 * ref * (1 + 2 * np.sqrt(2 / runs)))
-    print(f"checks: MSE <= 1.3 x 002 Table 1 (BCD) {ok}")
+    ok = np.all(mse <= 1.3 * ref)
+    mc = np.all(mse <= 1.3 * ref * (1 + 2 * np.sqrt(2 / runs)))
+    print(f"checks: MSE <= 1.3 x 002 Table 1 (BCD) {ok} (worst ratio {np.max(mse / ref):.2f}); within 1.3 x plus "
+          f"two Monte Carlo standard errors of a {runs}-run MSE (x{1 + 2 * np.sqrt(2 / runs):.2f}): {mc}")
     return bool(ok and conv == runs)
 
 
