@@ -101,6 +101,13 @@ def simulate_case(case: Case) -> Any:
     v = white_noise(t.size, 0.1, rng)
     sim = simulate_modes(sc.PAPER_MODES, cfg.loop_rate_hz, changes=changes, r=r, controller=cfg.controller,
                          noise=v, rng=rng)
+    return _case_data(case, cfg_path, cfg, sim, changes)
+
+
+def _case_data(case: Case, cfg_path: Any, cfg: Any, sim: Any, changes: list) -> Any:
+    """A :class:`ScenarioData` for a custom (not named-scenario) simulation of a case."""
+    from ..core import scenarios as sc
+
     return sc.ScenarioData(
         name=case.label, seed=case.seed, t=sim.t, r=sim.r, u=sim.u, y=sim.y, x=sim.x, truth=sim.modal[:cfg.K],
         truth_all=sim.modal, fault_events=sc.fault_events(changes, [], case.duration_s), changes=changes,
@@ -123,10 +130,7 @@ def _beam_change_case(case: Case) -> Any:
     v = white_noise(t.size, sc.BEAM_NOISE_STD, rng)
     sim = simulate_modes(sc.BEAM_MODES, cfg.loop_rate_hz, changes=changes, r=r, controller=cfg.controller,
                          input_delay=cfg.input_delay_samples, noise=v, rng=rng)
-    return sc.ScenarioData(
-        name=case.label, seed=case.seed, t=sim.t, r=sim.r, u=sim.u, y=sim.y, x=sim.x, truth=sim.modal[:cfg.K],
-        truth_all=sim.modal, fault_events=sc.fault_events(changes, [], case.duration_s), changes=changes,
-        sensor_faults=[], config_path=cfg_path, config=cfg, sim=sim, parameters={})
+    return _case_data(case, cfg_path, cfg, sim, changes)
 
 
 def run_pipeline(data: Any, block_s: float = 0.1) -> tuple[list[FaultEvent], list[dict[str, Any]], float]:

@@ -74,28 +74,6 @@ class DiscreteSS:
 
 
 @njit(cache=True)
-def run_states(phi: np.ndarray, gamma: np.ndarray, v: np.ndarray) -> np.ndarray:
-    """States ``x_k`` (k = 0..N-1, x_0 = 0) of ``x_{k+1} = phi x_k + gamma v_k``; returns (N, n)."""
-    n = phi.shape[0]
-    nsamp = v.shape[0]
-    out = np.empty((nsamp, n))
-    x = np.zeros(n)
-    xn = np.zeros(n)
-    for k in range(nsamp):
-        for i in range(n):
-            out[k, i] = x[i]
-        vk = v[k]
-        for i in range(n):
-            acc = gamma[i] * vk
-            for j in range(n):
-                acc += phi[i, j] * x[j]
-            xn[i] = acc
-        for i in range(n):
-            x[i] = xn[i]
-    return out
-
-
-@njit(cache=True)
 def run_outputs(phi: np.ndarray, gamma: np.ndarray, c: np.ndarray, d: np.ndarray, v: np.ndarray,
                 out: np.ndarray) -> None:
     """``out[k] = c x_k + d v_k`` with ``x_{k+1} = phi x_k + gamma v_k``, ``x_0 = 0`` (one pass, no temporaries)."""

@@ -158,10 +158,23 @@ def _instrument_clsrivc(data, par: _Param, theta: np.ndarray, by, bu) -> np.ndar
     return np.hstack((-fa, fb))
 
 
+def _regression(base: str, data, par, theta: np.ndarray) -> tuple[np.ndarray, ...]:
+    """Filtered output, regressor, output error, the method's instrument (LSSVF: the regressor itself) and the
+    unstable poles cancelled by the all-pass prefilter."""
+    yf, Phi, eps, by, bu, lam_u = _signals(data, par, theta)
+    if base == "lssvf-uns":
+        Z = Phi
+    elif base == "srivc-uns":
+        Z = _instrument_srivc(data, par, theta, lam_u, Phi)
+    else:
+        Z = _instrument_clsrivc(data, par, theta, by, bu)
+    return yf, Phi, eps, Z, lam_u
+
+
 def identify_unstable(data, structures, thetas0, *, method: str, max_iterations: int = 50, tol: float = 1e-7):
     """Dispatch of the 003 estimators (K = 1); returns an :class:`offline.IdentificationResult`."""
     from .filters import ClosedLoopUnstableError
-    from .offline import IdentificationResult
+    from .offline import IdentificationResult, _equilibrated_solve
 
     if len(structures) != 1:
         raise ValueError(f"{method} estimates one unfactored submodel (K = 1), got {len(structures)}")
@@ -183,21 +196,10 @@ def identify_unstable(data, structures, thetas0, *, method: str, max_iterations:
     iters = 1 if base == "lssvf-uns" else max_iterations
     for it in range(1, iters + 1):
         try:
-            yf, Phi, eps, by, bu, lam_u = _signals(data, par, theta)
-            if base == "lssvf-uns":
-                Z = Phi
-            elif base == "srivc-uns":
-                Z = _instrument_srivc(data, par, theta, lam_u, Phi)
-            else:
-                Z = _instrument_clsrivc(data, par, theta, by, bu)
-            M = Z.T @ Phi
-            dz = 1.0 / np.maximum(np.linalg.norm(Z, axis=0), 1e-300)
-            dp = 1.0 / np.maximum(np.linalg.norm(Phi, axis=0), 1e-300)
-            Ms = dz[:, None] * M * dp[None, :]
-            cond = float(np.linalg.cond(Ms))
-            if not np.isfinite(cond) or cond > 1e15:
-                raise np.linalg.LinAlgError(f"IV normal matrix is singular (cond {cond:.3g})")
-            new = dp * np.linalg.solve(Ms, dz * (Z.T @ yf))
+            yf, Phi, eps, Z, _ = _regression(base, data, par, theta)
+            X, cond = _equilibrated_solve(Z.T @ Phi, (Z.T @ yf)[:, None], np.linalg.norm(Z, axis=0),
+                                          np.linalg.norm(Phi, axis=0))
+            new = X[:, 0]
         except (np.linalg.LinAlgError, ValueError) as exc:
             message = f"iteration {it}: {exc}"
             it -= 1
@@ -219,13 +221,7 @@ def identify_unstable(data, structures, thetas0, *, method: str, max_iterations:
     # covariance at the estimate (sandwich form, 001 Theorem 1) with the final instrument
     N = data.n
     try:
-        yf, Phi, eps, by, bu, lam_u = _signals(data, par, theta)
-        if base == "lssvf-uns":
-            Z = Phi
-        elif base == "srivc-uns":
-            Z = _instrument_srivc(data, par, theta, lam_u, Phi)
-        else:
-            Z = _instrument_clsrivc(data, par, theta, by, bu)
+        yf, Phi, eps, Z, lam_u = _regression(base, data, par, theta)
         P = np.linalg.inv(Z.T @ Phi)
         s2_eps = float(eps @ eps) / max(N - theta.size, 1)
         cov = s2_eps * P @ (Z.T @ Z) @ P.T
