@@ -35,6 +35,7 @@ from __future__ import annotations
 import json
 import math
 import os
+import signal
 import sys
 import threading
 import time
@@ -589,9 +590,22 @@ def make_node_class() -> type:
     return MonitorNode
 
 
+_STOP_REQUESTED = threading.Event()
+
+
+def _request_stop(signum: int, frame: Any) -> None:
+    """SIGINT/SIGTERM: only set a flag; the spin loop returns within one ``spin_once`` timeout.
+
+    rclpy's own handlers end in an asynchronous ``KeyboardInterrupt``; raised inside a ``with lock:`` it can
+    leave the lock held (measured: a SIGINT during activation deadlocked the shutdown in ``Event.set``).
+    ``Event.set`` here runs in the signal handler, between bytecodes of the main thread, never inside another
+    lock operation of this module."""
+    _STOP_REQUESTED.set()
+
+
 def spin(node: Any, executor: Any) -> None:
     """``spin_once`` loop (see module docstring); records when the executor was idle (input pause checks)."""
-    while rclpy.ok():
+    while rclpy.ok() and not _STOP_REQUESTED.is_set():
         t0 = time.monotonic_ns()
         executor.spin_once(timeout_sec=0.05)
         t1 = time.monotonic_ns()
@@ -611,19 +625,24 @@ def main(argv: list[str] | None = None) -> int:
               file=sys.stderr)
         return 2
     _import_ros()
-    rclpy.init(args=["rsrivc_monitor", *args])
+    from rclpy.signals import SignalHandlerOptions
+
+    rclpy.init(args=["rsrivc_monitor", *args], signal_handler_options=SignalHandlerOptions.NO)
+    signal.signal(signal.SIGINT, _request_stop)
+    signal.signal(signal.SIGTERM, _request_stop)
     node = None
     code = 0
     try:
         node = make_node_class()()
         executor = EventsExecutor()
         executor.add_node(node)
-        if node.get_parameter("autostart").value:
+        if node.get_parameter("autostart").value and not _STOP_REQUESTED.is_set():
             node.trigger_configure()
             if node.pipeline is None:
                 print(f"rsrivc_monitor: configuration rejected: {node.config_error}", file=sys.stderr)
                 return 1
-            node.trigger_activate()
+            if not _STOP_REQUESTED.is_set():
+                node.trigger_activate()
         spin(node, executor)
     except (KeyboardInterrupt, ExternalShutdownException):
         pass

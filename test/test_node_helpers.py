@@ -27,6 +27,7 @@ def start_node(env: dict, params_file: str, *overrides: str) -> subprocess.Popen
     args = ["rsrivc_monitor", "--ros-args", "--params-file", params_file]
     for o in overrides:
         args += ["-p", o]
+    env = {**env, "PYTHONFAULTHANDLER": "1"}  # a hung node dumps every thread's stack on SIGABRT (stop_node)
     return subprocess.Popen(args, env=env, stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True)
 
 
@@ -35,8 +36,12 @@ def stop_node(proc: subprocess.Popen, sig: str = "TERM", timeout: float = 30.0) 
     try:
         out, _ = proc.communicate(timeout=timeout)
     except subprocess.TimeoutExpired:
-        proc.kill()
-        out, _ = proc.communicate()
+        proc.send_signal(6)  # SIGABRT: faulthandler prints the stacks of all threads into the output
+        try:
+            out, _ = proc.communicate(timeout=10)
+        except subprocess.TimeoutExpired:
+            proc.kill()
+            out, _ = proc.communicate()
         return -9, out
     return proc.returncode, out
 
