@@ -258,9 +258,15 @@ def _resolve(bag: str | Path) -> Path:
     return bag
 
 
-def _decode_float64(raw: list[bytes], topic: str, bag: Path) -> np.ndarray:
-    if not raw:
+def _decode_float64(raw: list[bytes] | np.ndarray, topic: str, bag: Path) -> np.ndarray:
+    if len(raw) == 0:
         return np.zeros(0)
+    if isinstance(raw, np.ndarray):  # (n, size) payloads from the bulk MCAP reader
+        if raw.shape[1] != 12:
+            raise BagError(f"{bag}: {topic}: messages are not std_msgs/msg/Float64 (wrong size)")
+        raw = [r.tobytes() for r in raw] if not (np.all(raw[:, 0] == 0) and np.all(raw[:, 1] == 1)) else raw
+        if isinstance(raw, np.ndarray):
+            return raw[:, 4:].copy().view("<f8").ravel().astype(np.float64)
     blob = b"".join(raw)
     if len(blob) != 12 * len(raw) or any(len(m) != 12 for m in raw[:: max(1, len(raw) // 64)]):
         raise BagError(f"{bag}: {topic}: messages are not std_msgs/msg/Float64 (wrong size)")
@@ -286,6 +292,24 @@ def _decode_joint(raw: list[bytes], sig: Any, topic: str, bag: Path) -> tuple[np
         vals[k] = arr[j]
         stamps[k] = int(msg.header.stamp.sec) * 10**9 + int(msg.header.stamp.nanosec)
     return vals, stamps
+
+
+def _read_fast(path: Path, sigcfg: dict, topic_to_sig: dict, extra: list, by_topic: dict) -> dict | None:
+    """Bulk read (:mod:`mcap_fast`) of a single-file MCAP bag with Float64 signals; ``None``: use rosbags."""
+    if not all(s.type == FLOAT64 for s in sigcfg.values()):
+        return None
+    files = sorted(path.glob("*.mcap"))
+    if len(files) != 1 or any(path.glob("*.db3")):
+        return None
+    extra_topics = {c.topic for c in extra if {k.msgtype for k in by_topic[c.topic]} == {c.msgtype}}
+    try:
+        from .mcap_fast import FastPathUnsupported, read_topics
+    except ImportError:  # pragma: no cover - mcap is a declared dependency
+        return None
+    try:
+        return read_topics(files[0], set(topic_to_sig) | extra_topics)
+    except FastPathUnsupported:
+        return None
 
 
 def read_signals(bag: str | Path, config: MonitorConfig) -> Signals:
@@ -328,7 +352,16 @@ def read_signals(bag: str | Path, config: MonitorConfig) -> Signals:
                 for c in by_topic.get(topic, []):
                     if c.msgtype == typ:
                         extra.append(c)
-            for conn, timestamp, data in reader.messages(connections=conns + extra):
+            fast = _read_fast(path, sigcfg, topic_to_sig, extra, by_topic)
+            if fast is not None:
+                for topic, names in topic_to_sig.items():
+                    times, payload = fast[topic]
+                    for name in names:
+                        raw[name], log_ns[name] = payload, times
+                for topic, sink in ((TRUTH_MODES_TOPIC, truth_raw), (TRUTH_FAULT_TOPIC, fault_raw)):
+                    if topic in fast:
+                        sink.extend((int(t), bytes(d)) for t, d in zip(*fast[topic], strict=True))
+            for conn, timestamp, data in ([] if fast is not None else reader.messages(connections=conns + extra)):
                 if conn.topic == TRUTH_MODES_TOPIC and conn in extra:
                     truth_raw.append((timestamp, bytes(data)))
                 elif conn.topic == TRUTH_FAULT_TOPIC and conn in extra:
@@ -350,7 +383,7 @@ def _assemble(path: Path, config: MonitorConfig, sigcfg: dict, raw: dict, log_ns
     values: dict[str, np.ndarray] = {}
     stamps: dict[str, np.ndarray] = {}
     for name, s in sigcfg.items():
-        if not raw[name]:
+        if len(raw[name]) == 0:
             raise BagError(f"{path}: topic '{s.topic}' ({name}) has no messages")
         try:
             if s.type == FLOAT64:
