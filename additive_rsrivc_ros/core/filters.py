@@ -74,6 +74,19 @@ class DiscreteSS:
 
 
 @njit(cache=True)
+def _ss_step(phi: np.ndarray, gamma: np.ndarray, x: np.ndarray, xn: np.ndarray, v: float) -> None:
+    """``x <- phi x + gamma v`` in place (``xn`` is scratch): one ZOH-exact step of a held input."""
+    n = x.shape[0]
+    for i in range(n):
+        acc = gamma[i] * v
+        for j in range(n):
+            acc += phi[i, j] * x[j]
+        xn[i] = acc
+    for i in range(n):
+        x[i] = xn[i]
+
+
+@njit(cache=True)
 def run_outputs(phi: np.ndarray, gamma: np.ndarray, c: np.ndarray, d: np.ndarray, v: np.ndarray,
                 out: np.ndarray) -> None:
     """``out[k] = c x_k + d v_k`` with ``x_{k+1} = phi x_k + gamma v_k``, ``x_0 = 0`` (one pass, no temporaries)."""
@@ -88,13 +101,7 @@ def run_outputs(phi: np.ndarray, gamma: np.ndarray, c: np.ndarray, d: np.ndarray
             for i in range(n):
                 acc += c[j, i] * x[i]
             out[k, j] = acc
-        for i in range(n):
-            acc = gamma[i] * vk
-            for j in range(n):
-                acc += phi[i, j] * x[j]
-            xn[i] = acc
-        for i in range(n):
-            x[i] = xn[i]
+        _ss_step(phi, gamma, x, xn, vk)
 
 
 @njit(cache=True)
@@ -127,13 +134,7 @@ def _closed_loop_loop(phi, gamma, cp, dp, delay, cnum, cden, r):  # pragma: no c
             w[i] = cnum[i + 1] * e - cden[i + 1] * u + w[i + 1]
         if delay > 0:
             buf[k % delay] = u
-        for i in range(n):
-            acc = gamma[i] * ud
-            for j in range(n):
-                acc += phi[i, j] * x[j]
-            xn[i] = acc
-        for i in range(n):
-            x[i] = xn[i]
+        _ss_step(phi, gamma, x, xn, ud)
         u_out[k] = u
         y_out[k] = y
     return u_out, y_out
