@@ -6,6 +6,9 @@ Cases (run all, or pick with --case):
           start beta*(1 + U(-0.05, 0.05)), tol 1e-7. Additive CLSRIVC vs unfactored SRIVC and CLSRIVC (split
           into the additive form). Checks: all converge, |bias| <= 0.3 sigma (with the Monte Carlo error of
           the mean added), MSE within 1.3x of the reference figures, additive beats SRIVC on a12 and a22.
+          Also printed: the asymptotic variances of this experiment (optimal-instrument IV bound, 001 Theorem 1;
+          Cramer-Rao bound of the direct approach), MSE against them, and which reference figures lie below
+          the Cramer-Rao bound.
   bcd     002 case study 1 (open loop): h = 0.005 s, N = 10000, white u (var 1), white noise (var 1), start
           within 10 %. MSE of the equivalent unfactored parameters vs the BCD row of 002 Table 1.
   uns     003 §7.1 unstable plant (-0.5p + 1)/(p^2 - 0.1414 p + 2) under the discrete PID, h = 0.1, N = 15000,
@@ -41,6 +44,7 @@ from test_offline_helpers import (  # noqa: E402
     PID_DEN,
     PID_NUM,
     cl52_reference_mse,
+    second_order_gradient_covariance,
     simulate,
 )
 
@@ -49,6 +53,7 @@ from additive_rsrivc_ros.core.model import SubmodelStructure  # noqa: E402
 from additive_rsrivc_ros.core.offline import identify, to_unfactored  # noqa: E402
 
 NAMES_52 = ["a11", "a12", "b10", "a21", "a22", "b20"]
+VERDICT_NOTES: dict[str, str] = {}
 
 
 def _table(title: str, names: list[str], rows: dict[str, list[float]], fmt: str = "{:>11.3e}") -> None:
@@ -78,7 +83,9 @@ def case_cl52(runs: int, seed: int) -> bool:
             est[m].append(res.beta)
     print(f"\n=== 001 §5.2 closed loop, {runs} runs, N = {N} ({time.perf_counter() - t0:.1f} s) ===")
     ref = cl52_reference_mse()
-    rows = {"truth": list(truth), "reference MSE": list(ref)}
+    bound_iv, bound_cr = cl52_asymptotic_variances(h, N, ctrl_tf=(PID_NUM, PID_DEN), seed=seed + 1)
+    rows = {"truth": list(truth), "reference MSE": list(ref), "IV bound (001 Thm 1)": list(bound_iv),
+            "Cramer-Rao (direct)": list(bound_cr), "reference/Cramer-Rao": list(ref / bound_cr)}
     for m in methods:
         e = np.array(est[m])
         bias = e.mean(0) - truth
@@ -88,6 +95,7 @@ def case_cl52(runs: int, seed: int) -> bool:
         rows[f"{m} sigma"] = list(sd)
         rows[f"{m} MSE"] = list(mse)
         rows[f"{m} MSE/ref"] = list(mse / ref)
+        rows[f"{m} MSE/IV bound"] = list(mse / bound_iv)
         print(f"{m}: converged {conv[m]}/{runs}")
     _table("parameters", NAMES_52, rows)
     e = np.array(est["additive-clsrivc"])
@@ -95,19 +103,46 @@ def case_cl52(runs: int, seed: int) -> bool:
     mse = ((e - truth) ** 2).mean(0)
     # strict checks decide; the Monte Carlo allowances (2.5 standard errors of a mean, 2 relative standard errors
     # sqrt(2/runs) of an MSE) are printed beside them to tell a real shortfall from run-to-run scatter
+    mc = 1 + 2 * np.sqrt(2 / runs)
     bias_ok = np.all(np.abs(bias) <= 0.3 * sd)
     bias_mc = np.all(np.abs(bias) <= 0.3 * sd + 2.5 * sd / np.sqrt(runs))
     mse_ok = np.all(mse <= 1.3 * ref)
-    mse_mc = np.all(mse <= 1.3 * ref * (1 + 2 * np.sqrt(2 / runs)))
+    mse_mc = np.all(mse <= 1.3 * ref * mc)
+    bound_ok = np.all(mse <= 1.3 * bound_iv * mc)
+    # the reference figures are 50-run MSEs themselves: below the bound by more than their own two relative
+    # standard errors, they cannot be an unbiased estimator's MSE of this experiment
+    below_cr = [n for n, x, b in zip(NAMES_52, ref, bound_cr, strict=True) if x < b / (1 + 2 * np.sqrt(2 / 50))]
     s = np.array(est["srivc"])
     mse_s = ((s - truth) ** 2).mean(0)
     parsimony = mse[1] < mse_s[1] and mse[4] < mse_s[4]
     all_conv = conv["additive-clsrivc"] == runs
     print(f"checks: all converged {all_conv}; |bias| <= 0.3 sigma {bias_ok} (with MC allowance {bias_mc}); "
           f"MSE <= 1.3 ref {mse_ok} (worst ratio {np.max(mse / ref):.2f}; with MC allowance {mse_mc}); "
+          f"MSE <= 1.3 x IV bound with MC allowance {bound_ok} (worst ratio {np.max(mse / bound_iv):.2f}); "
           f"additive beats SRIVC on a12 ({mse[1]:.3g} vs {mse_s[1]:.3g}) and a22 ({mse[4]:.3g} vs {mse_s[4]:.3g}): "
           f"{parsimony}")
+    if below_cr:
+        print(f"note: the reference MSE of {', '.join(below_cr)} lies below the Cramer-Rao bound of this experiment "
+              "by more than the Monte Carlo error of its own 50 runs: no unbiased estimator reaches 1.3x of it")
+        over = [n for n, x, rf in zip(NAMES_52, mse, ref, strict=True) if x > 1.3 * rf * mc]
+        if bound_ok and set(over) <= set(below_cr):
+            VERDICT_NOTES["cl52"] = (f"fails the reference only on {', '.join(over)}, whose figures lie below the "
+                                     "Cramer-Rao bound; within 1.3x of the bound on every parameter")
     return bool(all_conv and bias_ok and mse_ok and parsimony)
+
+
+def cl52_asymptotic_variances(h: float, N: int, ctrl_tf, seed: int, n_long: int = 200_000):
+    """Asymptotic variances at N samples of [a11, a12, b10, a21, a22, b20] for the 001 §5.2 experiment: the
+    optimal-instrument IV bound (001 Theorem 1 / Corollary 1; gradients driven by S_uo r) and the Cramer-Rao bound
+    of the direct approach (gradients driven by the measured input, fed-back noise included)."""
+    rng = np.random.default_rng(seed)
+    r = rng.standard_normal(n_long)
+    v = np.sqrt(0.01) * rng.standard_normal(n_long)
+    u_clean, _ = simulate(PAPER_THETAS, [MODE, MODE], h, r=r, controller=ctrl_tf)
+    u_meas, _ = simulate(PAPER_THETAS, [MODE, MODE], h, r=r, controller=ctrl_tf, noise=v)
+    iv = np.diag(second_order_gradient_covariance(PAPER_THETAS, h, u_clean, 0.01)) / N
+    cr = np.diag(second_order_gradient_covariance(PAPER_THETAS, h, u_meas, 0.01)) / N
+    return iv, cr
 
 
 def case_bcd(runs: int, seed: int) -> bool:
@@ -129,15 +164,36 @@ def case_bcd(runs: int, seed: int) -> bool:
         est.append(to_unfactored(res.thetas, [MODE, MODE])[0])
     e = np.array(est)
     mse = ((e - tu) ** 2).mean(0)
+    cr = _bcd_cramer_rao(truth, h, N, seed + 1)
     print(f"\n=== 002 case study 1 (BCD, open loop), {runs} runs ({time.perf_counter() - t0:.1f} s), "
           f"converged {conv}/{runs} ===")
     _table("equivalent unfactored parameters", ["a1", "a2", "a3", "a4", "b0", "b1", "b2"],
-           {"truth": list(tu), "002 Table 1 BCD MSE": list(ref), "MSE": list(mse), "MSE/ref": list(mse / ref)})
+           {"truth": list(tu), "002 Table 1 BCD MSE": list(ref), "Cramer-Rao": list(cr),
+            "Table 1/Cramer-Rao": list(ref / cr), "MSE": list(mse), "MSE/ref": list(mse / ref),
+            "MSE/Cramer-Rao": list(mse / cr)})
     ok = np.all(mse <= 1.3 * ref)
     mc = np.all(mse <= 1.3 * ref * (1 + 2 * np.sqrt(2 / runs)))
     print(f"checks: MSE <= 1.3 x 002 Table 1 (BCD) {ok} (worst ratio {np.max(mse / ref):.2f}); within 1.3 x plus "
           f"two Monte Carlo standard errors of a {runs}-run MSE (x{1 + 2 * np.sqrt(2 / runs):.2f}): {mc}")
     return bool(ok and conv == runs)
+
+
+def _bcd_cramer_rao(truth, h: float, N: int, seed: int) -> np.ndarray:
+    """Cramer-Rao bound at N samples of the equivalent unfactored parameters [a1..a4, b0..b2] of 002 case study 1
+    (white input and noise of unit variance): the additive bound mapped by the Jacobian of ``to_unfactored``."""
+    u = np.random.default_rng(seed).standard_normal(400_000)
+    cov = second_order_gradient_covariance(truth, h, u, 1.0, skip=4000) / N
+    x0 = np.concatenate(truth)
+
+    def unf(x):
+        return to_unfactored([x[:3], x[3:]], [MODE, MODE])[0]
+
+    jac = np.empty((7, 6))
+    for j in range(6):
+        d = np.zeros(6)
+        d[j] = 1e-6 * abs(x0[j])
+        jac[:, j] = (unf(x0 + d) - unf(x0 - d)) / (2 * d[j])
+    return np.diag(jac @ cov @ jac.T)
 
 
 def _uns_truth():
@@ -294,6 +350,9 @@ def main(argv: list[str] | None = None) -> int:
         else:
             results[c] = {"cl52": case_cl52, "bcd": case_bcd, "uns": case_uns, "int": case_int}[c](a.runs, a.seed)
     print("\nsummary: " + ", ".join(f"{k}: {'PASS' if v else 'FAIL'}" for k, v in results.items()))
+    for k, note in VERDICT_NOTES.items():
+        if not results.get(k, True):
+            print(f"  {k}: {note}")
     return 0 if all(results.values()) else 1
 
 

@@ -64,3 +64,27 @@ def cl52_reference_mse() -> np.ndarray:
     """MSE per parameter [a11, a12, b10, a21, a22, b20] of an independent implementation on the 001 §5.2
     closed-loop example (issue 3; h = 0.05, N = 10000, 50 runs)."""
     return np.array([1.03e-5, 2.98e-6, 1.26e-3, 1.12e-7, 2.00e-9, 3.96e-4])
+
+
+def second_order_gradient_covariance(thetas, h: float, u: np.ndarray, noise_var: float,
+                                     skip: int = 2000) -> np.ndarray:
+    """Asymptotic covariance per sample (multiply by 1/N) of theta = [a1, a2, b0] per mode for white output
+    noise: ``noise_var * E{psi psi^T}^-1`` with ``psi`` the gradient of ``sum_i b_i0/(a_i2 p^2 + a_i1 p + 1) u``
+    (``-p B/A^2 u``, ``-p^2 B/A^2 u``, ``1/A u``), each ZOH-discretized by scipy.
+
+    With ``u`` the noise-free closed-loop input ``S_uo r`` this is 001 Theorem 1 with the optimal instrument
+    (Corollary 1, eq. 15): the best any instrumental-variable estimator of the closed loop can do. With the
+    measured ``u`` (fed-back noise included) it is the Cramer-Rao bound of the direct output-error approach.
+    """
+    def zf(num, den):
+        b, a, _ = signal.cont2discrete((num, den), h, method="zoh")
+        b = np.atleast_1d(b.ravel())
+        return signal.lfilter(b / a[0], a / a[0], u)
+
+    cols = []
+    for a1, a2, b0 in thetas:
+        a_poly = np.array([a2, a1, 1.0])
+        a_sq = np.polymul(a_poly, a_poly)
+        cols += [zf([-b0, 0.0], a_sq), zf([-b0, 0.0, 0.0], a_sq), zf([1.0], a_poly)]
+    psi = np.array(cols).T[skip:]
+    return noise_var * np.linalg.inv(psi.T @ psi / len(psi))

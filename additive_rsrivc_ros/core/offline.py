@@ -665,20 +665,75 @@ def lssvf(data: _Data, structures, thetas0, *, method: str = "lssvf") -> Identif
 WARMUP_DECAY_TIMES = 5.0  # default warm-up: this many decay times of the slowest mode of the initial model
 
 
-def starts_at_rest(y: np.ndarray, level: float = 0.10, slope: float = 0.05) -> bool:
-    """Whether a record starts with the plant at rest: its first output sample is within ``level`` and its first
-    increment within ``slope`` of the largest output magnitude (the noise floor of a loop that has not started
-    moving). A plant in motion shows either a value or, near a zero crossing, a slope above that. Heuristic: a
-    start close to a zero crossing of a slow oscillation can pass for rest (set the warm-up explicitly then)."""
-    y = np.asarray(y, dtype=float)
-    if y.size < 2:
-        return True
-    scale = float(np.max(np.abs(y)))
-    return scale == 0.0 or (abs(y[0]) <= level * scale and abs(y[1] - y[0]) <= slope * scale)
+@dataclass
+class TransientTest:
+    """Outcome of :func:`initial_transient_test`: ``statistic`` (F ratio) against ``threshold``."""
+
+    statistic: float
+    threshold: float
+    window: int
+    detected: bool
+
+    def to_dict(self) -> dict[str, Any]:
+        return {"statistic": _num(self.statistic), "threshold": _num(self.threshold), "window": int(self.window),
+                "detected": bool(self.detected)}
 
 
-def warmup_samples(thetas, structures, rate_hz: float, n: int, warmup_s: float | None = None,
-                   y: np.ndarray | None = None) -> int:
+TRANSIENT_FALSE_ALARM = 1e-3
+
+
+def free_response_basis(thetas, structures, h: float, window: int) -> np.ndarray:
+    """``(window, d)`` free responses ``e^(sigma t) cos(omega t)``, ``e^(sigma t) sin(omega t)`` (``e^(sigma t)`` for a
+    real pole) of every asymptotically stable pole of the ``A_i``: the shapes an initial condition of the plant
+    leaves in the output error ``y - sum_i G_i u`` of a model simulated from rest. Integrators are left out."""
+    t = np.arange(window) * h
+    cols = []
+    for th, st in zip(thetas, structures, strict=True):
+        if st.n == 0:
+            continue
+        a, _ = split_theta(th, st)
+        for pole in np.roots(a[::-1]):
+            if pole.real >= 0 or pole.imag < 0:
+                continue
+            env = np.exp(pole.real * t)
+            cols.append(env * np.cos(pole.imag * t))
+            if pole.imag > 0:
+                cols.append(env * np.sin(pole.imag * t))
+    return np.array(cols).T if cols else np.zeros((window, 0))
+
+
+def initial_transient_test(eps: np.ndarray, thetas, structures, h: float, window: int,
+                           false_alarm: float = TRANSIENT_FALSE_ALARM) -> TransientTest:
+    """Does the output error ``eps`` of the fitted model start with the plant's free response?
+
+    A record that starts with the plant in motion leaves the plant's initial-condition response in
+    ``y - sum_i G_i u`` (both simulated from rest), a combination of the model's own decaying modes
+    (:func:`free_response_basis`). Its energy over the first ``window`` samples, ``Q_0 = |P_B eps_0|^2``,
+    is compared with the same projection of later windows of the same record, which measures the noise's own
+    level at those modes' frequencies (coloured noise included): ``F = Q_0 / mean(Q_j)`` against the
+    ``1 - false_alarm`` quantile of ``F(d, d n_indep)``, with ``n_indep`` the non-overlapping later windows.
+    """
+    n = eps.size
+    basis = free_response_basis(thetas, structures, h, window)
+    d = basis.shape[1]
+    if d == 0 or window < 2 * d or n < 2 * window or not np.all(np.isfinite(eps)):
+        return TransientTest(np.nan, np.nan, window, False)
+    q, _ = np.linalg.qr(basis)
+
+    def energy(seg: np.ndarray) -> float:
+        c = q.T @ seg
+        return float(c @ c)
+
+    n_indep = (n - window) // window
+    starts = np.linspace(window, n - window, min(16, max(n_indep, 1) * 4)).astype(int)
+    null = np.mean([energy(eps[s0: s0 + window]) for s0 in starts])
+    from scipy.stats import f as f_dist
+    threshold = float(f_dist.isf(false_alarm, d, d * n_indep))
+    stat = energy(eps[:window]) / null if null > 0 else np.inf
+    return TransientTest(float(stat), threshold, window, bool(stat > threshold))
+
+
+def warmup_samples(thetas, structures, rate_hz: float, n: int, warmup_s: float | None = None) -> int:
     """Samples at the start of the record left out of the IV normal equations and the cost.
 
     The prefilters, the simulated submodel outputs and the closed-loop instrument start from rest. When the
@@ -686,15 +741,11 @@ def warmup_samples(thetas, structures, rate_hz: float, n: int, warmup_s: float |
     machine), the regression equations (001 eq. 21) hold only up to the initial-condition response until
     those transients have decayed; for a lightly damped mode driven near resonance that transient carries as
     much energy as all the noise of a long record and biases b0 and zeta together (the resonance peak
-    b0/(2 zeta) stays right). Default (``warmup_s=None``): nothing when the record starts at rest
-    (:func:`starts_at_rest` on ``y``: then the start-up transient is information, and with steady sine
-    excitation often the only one), else ``WARMUP_DECAY_TIMES`` decay times ``1/|Re pole|`` of the slowest
-    asymptotically stable submodel of the initial model, at most a quarter of the record. Integrators never
-    decay and do not count.
+    b0/(2 zeta) stays right). ``warmup_s`` given: that many seconds. ``None``: ``WARMUP_DECAY_TIMES`` decay
+    times ``1/|Re pole|`` of the slowest asymptotically stable submodel of ``thetas``. Integrators never decay
+    and do not count. At most a quarter of the record either way.
     """
     if warmup_s is None:
-        if y is not None and starts_at_rest(y):
-            return 0
         tau = 0.0
         for th, st in zip(thetas, structures, strict=True):
             if st.n == 0:
@@ -710,6 +761,46 @@ def warmup_samples(thetas, structures, rate_hz: float, n: int, warmup_s: float |
     return int(min(round(warmup_s * rate_hz), n // 4))
 
 
+def _refit_if_started_in_motion(res: IdentificationResult, data: _Data, structures, thetas0,
+                                refit) -> IdentificationResult:
+    """Automatic warm-up: keep the fit over every sample unless its output error starts with the plant's free
+    response (:func:`initial_transient_test`); then refit with the filters' warm-up left out. From rest the
+    start-up transient is information (with steady sine excitation often most of it), so nothing is lost there.
+    A first fit that failed is refitted with the warm-up of the initial guess."""
+    ok = res.converged and _finite(res.thetas)
+    base = res.thetas if ok else thetas0
+    rate = 1.0 / data.h
+    skip = warmup_samples(base, structures, rate, data.n)
+    if skip == 0:
+        return res
+    test = None
+    if ok:
+        _, xhat = _submodel_outputs(data, res.thetas, structures)
+        test = initial_transient_test(data.y - np.sum(xhat, axis=0), res.thetas, structures, data.h, skip)
+        res.extra["initial_transient"] = test.to_dict()
+        if not test.detected:
+            return res
+    # the fit over a transient is biased towards more damping (a shorter decay): take the longer of its warm-up
+    # and the initial guess's, and lengthen it while the refitted model decays more slowly
+    skip = max(skip, warmup_samples(thetas0, structures, rate, data.n))
+    for _ in range(3):
+        data.skip = skip
+        new = refit([np.asarray(t, float).copy() for t in base])
+        if not (new.converged and _finite(new.thetas)):
+            break
+        longer = warmup_samples(new.thetas, structures, rate, data.n)
+        if longer <= 1.1 * skip:
+            break
+        skip, base = longer, new.thetas
+    why = (f"output error starts with the plant's free response (F = {test.statistic:.3g} > {test.threshold:.3g})"
+           if test is not None else "the fit over every sample failed")
+    new.message += f"; {why}: the first {skip * data.h:.4g} s only warm up the filters"
+    if test is not None:
+        new.extra["initial_transient"] = test.to_dict()
+    new.extra["warmup_samples"] = skip
+    return new
+
+
 def identify(u, y, rate_hz: float, structures, thetas0, *, r=None, controller: DiscreteController | None = None,
              input_delay: int = 0, method: str = "auto", max_iterations: int = 50, tol: float = 1e-7,
              projection: bool = True, warmup_s: float | None = None) -> IdentificationResult:
@@ -720,8 +811,10 @@ def identify(u, y, rate_hz: float, structures, thetas0, *, r=None, controller: D
     ``u = C_d (r - y)``). ``method``: see :data:`METHODS`; ``auto`` is ``additive-clsrivc`` when ``r`` and
     ``controller`` are given, else ``additive-srivc``. Bad input raises ``ValueError``; non-convergence is
     reported in the result (``converged=False``, ``message``). The first ``warmup_s`` seconds only warm up
-    the filters (:func:`warmup_samples`; default: none for a record that starts at rest, else five decay
-    times of the initial model's slowest mode; 0 uses every sample).
+    the filters (:func:`warmup_samples`; 0 uses every sample). Default ``None``: every sample, unless the
+    fit's output error starts with the plant's free response (:func:`initial_transient_test`, the record starts
+    in motion); then it is refitted with five decay times of the slowest mode as warm-up. The unstable-plant
+    methods (``*-uns``, ``*-monic``) use every sample by default.
     """
     if method not in METHODS:
         raise ValueError(f"unknown method {method!r}; choose one of {', '.join(METHODS)}")
@@ -731,7 +824,8 @@ def identify(u, y, rate_hz: float, structures, thetas0, *, r=None, controller: D
         raise ValueError(f"tol must be positive, got {tol!r}")
     data, thetas = _check_inputs(u, y, rate_hz, structures, thetas0, r, controller, input_delay)
     structures = list(structures)
-    data.skip = warmup_samples(thetas, structures, rate_hz, data.n, warmup_s, y=data.y)
+    auto_warmup = warmup_s is None
+    data.skip = 0 if auto_warmup else warmup_samples(thetas, structures, rate_hz, data.n, warmup_s)
     if method == "auto":
         method = "additive-clsrivc" if data.closed_loop else "additive-srivc"
     needs_cl = method in ("additive-clsrivc", "clsrivc", "clsrivc-uns", "clsrivc-uns-monic")
@@ -748,13 +842,20 @@ def identify(u, y, rate_hz: float, structures, thetas0, *, r=None, controller: D
         elif not _cl_ok(data, thetas, structures):
             raise ClosedLoopUnstableError(_unstable_msg(data, thetas, structures))
     kw = dict(max_iterations=max_iterations, tol=tol, projection=projection)
-    if method in ("additive-clsrivc", "additive-srivc"):
-        return additive_iv(data, structures, thetas, closed_loop=needs_cl, method=method, **kw)
-    if method in ("srivc", "clsrivc"):
-        return unfactored_iv(data, structures, thetas, closed_loop=needs_cl, method=method, **kw)
-    if method == "bcd-srivc":
-        return bcd_srivc(data, structures, thetas, **kw)
-    return lssvf(data, structures, thetas)
+
+    def run(start: list[np.ndarray]) -> IdentificationResult:
+        if method in ("additive-clsrivc", "additive-srivc"):
+            return additive_iv(data, structures, start, closed_loop=needs_cl, method=method, **kw)
+        if method in ("srivc", "clsrivc"):
+            return unfactored_iv(data, structures, start, closed_loop=needs_cl, method=method, **kw)
+        if method == "bcd-srivc":
+            return bcd_srivc(data, structures, start, **kw)
+        return lssvf(data, structures, start)
+
+    res = run(thetas)
+    if auto_warmup:
+        res = _refit_if_started_in_motion(res, data, structures, thetas, run)
+    return res
 
 
 def _unstable_msg(data: _Data, thetas, structures) -> str:
