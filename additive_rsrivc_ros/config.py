@@ -80,6 +80,10 @@ CORE_PARAMS: list[Param] = [
           "square (../shared/NOTES.md: 1e-3/0.25^2).", 1e-12, 1e3, True),
     Param("estimator.p0_relative_b", "double", 1.1e-6, "P(0) of a numerator coefficient relative to its "
           "square (../shared/NOTES.md: 1e-5/3^2).", 1e-12, 1e3, True),
+    Param("estimator.p0_policy", "string", "information", "P(0) after the offline initialization: 'information' "
+          "(the initialization record's IV information weighted like the recursion, so the reported uncertainty and "
+          "the adaptation gain start at their steady level) or 'relative' (p0_relative_a/b; also the fallback "
+          "when the guesses are used).", read_only=True, choices=("information", "relative")),
     Param("estimator.init_method", "string", "auto", "Offline initialization: auto (additive-clsrivc in closed "
           "loop, additive-srivc in open loop), or one of the rsrivc_identify methods, or none (use the "
           "guesses as they are).", read_only=True,
@@ -89,8 +93,9 @@ CORE_PARAMS: list[Param] = [
           "shorter than 3 decay times 1/(zeta omega), where the carried filter states (000 Remark 4.4) otherwise make "
           "the estimate oscillate.", read_only=True, choices=("auto", "on", "off")),
     Param("estimator.init_warmup_s", "double", -1.0, "Seconds at the start of the initialization data that only "
-          "warm up the offline filters (left out of the fit); -1: automatic (none if the record starts at rest, "
-          "else 5 decay times of the slowest mode).", -1.0, 1e5, True),
+          "warm up the offline filters (left out of the fit); -1: automatic (none, unless the fit's output error "
+          "starts with the plant's free response, i.e. the data start in motion: then 5 decay times of the slowest "
+          "mode).", -1.0, 1e5, True),
     Param("estimator.init_max_iterations", "int", 30, "Iteration limit of the offline initialization.", 1, 1000,
           True),
 ]
@@ -343,6 +348,7 @@ class EstimatorOptions:
     output_subsampling: int = 1
     p0_relative_a: float = 0.016
     p0_relative_b: float = 1.1e-6
+    p0_policy: str = "information"
     init_method: str = "auto"
     init_max_iterations: int = 30
     filter_smoothing: str = "auto"
@@ -425,6 +431,7 @@ class MonitorConfig:
             stability_projection=p["estimator.stability_projection"],
             output_subsampling=p["estimator.output_subsampling"],
             p0_relative_a=p["estimator.p0_relative_a"], p0_relative_b=p["estimator.p0_relative_b"],
+            p0_policy=p["estimator.p0_policy"],
             init_method=p["estimator.init_method"], init_max_iterations=p["estimator.init_max_iterations"],
             filter_smoothing=p["estimator.filter_smoothing"], init_warmup_s=p["estimator.init_warmup_s"],
         )

@@ -14,9 +14,9 @@ and 0.244 s, second mode's stiffness changed over [40, 100] s): the worst relati
 mode 2 after one memory length past the change and of mode 1.
 
 Usage: ``python scripts/validate_recursive.py [--seeds 10] [--duration 1000] [--beam-duration 130]
-[--filter-policy auto|on|off]`` (``auto``, the product default: the prefilter denominator is smoothed over one
-period only for modes whose memory is shorter than 3 decay times, RecursiveAdditiveSRIVC.set_filter_policy;
-``off``: 000 Algorithm 2 exactly as printed).
+[--filter-policy auto|on|off] [--p0-policy information|relative]`` (``auto``, the product default: the
+prefilter denominator is smoothed over one period only for modes whose memory is shorter than 3 decay times,
+RecursiveAdditiveSRIVC.set_filter_policy; ``off``: 000 Algorithm 2 exactly as printed).
 """
 
 from __future__ import annotations
@@ -100,7 +100,7 @@ def run_paper(seed: int, *, closed: bool = True, duration: float = 1000.0, sprea
 
 
 def run_beam(seed: int, *, duration: float = 130.0, change_start: float = 40.0, change_len: float = 60.0,
-             stiffness_change: float = -0.3, filter_policy: str = "auto") -> dict:
+             stiffness_change: float = -0.3, filter_policy: str = "auto", p0_policy: str = "information") -> dict:
     """The beam (000 §6, NOTES): K = 2 of 4 modes, 4096 Hz, delay 4, memories 2.44 s / 0.244 s.
 
     The second mode's stiffness drops by ``stiffness_change`` (frequency ``sqrt(1 + c)``) with a raised-cosine
@@ -124,7 +124,7 @@ def run_beam(seed: int, *, duration: float = 130.0, change_start: float = 40.0, 
         guess.append(theta_from_modal(m.natural_frequency_hz * fac, m.damping_ratio * 1.2, m.gain * 0.9))
     lam = np.array([1.0 - 1.0 / (2.44 * rate), 1.0 - 1.0 / (0.244 * rate)])
     est = RecursiveAdditiveSRIVC([SubmodelStructure()] * 2, guess, rate, forgetting=lam, controller=ctrl,
-                                 input_delay=4, filter_policy=filter_policy)
+                                 input_delay=4, filter_policy=filter_policy, p0_policy=p0_policy)
     n0 = int(5.0 * rate)
     est.initialize(r[:n0], sim.u[:n0], sim.y[:n0])
     tr = est.update(r[n0:], sim.u[n0:], sim.y[n0:], trace=True)
@@ -146,6 +146,8 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--skip-beam", action="store_true")
     ap.add_argument("--filter-policy", choices=("auto", "on", "off"), default="auto",
                     help="prefilter smoothing (RecursiveAdditiveSRIVC.set_filter_policy); off = Algorithm 2 as printed")
+    ap.add_argument("--p0-policy", choices=("information", "relative"), default="information",
+                    help="P(0) after the offline init (beam case; the 000 §5 cases start from primed guesses)")
     args = ap.parse_args(argv)
     fm = args.filter_policy
     print(f"filter policy: {fm}")
@@ -175,7 +177,7 @@ def main(argv: list[str] | None = None) -> int:
         print("PASS" if passed else "FAIL")
     if not args.skip_beam:
         t0 = time.perf_counter()
-        b = run_beam(0, duration=args.beam_duration, filter_policy=fm)
+        b = run_beam(0, duration=args.beam_duration, filter_policy=fm, p0_policy=args.p0_policy)
         print(f"\nbeam (K = 2 of 4, 4096 Hz, delay 4), {time.perf_counter() - t0:.1f} s: init: {b['init']}")
         print(f"mode 2 frequency error after change + one memory: {100 * b['mode2_after']:.2f} % (limit 2 %); "
               f"before the change: {100 * b['mode2_before']:.2f} %")

@@ -57,6 +57,22 @@ def _structure_of(kind: int) -> SubmodelStructure:
     return SubmodelStructure(2, 0, 0) if kind == 0 else SubmodelStructure(0, 0, int(kind))
 
 
+P0_POLICIES = ("information", "relative")
+
+
+def p0_from_information(p_block: np.ndarray, n_samples: int, lam: float) -> np.ndarray | None:
+    """``P_i(0)`` from an offline fit: its ``(sum_k zeta_i phi_i^T)^-1`` over ``n_samples`` samples (001 eq. 33)
+    rescaled to the exponential weighting of the recursion (000 eqs. 30-32, ``P^-1 <- lambda P^-1 + zeta phi^T``):
+    the record's per-sample information times ``sum_k lambda^k = (1 - lambda^N)/(1 - lambda)``, i.e.
+    ``P_i(0) = N (1 - lambda) / (1 - lambda^N) * p_block``. ``None`` if the block is not usable (non-finite or
+    a non-positive diagonal)."""
+    p = np.asarray(p_block, dtype=float)
+    if n_samples < 1 or not np.all(np.isfinite(p)) or np.any(np.diag(p) <= 0.0) or not 0.0 < lam < 1.0:
+        return None
+    weight = n_samples * (1.0 - lam) / (1.0 - lam ** n_samples)
+    return weight * p
+
+
 def p0_diagonal(theta: np.ndarray, kind: int, p0_relative: tuple[float, float]) -> np.ndarray:
     """``P_i(0)`` diagonal scaled with the parameters (NOTES): ``rho_a^2 a_j^2`` and ``rho_b^2 b0^2``."""
     ra, rb = p0_relative
@@ -94,6 +110,11 @@ class RecursiveAdditiveSRIVC:
         Update every n-th sample; all inputs are still filtered (000 §4.7).
     p0_relative:
         ``(rho_a^2, rho_b^2)`` of ``P_i(0)`` (NOTES).
+    p0_policy:
+        ``"information"`` (default): after an accepted offline initialization, ``P_i(0)`` is the information of
+        the initialization record as the recursion would weigh it (:func:`p0_from_information`), so the reported
+        uncertainty and the adaptation gain start at their steady level; otherwise, and with ``"relative"``,
+        the parameter-scaled diagonal of ``p0_relative``.
     max_step:
         Reject an update that moves a parameter by more than this fraction of its value (0, the default,
         disables it: on the beam a wound-up P made every update exceed any fixed bound and the estimator
@@ -130,7 +151,7 @@ class RecursiveAdditiveSRIVC:
                  filter_policy: str | None = None,
                  reprime_s: float | None = None,
                  init_method: str = "auto", init_max_iterations: int = 30, init_samples: int | None = None,
-                 init_warmup_s: float | None = None) -> None:
+                 init_warmup_s: float | None = None, p0_policy: str = "information") -> None:
         structures = list(structures)
         K = len(structures)
         if K == 0:
@@ -147,6 +168,9 @@ class RecursiveAdditiveSRIVC:
         self.structures = structures
         self.rate_hz = float(rate_hz)
         self.p0_relative = (float(p0_relative[0]), float(p0_relative[1]))
+        if p0_policy not in P0_POLICIES:
+            raise ValueError(f"p0_policy must be one of {', '.join(P0_POLICIES)}, got {p0_policy!r}")
+        self.p0_policy = p0_policy
         self.init_method = init_method
         self.init_max_iterations = int(init_max_iterations)
         self.init_samples = init_samples
@@ -225,7 +249,7 @@ class RecursiveAdditiveSRIVC:
                    init_method=est.init_method, init_max_iterations=est.init_max_iterations,
                    init_samples=int(round(cfg.init_duration_s * cfg.loop_rate_hz)),
                    init_warmup_s=None if est.init_warmup_s < 0 else est.init_warmup_s,
-                   filter_policy=est.filter_smoothing)
+                   filter_policy=est.filter_smoothing, p0_policy=est.p0_policy)
 
     @classmethod
     def from_state(cls, state: dict[str, np.ndarray]) -> RecursiveAdditiveSRIVC:
@@ -532,6 +556,7 @@ class RecursiveAdditiveSRIVC:
         """
         r, u, y, v = self._arrays(r, u, y, None)
         result = None
+        accepted = False
         guesses = self.thetas
         if self.init_method != "none" and u.size > 0:
             try:
@@ -558,6 +583,7 @@ class RecursiveAdditiveSRIVC:
                         e_old = self._output_error_var(guesses, r, u, y, v)
                         if np.isfinite(e_new) and not e_new > e_old:
                             self.reset(cand)
+                            accepted = True
                             self.init_message = (f"offline init ({getattr(result, 'message', '')}): "
                                                  f"output-error variance {e_old:.3g} -> {e_new:.3g}")
                         else:
@@ -567,10 +593,33 @@ class RecursiveAdditiveSRIVC:
         elif self.init_method == "none":
             self.init_message = "initialized with the guesses (init_method none)"
         self.reset(self.thetas)
+        if accepted and self.p0_policy == "information":
+            self._covariance_from_information(result)
         self._s["fst"][:] = 0.0
         self.prime(r, u, y, v)
         self.last_init = result
         return result
+
+    def _covariance_from_information(self, result: Any) -> None:
+        """``P_i(0)`` from the accepted offline fit (:func:`p0_from_information`); modes whose block is not usable
+        keep the parameter-scaled diagonal."""
+        s = self._s
+        blocks = getattr(result, "p_blocks", None) or []
+        n = int(getattr(result, "n_samples", 0))
+        used = 0
+        for i, st in enumerate(self.structures):
+            if i >= len(blocks):
+                break
+            p0 = p0_from_information(blocks[i], n, float(s["lam"][i]))
+            if p0 is None or p0.shape != (st.n_theta, st.n_theta):
+                continue
+            nt = st.n_theta
+            s["P"][i][...] = 0.0
+            s["P"][i][:nt, :nt] = p0
+            s["p0diag"][i][...] = 0.0
+            s["p0diag"][i][:nt] = np.diag(p0)
+            used += 1
+        self.init_message += f"; P(0) from the offline information for {used} of {self.K} modes"
 
     # ------------------------------------------------------------------ snapshot / restore
     def get_state(self) -> dict[str, np.ndarray]:
