@@ -19,6 +19,7 @@ Cases (run all, or pick with --case):
   speed   time of a K = 2 additive CLSRIVC on N = 10000 (target < 1 s).
 
 Usage: python scripts/validate_offline.py [--runs N] [--case cl52 bcd uns int speed] [--seed S]
+(default runs: 50 per case, 300 for bcd)
 """
 
 from __future__ import annotations
@@ -124,7 +125,7 @@ def case_cl52(runs: int, seed: int) -> bool:
     if below_cr:
         print(f"note: the reference MSE of {', '.join(below_cr)} lies below the Cramer-Rao bound of this experiment "
               "by more than the Monte Carlo error of its own 50 runs: no unbiased estimator reaches 1.3x of it")
-        over = [n for n, x, rf in zip(NAMES_52, mse, ref, strict=True) if x > 1.3 * rf * mc]
+        over = [n for n, x, rf in zip(NAMES_52, mse, ref, strict=True) if x > 1.3 * rf]
         if bound_ok and set(over) <= set(below_cr):
             VERDICT_NOTES["cl52"] = (f"fails the reference only on {', '.join(over)}, whose figures lie below the "
                                      "Cramer-Rao bound; within 1.3x of the bound on every parameter")
@@ -338,7 +339,9 @@ def case_speed(seed: int) -> bool:
 
 def main(argv: list[str] | None = None) -> int:
     ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
-    ap.add_argument("--runs", type=int, default=50)
+    ap.add_argument("--runs", type=int, default=None,
+                    help="Monte Carlo runs of every case (default: 50, and 300 for bcd, whose reference is a 500-run "
+                         "table: a 50-run MSE scatters by 20 %%)")
     ap.add_argument("--seed", type=int, default=2024)
     ap.add_argument("--case", nargs="+", default=["speed", "cl52", "bcd", "uns", "int"],
                     choices=["speed", "cl52", "bcd", "uns", "int"])
@@ -348,7 +351,8 @@ def main(argv: list[str] | None = None) -> int:
         if c == "speed":
             results[c] = case_speed(a.seed)
         else:
-            results[c] = {"cl52": case_cl52, "bcd": case_bcd, "uns": case_uns, "int": case_int}[c](a.runs, a.seed)
+            runs = a.runs if a.runs is not None else (300 if c == "bcd" else 50)
+            results[c] = {"cl52": case_cl52, "bcd": case_bcd, "uns": case_uns, "int": case_int}[c](runs, a.seed)
     print("\nsummary: " + ", ".join(f"{k}: {'PASS' if v else 'FAIL'}" for k, v in results.items()))
     for k, note in VERDICT_NOTES.items():
         if not results.get(k, True):
