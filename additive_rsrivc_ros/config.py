@@ -193,7 +193,11 @@ NODE_PARAMS: list[Param] = [
     Param("block_period_s", "double", 0.002, "Period of the estimation worker: queued samples are aligned and "
           "fed to the estimator in blocks at this period.", 1e-4, 1.0, True),
     Param("sync.max_backlog_s", "double", 0.25, "Float64 topics: one topic ahead of another by more than this much "
-          "data for over 1 s (or with the other topic silent) is a count mismatch (resynchronize).", 1e-3, 100.0),
+          "data for longer than sync.stall_s is a count mismatch (resynchronize).", 1e-3, 100.0),
+    Param("sync.stall_s", "double", 4.0, "Float64 topics: how long one topic may lag the others (silent or "
+          "behind) before it is a count mismatch or a lost topic: reliable DDS recovers a lost datagram only at the "
+          "writer's next heartbeat (Fast DDS: every 3 s), and that topic stalls meanwhile. Pending samples wait; "
+          "nothing is lost.", 0.0, 100.0, True),
     Param("sync.gap_s", "double", 0.0, "Float64 topics: a jump of the samples' lateness by more than this that a "
           "catch-up burst does not take back is an input pause (time gap, filters re-primed); 0: max(0.1 s, 10 "
           "samples).", 0.0, 100.0),

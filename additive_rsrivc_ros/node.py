@@ -254,7 +254,7 @@ def make_node_class() -> type:
                 self.signals, cfg.loop_rate_hz, stamped=all(t == "sensor_msgs/msg/JointState" for t in types),
                 max_backlog=self._backlog_samples(v["sync.max_backlog_s"]),
                 quiet_s=v["sync.quiet_s"], gap_s=self._gap_s(v["sync.gap_s"]), hold_s=v["sync.hold_s"],
-                silent_s=v["stale_timeout_s"])
+                silent_s=v["stale_timeout_s"], stall_s=v["sync.stall_s"])
             if self.pipeline.t_last is not None:
                 self.sync.set_time_floor(self.pipeline.t_last)
             self._stale_timeout_s = v["stale_timeout_s"]

@@ -330,3 +330,67 @@ def test_under_estimator_stress_only_the_dominant_deviation_of_a_mode_is_confirm
     for k in range(t.size):
         mon.update(float(t[k]), modal[k], suspect_since=40.0 if t[k] >= 40.0 else None)
     assert not mon.flags.any() and mon.levels[0, 0] == Level.WARN
+
+
+def test_slow_frequency_travel_with_a_damping_swing_is_a_frequency_fault():
+    """A lightly damped mode whose frequency jumps by many half-power bandwidths: the estimate fitted at the old
+    frequency first broadens (damping x3) and only then travels, over 4 memory lengths, to the new frequency,
+    with the residual-variance jump (advisory stress) from the start. The frequency is confirmed (its deviation
+    began with the stress even though it crosses the relevant change late) and the damping swing is not."""
+    t0, T = 60.0, MEMORY[1]
+
+    def fn(t, truth):
+        travel = np.clip((t - (t0 + 1.2 * T)) / (3.3 * T), 0.0, 1.0)
+        truth[:, 1, 0] *= 1.0 - 0.05 * travel
+        swing = np.clip(np.minimum((t - t0) / T, (t0 + 5 * T - t) / T), 0.0, 1.0)
+        truth[:, 1, 1] *= 1.0 + 2.0 * swing
+        return truth
+    t, modal = stream(80.0, 13, fn, rel_std=np.array([0.0005, 0.01, 0.002]))
+    mon = FaultMonitor(MEMORY)
+    events = []
+    for k in range(t.size):
+        events += mon.update(float(t[k]), modal[k], suspect_since=t0 if t[k] >= t0 else None).opened
+    assert [(e.mode, e.quantity, e.direction) for e in events] == [(2, "natural_frequency", "down")]
+    # onset: when the estimate leaves (the truth starts travelling at t0 + 1.2 T; the stream lags it by ~T)
+    assert 0.0 <= events[0].onset_time_s - (t0 + 1.2 * T) <= T + DT
+
+
+def _run_stressed(mon: FaultMonitor, t: np.ndarray, modal: np.ndarray, stress_from: float) -> list:
+    events = []
+    for k in range(t.size):
+        ss = stress_from if t[k] >= stress_from else None
+        events += mon.update(float(t[k]), modal[k], suspect_since=ss).opened
+    return events
+
+
+def test_stress_during_the_baseline_window_never_contaminates_the_baseline():
+    """A change (with its residual-variance stress) that hits the baseline window: with at least half a window
+    learned before it, the baseline is kept from before and the change is flagged; earlier, the window starts
+    again after the transient and the baseline is the new state."""
+    t, modal = stream(60.0, 21)
+    probe = FaultMonitor(MEMORY)
+    run(probe, t, modal)
+    start, window = probe.baseline.t_start, probe.baseline_window_s
+    late = round(start + 0.7 * window, 1)
+    t, modal = stream(90.0, 21, step_at(late, 1, 0, 0.95))
+    mon = FaultMonitor(MEMORY)
+    ev = _run_stressed(mon, t, modal, late)
+    assert mon.baseline.t_end <= late and abs(mon.baseline.value[1, 0] / TRUTH[1, 0] - 1) < 0.005
+    assert [(e.mode, e.quantity, e.direction) for e in ev] == [(2, "natural_frequency", "down")]
+    early = round(start + 0.2 * window, 1)
+    t, modal = stream(90.0, 21, step_at(early, 1, 0, 0.95))
+    mon = FaultMonitor(MEMORY)
+    ev = _run_stressed(mon, t, modal, early)
+    assert ev == [] and mon.baseline.t_start > early
+    assert abs(mon.baseline.value[1, 0] / (0.95 * TRUTH[1, 0]) - 1) < 0.005
+
+
+def test_stress_before_monitoring_does_not_block_a_given_baseline():
+    """Given baseline, the plant already changed (with a stress) while the estimator settled: the deviation is
+    judged afresh when monitoring starts and flagged."""
+    p = validate_params({"faults.baseline.natural_frequency_hz": [3.2, 33.0],
+                         "faults.baseline.damping_ratio": [0.1, 0.025], "faults.baseline.gain": [11.8, 0.159]})
+    mon = FaultMonitor(MEMORY, FaultSettings.from_params(p))
+    t, modal = stream(30.0, 22, step_at(3.0, 1, 0, 1.04))
+    ev = _run_stressed(mon, t, modal, 3.5)
+    assert [(e.mode, e.quantity, e.direction) for e in ev] == [(2, "natural_frequency", "up")]

@@ -330,6 +330,7 @@ class SequentialTest:
     last_z: float = 0.0
     h: float = math.nan               # threshold used at the last step
     confirm_before: float = math.inf  # a relevant deviation starting later is not confirmed (advisory health)
+    confirm_by_onset: bool = False    # compare the deviation's onset (not its relevance crossing) with it
 
     @property
     def level(self) -> Level:
@@ -407,11 +408,12 @@ class SequentialTest:
         if self.state != "suspect" or cand != self.direction:
             self.state, self.direction, self.since = "suspect", cand, t
         gate_since = self.gate_up_since if cand > 0 else self.gate_down_since
-        if t - gate_since >= persist_s and gate_since <= self.confirm_before:
-            zero_t = self.zero_up_t if cand > 0 else self.zero_down_t
-            small_t = self.small_up_t if cand > 0 else self.small_down_t
-            onset = np.nanmax([zero_t, small_t, -np.inf])
-            onset = min(float(onset), self.since) if math.isfinite(onset) else self.since
+        zero_t = self.zero_up_t if cand > 0 else self.zero_down_t
+        small_t = self.small_up_t if cand > 0 else self.small_down_t
+        onset = np.nanmax([zero_t, small_t, -np.inf])
+        onset = min(float(onset), self.since) if math.isfinite(onset) else self.since
+        began = min(onset, gate_since) if self.confirm_by_onset else gate_since
+        if t - gate_since >= persist_s and began <= self.confirm_before:
             self.event = FaultEvent(self.mode, self.quantity, self.direction_name, onset, t, b, x, None, z)
             self.state, self.since = "fault", math.nan
             opened = self.event
@@ -592,10 +594,13 @@ class FaultMonitor:
         """Process one modal estimate (K, 6) at time ``t`` (s); see the class docstring.
 
         ``suspect_since`` (S5, advisory health issues such as a residual-variance jump): the estimator has
-        been under stress since that time; a fault is then confirmed only if its relevant deviation began no
-        later than two memory lengths after it (the stress is explained by that structural change) and it
-        is the most significant (largest ``|z|``) of the mode's relevant deviations (the other quantities of
-        a mode swing during the transient of a real change); other tests stay at WARN.
+        been under stress since that time; a fault is then confirmed only if its deviation began no later than
+        two memory lengths after it (five for a natural frequency, measured from the deviation's onset: its
+        estimate can stay in a broadened fit for a while before it travels) -- the stress is explained by that
+        structural change -- and it is the mode's leading deviation: the natural frequency when it is relevant
+        (a frequency shift makes damping and gain swing while the estimate re-converges, not the converse),
+        else the most significant (largest ``|z|``); other tests stay at WARN. At all times damping and gain are
+        confirmed only once they and the mode's frequency hold still (:meth:`_moving`).
         """
         out = FaultUpdate()
         modal = np.asarray(modal, dtype=float)
@@ -632,6 +637,22 @@ class FaultMonitor:
             else:
                 self.phase, self.t_phase = "learning", t
                 self.learner.reset(t)
+        if self.phase == "learning" and suspect_since is not None and suspect_since >= self.t_phase:
+            # the estimator came under stress during the window (e.g. a residual-variance jump: the plant may have
+            # just changed): the window must not run into the transient. Keep what was learned before if it is at
+            # least half a window (the change is then monitored against it), else start again once the estimate
+            # has settled (a stress older than the window does not restart it).
+            elapsed = self.learner.t_last - self.t_phase
+            if self.learner.n > 0 and elapsed >= 0.5 * self.baseline_window_s:
+                self.baseline = self.learner.finish(self.memory_s, elapsed)
+                self.phase, self.t_phase = "monitoring", suspect_since   # the stress belongs to the monitoring
+                out.baseline_ready = True
+                for row in self.tests:
+                    for test in row:
+                        test.reset(t)
+            else:
+                self.phase, self.t_phase = "settling", t
+                return out
         if self.phase == "learning":
             self.learner.add(t, modal)
             if t - self.t_phase >= self.baseline_window_s:
@@ -665,6 +686,8 @@ class FaultMonitor:
         # S5: an advisory stress episode latches as an output anomaly until every estimate is back within its
         # relevant change for a clear time (or a rebaseline): a persistent sensor bias is slowly absorbed into
         # the gains while the residual recovers; those later deviations must not become structural faults.
+        if suspect_since is not None and suspect_since < self.t_phase:
+            suspect_since = None   # a stress older than the monitoring phase: deviations are judged afresh from it
         if suspect_since is not None:
             self.anomaly_since = suspect_since if self.anomaly_since is None else min(self.anomaly_since,
                                                                                          suspect_since)
@@ -678,9 +701,15 @@ class FaultMonitor:
                 self.anomaly_since, self.anomaly_quiet_since = None, math.nan
         stress_since = self.anomaly_since
         lead = np.argmax(score, axis=1)   # the most significant of the mode's relevant deviations
-        for i in range(self.K):           # ... unless the mode already has a confirmed fault: it explains it
+        moving = self._moving(t, modal, rho)
+        arriving = self._moving(t, modal, rho, lookback=0.5)
+        for i in range(self.K):
+            # a natural-frequency shift explains the damping and gain swings of the estimate while it re-converges
+            # (a lightly damped mode fitted at the old frequency looks broader); the converse does not hold
+            if self.applicable(i, 0) and score[i, 0] >= 0:
+                lead[i] = 0
             faulted = [q for q in range(3) if self.tests[i][q].state == "fault"]
-            if faulted:
+            if faulted:                   # ... and a confirmed fault of the mode explains the rest
                 lead[i] = faulted[0]
         for i in range(self.K):
             w = min(1.0, dt / (2.0 * float(self.memory_s[i])))   # S1: weight per independent sample
@@ -692,10 +721,17 @@ class FaultMonitor:
                     continue
                 sigma_d = float(sigma[i, q])
                 test = self.tests[i][q]
-                if stress_since is None:
+                test.confirm_by_onset = q == 0
+                if q > 0 and (moving[i, 0] or arriving[i, q]):
+                    # damping and gain are confirmed once they, and the mode's frequency, hold still: while the
+                    # frequency travels they swing with it, and a swing is not a new level
+                    test.confirm_before = -math.inf
+                elif stress_since is None:
                     test.confirm_before = math.inf
                 elif q == lead[i]:
-                    test.confirm_before = stress_since + 2.0 * float(self.memory_s[i])
+                    # the deviation must begin with the stress; a lightly damped mode's frequency estimate can stay
+                    # in the broadened fit for a few memory lengths before it travels (and no sensor bias moves it)
+                    test.confirm_before = stress_since + (5.0 if q == 0 else 2.0) * float(self.memory_s[i])
                 else:       # isolation under stress: only the mode's dominant deviation can be the fault
                     test.confirm_before = -math.inf
                 opened, closed = test.step(
@@ -707,6 +743,22 @@ class FaultMonitor:
                     self.events.append(opened)
                 if closed is not None:
                     out.closed.append(closed)
+        return out
+
+    def _moving(self, t: float, modal: np.ndarray, rho: np.ndarray, lookback: float = 1.0) -> np.ndarray:
+        """(K, 3) bool: over the last ``lookback`` memory lengths the estimate moved by more than three of its std
+        and a tenth of the relevant change, i.e. it is still travelling to a new value."""
+        out = np.zeros((self.K, 3), dtype=bool)
+        for i in range(self.K):
+            past = [m for (tp, m) in self.history if tp <= t - lookback * float(self.memory_s[i])]
+            if not past:
+                continue
+            for q in range(3):
+                if not self.applicable(i, q):
+                    continue
+                step = abs(modal[i, q] - past[-1][i, q])
+                tol = max(3.0 * float(modal[i, 3 + q]), 0.1 * float(rho[i, q]) * abs(float(modal[i, q])))
+                out[i, q] = bool(math.isfinite(step) and step > tol)
         return out
 
     def _remember(self, t: float, modal: np.ndarray) -> None:

@@ -67,13 +67,13 @@ class InputSync:
 
     def __init__(self, signals: tuple[str, ...], rate_hz: float, *, stamped: bool, max_backlog: int,
                  quiet_s: float, gap_s: float, hold_s: float, skew_s: float | None = None,
-                 silent_s: float | None = None) -> None:
+                 silent_s: float | None = None, stall_s: float = 4.0) -> None:
         if not signals or not all(s in ("reference", "input", "output") for s in signals):
             raise ValueError(f"signals must be a non-empty subset of reference/input/output, got {signals}")
         if not (rate_hz > 0.0):
             raise ValueError(f"rate_hz must be > 0, got {rate_hz}")
-        if max_backlog < 1 or quiet_s <= 0.0 or gap_s <= 0.0 or hold_s < 0.0:
-            raise ValueError("max_backlog >= 1, quiet_s > 0, gap_s > 0 and hold_s >= 0 are required")
+        if max_backlog < 1 or quiet_s <= 0.0 or gap_s <= 0.0 or hold_s < 0.0 or not stall_s >= 0.0:
+            raise ValueError("max_backlog >= 1, quiet_s > 0, gap_s > 0, hold_s >= 0 and stall_s >= 0 are required")
         self.signals = tuple(signals)
         self.n = len(signals)
         self.rate = float(rate_hz)
@@ -101,7 +101,9 @@ class InputSync:
         self._align_heads = False
         self._imbalance_since: int | None = None
         self._last_lag = 0
-        self.persist_ns = max(1_000_000_000, 2 * self.quiet_ns)
+        # a topic may stall while the others continue: reliable DDS recovers a lost datagram only at the writer's
+        # next heartbeat (Fast DDS: every 3 s); an imbalance is a count mismatch only after it outlasts that
+        self.persist_ns = max(int(stall_s * 1e9), 2 * self.quiet_ns)
 
     # ----------------------------------------------------------------------------------------- control
     def _restart_grid(self) -> None:
@@ -178,8 +180,9 @@ class InputSync:
             self._imbalance_since = None
             return False
         behind = [s for s, n_ in zip(self.signals, lens, strict=True) if n_ == min(lens)]
+        silent_ns = max(self.silent_ns, self.persist_ns)   # a stalled topic resumes within the stall time
         silent = [s for s, i in ((s, self.signals.index(s)) for s in behind)
-                  if self.last_arrival_ns[i] == 0 or now_ns - self.last_arrival_ns[i] > self.silent_ns]
+                  if self.last_arrival_ns[i] == 0 or now_ns - self.last_arrival_ns[i] > silent_ns]
         if not silent:
             # executors deliver bursts topic by topic: only a lasting imbalance is a count mismatch
             if self._imbalance_since is None:
