@@ -57,7 +57,7 @@ MODE_FIELDS = ("natural_frequency_hz", "damping_ratio", "gain", "natural_frequen
                "gain_std")
 DEFAULT_T0_NS = 1_700_000_000 * 10**9  # fixed start time: bags are reproducible byte for byte
 SIGNAL_QOS_DEPTH = 1000
-SPACING_TOLERANCE = 0.01  # relative tolerance of the mean sample spacing against 1/loop_rate_hz
+SPACING_TOLERANCE = 0.01  # relative tolerance of the median sample spacing against 1/loop_rate_hz
 
 _CDR_LE = b"\x00\x01\x00\x00"  # CDR encapsulation header, little endian
 _TYPESTORE = get_typestore(Stores.ROS2_JAZZY)
@@ -92,6 +92,7 @@ class Signals:
     truth_fault: list | None = None
     nonfinite: int = 0
     nonfinite_by_signal: dict[str, int] = field(default_factory=dict)
+    unmatched_by_signal: dict[str, int] = field(default_factory=dict)   # dropped by time alignment
     storage: str = ""
     metadata: dict[str, str] = field(default_factory=dict)
 
@@ -316,8 +317,9 @@ def read_signals(bag: str | Path, config: MonitorConfig) -> Signals:
     """Read and check ``r``, ``u``, ``y`` (and the truth topics, if any) of a bag for ``config``.
 
     Raises :class:`BagError` (one line) when the bag is missing, has no metadata, is unreadable, truncated or
-    corrupt, is empty, lacks a configured topic, has a topic of the wrong type, has unequal sample counts, or a
-    sample spacing inconsistent with ``loop_rate_hz``. Non-finite samples are kept (NaN in the arrays) and
+    corrupt (also: a topic yields fewer messages than its metadata records), is empty, lacks a configured topic, has
+    a topic of the wrong type, has unequal sample counts that do not match by time (:func:`align_by_time`), or a
+    median sample spacing inconsistent with ``loop_rate_hz``. Non-finite samples are kept (NaN in the arrays) and
     counted in ``nonfinite``: the caller decides.
     """
     path = _resolve(bag)
@@ -370,6 +372,12 @@ def read_signals(bag: str | Path, config: MonitorConfig) -> Signals:
                     for name in topic_to_sig.get(conn.topic, ()):
                         raw[name].append(bytes(data))
                         log_ns[name].append(timestamp)
+            for topic, names in topic_to_sig.items():   # a damaged chunk can drop records without an exception
+                declared = sum(int(getattr(c, "msgcount", 0) or 0) for c in by_topic[topic])
+                got = len(raw[names[0]])
+                if declared and got != declared:
+                    raise BagError(f"{path}: corrupt or truncated bag: topic '{topic}' yields {got} of the {declared} "
+                                   "messages its metadata records")
     except BagError:
         raise
     except Exception as exc:  # noqa: BLE001 - rosbags raises many types for damaged files
@@ -395,21 +403,23 @@ def _assemble(path: Path, config: MonitorConfig, sigcfg: dict, raw: dict, log_ns
             raise
         except Exception as exc:  # noqa: BLE001
             raise BagError(f"{path}: {s.topic}: cannot decode {s.type} ({_one_line(exc)})") from None
+    for name, st in stamps.items():
+        if st.size >= 2 and np.any(np.diff(st) < 0):
+            raise BagError(f"{path}: {sigcfg[name].topic}: sample times go backwards")
     counts = {name: v.size for name, v in values.items()}
-    if len(set(counts.values())) != 1:
-        desc = ", ".join(f"{sigcfg[k].topic}={v}" for k, v in counts.items())
-        raise BagError(f"{path}: sample counts differ between topics ({desc}); samples are aligned by order")
-    n = counts["output"]
+    unmatched: dict[str, int] = {}
+    if len(set(counts.values())) != 1:   # a lost message: match the samples by time instead of by order
+        values, stamps, unmatched = align_by_time(values, stamps, config.loop_rate_hz, path,
+                                                  {k: v.topic for k, v in sigcfg.items()})
+    n = values["output"].size
     t_ns = stamps["output"]
     t0 = int(t_ns[0])
     if n >= 2:
-        dt = np.diff(t_ns)
-        if np.any(dt < 0):
-            raise BagError(f"{path}: {sigcfg['output'].topic}: sample times go backwards")
-        mean_dt = float(t_ns[-1] - t_ns[0]) / (n - 1) * 1e-9
+        # median spacing: pauses (data gaps, handled by the pipeline) do not count against the rate
+        med_dt = float(np.median(np.diff(t_ns))) * 1e-9
         h = 1.0 / config.loop_rate_hz
-        if abs(mean_dt - h) > SPACING_TOLERANCE * h:
-            raise BagError(f"{path}: mean sample spacing {mean_dt * 1e3:.6g} ms is inconsistent with "
+        if abs(med_dt - h) > SPACING_TOLERANCE * h:
+            raise BagError(f"{path}: median sample spacing {med_dt * 1e3:.6g} ms is inconsistent with "
                            f"loop_rate_hz {config.loop_rate_hz:g} (expected {h * 1e3:.6g} ms)")
     nonfinite = {name: int(np.count_nonzero(~np.isfinite(v))) for name, v in values.items()}
     truth_t = truth_modes = None
@@ -440,7 +450,51 @@ def _assemble(path: Path, config: MonitorConfig, sigcfg: dict, raw: dict, log_ns
     return Signals(
         t=(t_ns - t0) * 1e-9, t0_ns=t0, r=values.get("reference"), u=values["input"], y=values["output"],
         truth_t=truth_t, truth_modes=truth_modes, truth_fault=truth_fault, nonfinite=sum(nonfinite.values()),
-        nonfinite_by_signal=nonfinite, **_metadata_info(path))
+        nonfinite_by_signal=nonfinite, unmatched_by_signal=unmatched, **_metadata_info(path))
+
+
+ALIGN_MIN_FRACTION = 0.9  # time alignment must keep at least this fraction of the longest topic's samples
+
+
+def align_by_time(values: dict[str, np.ndarray], stamps: dict[str, np.ndarray], rate_hz: float, path: Path,
+                  topics: dict[str, str]) -> tuple[dict[str, np.ndarray], dict[str, np.ndarray], dict[str, int]]:
+    """Match r, u, y samples by time when their message counts differ (a message lost by the recorder).
+
+    Each topic's constant offset to the output (publication order, transport) is the median index-wise stamp
+    difference over the first samples; a sample is kept when every topic has one within half a period of the
+    output's stamp after that offset. Returns the aligned values and stamps and the unmatched count per signal.
+    Raises :class:`BagError` when less than ``ALIGN_MIN_FRACTION`` of the longest topic's samples can be matched.
+    """
+    h_ns = 1e9 / rate_hz
+    ref = stamps["output"].astype(np.float64)
+    keep = np.ones(ref.size, dtype=bool)
+    index: dict[str, np.ndarray] = {}
+    for name, st in stamps.items():
+        if name == "output":
+            continue
+        m = min(st.size, ref.size, 200)
+        lag = float(np.median(st[:m].astype(np.float64) - ref[:m])) if m else 0.0
+        shifted = st.astype(np.float64) - lag
+        j = np.clip(np.searchsorted(shifted, ref), 1, max(shifted.size - 1, 1))
+        left = shifted[j - 1]
+        right = shifted[np.minimum(j, shifted.size - 1)]
+        j = np.where(np.abs(left - ref) <= np.abs(right - ref), j - 1, np.minimum(j, shifted.size - 1))
+        ok = np.abs(shifted[j] - ref) <= 0.5 * h_ns
+        ok &= np.concatenate(([True], j[1:] != j[:-1]))   # one-to-one
+        index[name] = j
+        keep &= ok
+    if np.count_nonzero(keep) < ALIGN_MIN_FRACTION * max(v.size for v in values.values()):
+        desc = ", ".join(f"{topics[k]}={v.size}" for k, v in values.items())
+        raise BagError(f"{path}: sample counts differ between topics ({desc}) and fewer than "
+                       f"{ALIGN_MIN_FRACTION:.0%} of the samples match by time; cannot align")
+    out_v = {"output": values["output"][keep]}
+    out_t = {"output": stamps["output"][keep]}
+    unmatched = {"output": int(ref.size - np.count_nonzero(keep))}
+    for name, j in index.items():
+        out_v[name] = values[name][j[keep]]
+        out_t[name] = stamps[name][j[keep]]
+        unmatched[name] = int(values[name].size - np.count_nonzero(keep))
+    return out_v, out_t, unmatched
 
 
 def _metadata_info(path: Path) -> dict[str, Any]:

@@ -225,6 +225,11 @@ def diagnose(args: argparse.Namespace, stdout: TextIO, stderr: TextIO) -> int:
     if sig.nonfinite:
         by = ", ".join(f"{k}: {v}" for k, v in sig.nonfinite_by_signal.items() if v)
         print(f"{PROG}: warning: {sig.nonfinite} non-finite samples ({by}); the estimator skips them", file=stderr)
+    lost = {k: v for k, v in sig.unmatched_by_signal.items() if v}
+    if lost:
+        by = ", ".join(f"{k}: {v}" for k, v in lost.items())
+        print(f"{PROG}: warning: message counts differ between topics; samples matched by log time, messages "
+              f"without partners left out ({by}); the estimator treats the holes as data gaps", file=stderr)
     n = sig.t.size
     duration = float(sig.t[-1]) + 1.0 / cfg.loop_rate_hz if n else 0.0
     show = args.progress if args.progress is not None else stderr.isatty()
@@ -242,7 +247,7 @@ def diagnose(args: argparse.Namespace, stdout: TextIO, stderr: TextIO) -> int:
     info = {"bag": str(bag), "storage": sig.storage or "?", "params file": str(args.params_file),
             "samples": n, "duration [s]": f"{duration:.6g}", "loop rate [Hz]": f"{cfg.loop_rate_hz:g}",
             "loop": "closed" if cfg.closed_loop else "open", "modes (K)": cfg.K, "reports": len(reports),
-            "non-finite samples": sig.nonfinite,
+            "non-finite samples": sig.nonfinite, "unmatched messages left out": sum(sig.unmatched_by_signal.values()),
             **{k.replace("additive_rsrivc.", "bag "): v for k, v in sig.metadata.items()
                if k != "additive_rsrivc.parameters"}}
     inp = rp.ReportInput(title=_out_dir(bag, None).name, series=series, events=events, structures=cfg.structures,
@@ -290,6 +295,7 @@ def diagnose(args: argparse.Namespace, stdout: TextIO, stderr: TextIO) -> int:
         "first_estimate_time_s": float(series.time_s[series.first_estimate()]) if series.first_estimate() is not None
         else None,
         "modes": modes, "events": events, "nonfinite_samples": sig.nonfinite,
+        "unmatched_messages": dict(sig.unmatched_by_signal),
         "health": {"final": last.health if last is not None else None,
                    "level_counts": {rp.LEVEL_NAMES[k]: int(np.sum(series.health_level == k)) for k in range(4)}},
         "phase_final": last.phase if last is not None else None,

@@ -38,6 +38,16 @@ def _parser() -> argparse.ArgumentParser:
     return ap
 
 
+def longest_gap_free(t: np.ndarray, rate_hz: float, tolerance: float = 0.5) -> tuple[slice, int]:
+    """Longest run of samples spaced by at most ``(1 + tolerance)/rate_hz`` and the number of gaps in ``t``."""
+    if t.size < 2:
+        return slice(0, t.size), 0
+    breaks = np.flatnonzero(np.diff(t) > (1.0 + tolerance) / rate_hz) + 1
+    edges = np.concatenate(([0], breaks, [t.size]))
+    k = int(np.argmax(np.diff(edges)))
+    return slice(int(edges[k]), int(edges[k + 1])), int(breaks.size)
+
+
 def run(bag: str, params_file: str, out: str, method: str = "auto", max_iterations: int | None = None,
         tol: float = 1e-7, node_name: str | None = None) -> dict:
     """Identify the bag and write the JSON; returns the JSON object. Raises ``ValueError`` on bad input."""
@@ -55,11 +65,20 @@ def run(bag: str, params_file: str, out: str, method: str = "auto", max_iteratio
     iters = max_iterations if max_iterations is not None else max(50, cfg.estimator.init_max_iterations)
     if iters < 1:
         raise ValueError("--max-iterations must be >= 1")
-    res = identify(sig.u, sig.y, cfg.loop_rate_hz, cfg.structures, [m.theta0() for m in cfg.modes],
-                   r=sig.r if closed else None, controller=cfg.controller if closed else None,
+    seg, n_gaps = longest_gap_free(sig.t, cfg.loop_rate_hz)
+    r_seg = sig.r[seg] if closed else None
+    res = identify(sig.u[seg], sig.y[seg], cfg.loop_rate_hz, cfg.structures, [m.theta0() for m in cfg.modes],
+                   r=r_seg, controller=cfg.controller if closed else None,
                    input_delay=cfg.input_delay_samples, method=method, max_iterations=iters, tol=tol,
                    projection=cfg.estimator.stability_projection)
     doc = res.to_dict()
+    doc["data_gaps"] = n_gaps
+    if n_gaps:
+        t_a, t_b = float(sig.t[seg.start]), float(sig.t[seg.stop - 1])
+        doc["message"] += (f"; the bag has {n_gaps} data gap(s): identified on its longest gap-free segment "
+                           f"[{t_a:.6g}, {t_b:.6g}] s ({seg.stop - seg.start} of {sig.n} samples)")
+        print(f"rsrivc_identify: warning: {n_gaps} data gap(s) in the bag; the filters need evenly spaced samples, so "
+              f"only the longest gap-free segment [{t_a:.6g}, {t_b:.6g}] s is used", file=sys.stderr)
     out_path = Path(out)
     if out_path.parent and not out_path.parent.exists():
         raise ValueError(f"output directory {out_path.parent} does not exist")
