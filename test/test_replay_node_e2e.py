@@ -28,18 +28,46 @@ NODE = "additive_rsrivc_monitor"
 
 
 def test_replay_into_node_matches_offline(tmp_path: Path, ros_env: dict) -> None:
-    import rclpy
-    from diagnostic_msgs.msg import DiagnosticArray
-    from rclpy.experimental import EventsExecutor
-    from rclpy.qos import QoSProfile, ReliabilityPolicy
-    from std_msgs.msg import Float64MultiArray
-
     out = tmp_path / "offline"
     assert diagnose.main([str(BAG), "--params-file", str(PARAMS), "--out", str(out), "--no-report", "--quiet"]) == 0
     with (out / "estimates.csv").open() as fh:
         rows = list(csv.DictReader(fh))
     with (out / "events.csv").open() as fh:
         events = list(csv.DictReader(fh))
+    K = 2
+    offline = np.array([[float(r[k]) for k in diagnose.ESTIMATES_HEADER[2:8]] for r in rows]).reshape(-1, K, 6)
+    # DDS between two Python processes at 12288 msg/s on this 2-core machine occasionally loses a burst of one
+    # topic (measured: 1 run in 4 to 6, also with the node tolerating 12 s stalls and a 50 ms writer heartbeat).
+    # The node must then say so (count mismatch, resynchronized): that is asserted, and the replay is run again
+    # (at most three attempts), which must match exactly. A silent difference fails at once.
+    for attempt in (1, 2, 3):
+        modes, flagged, log, rep = _replay_into_node(ros_env, len(rows) // K)
+        live = np.array([m for m in modes if np.all(np.isfinite(m))])
+        if live.shape == offline.shape:
+            break
+        assert "count mismatch" in log or "no data on" in log, (attempt, live.shape, rep.stdout, log[-2000:])
+    assert live.shape == offline.shape, (attempt, live.shape, offline.shape, rep.stdout, log[-2000:])
+    # A report instant that coincides with a sample time (t * rate integer, e.g. 4.0 s, 4.5 s at 4096 Hz and
+    # 10 Hz) is a tie: the node compares absolute ROS times (~1.7e9 s, resolution 2.4e-7 s), the offline run
+    # times since the first sample, so float rounding may put that one sample before or after the report.
+    # The estimator state is the same afterwards; at a tie the two differ by one sample's update, far below
+    # the reported std. Everywhere else the computation is the same: 1e-9 relative.
+    t = np.array([float(r["time_s"]) for r in rows[::K]])
+    tie = np.abs(t * 4096.0 - np.round(t * 4096.0)) < 1e-6
+    np.testing.assert_allclose(live[~tie], offline[~tie], rtol=1e-9, atol=1e-15)
+    for q in range(3):
+        assert np.all(np.abs(live[tie, :, q] - offline[tie, :, q]) <= offline[tie, :, q + 3])
+    offline_faults = {(int(e["mode"]), e["quantity"]) for e in events}
+    assert flagged == offline_faults
+
+
+def _replay_into_node(ros_env: dict, n_expected: int) -> tuple[list[np.ndarray], set, str, subprocess.CompletedProcess]:
+    """Start the node, replay the bag into it over DDS and collect ~/modes and the fault flags on /diagnostics."""
+    import rclpy
+    from diagnostic_msgs.msg import DiagnosticArray
+    from rclpy.experimental import EventsExecutor
+    from rclpy.qos import QoSProfile, ReliabilityPolicy
+    from std_msgs.msg import Float64MultiArray
 
     os.environ["ROS_DOMAIN_ID"] = ros_env["ROS_DOMAIN_ID"]
     # The bag is continuous: on this shared 2-core machine scheduler stalls of the replay or the node can exceed
@@ -82,7 +110,6 @@ def test_replay_into_node_matches_offline(tmp_path: Path, ros_env: dict) -> None
                               "/reference", "/plant_input", "/plant_output", "--wait-for-subscribers", "60",
                               "--stats"], env=ros_env, capture_output=True, text=True, timeout=150)
         assert rep.returncode == 0, rep.stderr
-        n_expected = len(rows) // 2
         deadline = time.monotonic() + 15.0
         while time.monotonic() < deadline and sum(np.all(np.isfinite(m)) for m in modes) < n_expected:
             time.sleep(0.2)
@@ -99,19 +126,4 @@ def test_replay_into_node_matches_offline(tmp_path: Path, ros_env: dict) -> None
         except subprocess.TimeoutExpired:
             node.kill()
             log = node.communicate()[0]
-    live = np.array([m for m in modes if np.all(np.isfinite(m))])
-    K = 2
-    offline = np.array([[float(r[k]) for k in diagnose.ESTIMATES_HEADER[2:8]] for r in rows]).reshape(-1, K, 6)
-    assert live.shape == offline.shape, (live.shape, offline.shape, rep.stdout, log[-2000:])
-    # A report instant that coincides with a sample time (t * rate integer, e.g. 4.0 s, 4.5 s at 4096 Hz and
-    # 10 Hz) is a tie: the node compares absolute ROS times (~1.7e9 s, resolution 2.4e-7 s), the offline run
-    # times since the first sample, so float rounding may put that one sample before or after the report.
-    # The estimator state is the same afterwards; at a tie the two differ by one sample's update, far below
-    # the reported std. Everywhere else the computation is the same: 1e-9 relative.
-    t = np.array([float(r["time_s"]) for r in rows[::K]])
-    tie = np.abs(t * 4096.0 - np.round(t * 4096.0)) < 1e-6
-    np.testing.assert_allclose(live[~tie], offline[~tie], rtol=1e-9, atol=1e-15)
-    for q in range(3):
-        assert np.all(np.abs(live[tie, :, q] - offline[tie, :, q]) <= offline[tie, :, q + 3])
-    offline_faults = {(int(e["mode"]), e["quantity"]) for e in events}
-    assert flagged == offline_faults
+    return modes, flagged, log, rep
