@@ -629,11 +629,7 @@ class FaultMonitor:
                 return out
             self.settle_forced = forced and not self.converged(t, modal)
             if self.baseline is not None:
-                self.phase, self.t_phase = "monitoring", t
-                out.baseline_ready = True
-                for row in self.tests:
-                    for test in row:
-                        test.reset(t)
+                self._start_monitoring(t, t, out)
             else:
                 self.phase, self.t_phase = "learning", t
                 self.learner.reset(t)
@@ -645,11 +641,7 @@ class FaultMonitor:
             elapsed = self.learner.t_last - self.t_phase
             if self.learner.n > 0 and elapsed >= 0.5 * self.baseline_window_s:
                 self.baseline = self.learner.finish(self.memory_s, elapsed)
-                self.phase, self.t_phase = "monitoring", suspect_since   # the stress belongs to the monitoring
-                out.baseline_ready = True
-                for row in self.tests:
-                    for test in row:
-                        test.reset(t)
+                self._start_monitoring(t, suspect_since, out)   # the stress belongs to the monitoring
             else:
                 self.phase, self.t_phase = "settling", t
                 return out
@@ -657,11 +649,7 @@ class FaultMonitor:
             self.learner.add(t, modal)
             if t - self.t_phase >= self.baseline_window_s:
                 self.baseline = self.learner.finish(self.memory_s, t - self.t_phase)
-                self.phase, self.t_phase = "monitoring", t
-                out.baseline_ready = True
-                for row in self.tests:
-                    for test in row:
-                        test.reset(t)
+                self._start_monitoring(t, t, out)
             return out
         if not self.settings.enabled or self.baseline is None:
             return out
@@ -744,6 +732,14 @@ class FaultMonitor:
                 if closed is not None:
                     out.closed.append(closed)
         return out
+
+    def _start_monitoring(self, t: float, t_phase: float, out: FaultUpdate) -> None:
+        """Enter the monitoring phase (its start ``t_phase``) with fresh tests."""
+        self.phase, self.t_phase = "monitoring", t_phase
+        out.baseline_ready = True
+        for row in self.tests:
+            for test in row:
+                test.reset(t)
 
     def _moving(self, t: float, modal: np.ndarray, rho: np.ndarray, lookback: float = 1.0) -> np.ndarray:
         """(K, 3) bool: over the last ``lookback`` memory lengths the estimate moved by more than three of its std
