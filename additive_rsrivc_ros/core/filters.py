@@ -337,14 +337,19 @@ def closed_loop_matrix(plant: DiscreteSS, controller: DiscreteController, delay:
 
 
 def spectral_radius(mat) -> float:
-    """Largest eigenvalue modulus (dense for small matrices, ARPACK otherwise)."""
+    """Largest eigenvalue modulus (dense for small matrices, ARPACK otherwise, dense again if ARPACK does not
+    converge: a long delay line puts many eigenvalues on one circle, where Arnoldi can stall)."""
     dim = mat.shape[0]
     if dim == 0:
         return 0.0
     if dim <= 400:
         return float(np.max(np.abs(scipy.linalg.eigvals(mat.toarray()))))
-    val = scipy.sparse.linalg.eigs(mat.tocsc(), k=1, which="LM", return_eigenvectors=False, maxiter=20 * dim)
-    return float(np.abs(val[0]))
+    try:
+        val = scipy.sparse.linalg.eigs(mat.tocsc(), k=1, which="LM", return_eigenvectors=False, maxiter=20 * dim,
+                                       v0=np.ones(dim))    # fixed start vector: the same answer every run
+        return float(np.abs(val[0]))
+    except scipy.sparse.linalg.ArpackNoConvergence:
+        return float(np.max(np.abs(scipy.linalg.eigvals(mat.toarray()))))
 
 
 def _controller_arrays(controller: DiscreteController) -> tuple[np.ndarray, np.ndarray]:
