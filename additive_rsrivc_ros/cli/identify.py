@@ -18,6 +18,7 @@ from pathlib import Path
 import numpy as np
 
 from ..config import ParamError, load_config
+from ..core.faults import FaultSettings
 from ..core.filters import ClosedLoopUnstableError
 from ..core.offline import METHODS, identify
 
@@ -38,8 +39,9 @@ def _parser() -> argparse.ArgumentParser:
     return ap
 
 
-def longest_gap_free(t: np.ndarray, rate_hz: float, tolerance: float = 0.5) -> tuple[slice, int]:
-    """Longest run of samples spaced by at most ``(1 + tolerance)/rate_hz`` and the number of gaps in ``t``."""
+def longest_gap_free(t: np.ndarray, rate_hz: float, tolerance: float) -> tuple[slice, int]:
+    """Longest run of samples spaced by at most ``(1 + tolerance)/rate_hz`` and the number of gaps in ``t`` (the
+    gap rule of the pipeline, ``faults.health.gap_tolerance``)."""
     if t.size < 2:
         return slice(0, t.size), 0
     breaks = np.flatnonzero(np.diff(t) > (1.0 + tolerance) / rate_hz) + 1
@@ -65,7 +67,7 @@ def run(bag: str, params_file: str, out: str, method: str = "auto", max_iteratio
     iters = max_iterations if max_iterations is not None else max(50, cfg.estimator.init_max_iterations)
     if iters < 1:
         raise ValueError("--max-iterations must be >= 1")
-    seg, n_gaps = longest_gap_free(sig.t, cfg.loop_rate_hz)
+    seg, n_gaps = longest_gap_free(sig.t, cfg.loop_rate_hz, FaultSettings.from_params(cfg.params).health_gap_tolerance)
     r_seg = sig.r[seg] if closed else None
     res = identify(sig.u[seg], sig.y[seg], cfg.loop_rate_hz, cfg.structures, [m.theta0() for m in cfg.modes],
                    r=r_seg, controller=cfg.controller if closed else None,

@@ -746,16 +746,23 @@ class FaultMonitor:
         and a tenth of the relevant change, i.e. it is still travelling to a new value."""
         out = np.zeros((self.K, 3), dtype=bool)
         for i in range(self.K):
-            past = [m for (tp, m) in self.history if tp <= t - lookback * float(self.memory_s[i])]
-            if not past:
+            then = self._estimate_ago(t, lookback * float(self.memory_s[i]))
+            if then is None:
                 continue
             for q in range(3):
                 if not self.applicable(i, q):
                     continue
-                step = abs(modal[i, q] - past[-1][i, q])
+                step = abs(modal[i, q] - then[i, q])
                 tol = max(3.0 * float(modal[i, 3 + q]), 0.1 * float(rho[i, q]) * abs(float(modal[i, q])))
                 out[i, q] = bool(math.isfinite(step) and step > tol)
         return out
+
+    def _estimate_ago(self, t: float, lag_s: float) -> np.ndarray | None:
+        """The latest remembered estimate at least ``lag_s`` before ``t`` (None if the history is shorter)."""
+        for tp, m in reversed(self.history):
+            if tp <= t - lag_s:
+                return m
+        return None
 
     def _remember(self, t: float, modal: np.ndarray) -> None:
         self.history.append((t, modal.copy()))
@@ -767,10 +774,9 @@ class FaultMonitor:
         """The estimate has settled: over the last memory length of each mode no estimate moved by more than 3
         reported std (S2 needs a converged estimate; a sluggish start from a small P(0) still drifts)."""
         for i in range(self.K):
-            past = [m for (tp, m) in self.history if tp <= t - float(self.memory_s[i])]
-            if not past:
+            then = self._estimate_ago(t, float(self.memory_s[i]))
+            if then is None:
                 return False
-            then = past[-1]
             for q in range(3):
                 if not self.applicable(i, q):
                     continue

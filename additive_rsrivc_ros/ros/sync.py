@@ -81,7 +81,6 @@ class InputSync:
         self.stamped = stamped
         self.max_backlog = int(max_backlog)
         self.quiet_ns = int(quiet_s * 1e9)
-        self.silent_ns = int((quiet_s if silent_s is None else silent_s) * 1e9)
         self.gap_ns = int(gap_s * 1e9)
         self.hold_ns = int(hold_s * 1e9)
         self.skew_ns = int((0.5 / self.rate if skew_s is None else skew_s) * 1e9)
@@ -104,6 +103,8 @@ class InputSync:
         # a topic may stall while the others continue: reliable DDS recovers a lost datagram only at the writer's
         # next heartbeat (Fast DDS: every 3 s); an imbalance is a count mismatch only after it outlasts that
         self.persist_ns = max(int(stall_s * 1e9), 2 * self.quiet_ns)
+        # a topic behind the others is lost only after a silence longer than a stall too
+        self.silent_ns = max(int((quiet_s if silent_s is None else silent_s) * 1e9), self.persist_ns)
 
     # ----------------------------------------------------------------------------------------- control
     def _restart_grid(self) -> None:
@@ -180,9 +181,8 @@ class InputSync:
             self._imbalance_since = None
             return False
         behind = [s for s, n_ in zip(self.signals, lens, strict=True) if n_ == min(lens)]
-        silent_ns = max(self.silent_ns, self.persist_ns)   # a stalled topic resumes within the stall time
         silent = [s for s, i in ((s, self.signals.index(s)) for s in behind)
-                  if self.last_arrival_ns[i] == 0 or now_ns - self.last_arrival_ns[i] > silent_ns]
+                  if self.last_arrival_ns[i] == 0 or now_ns - self.last_arrival_ns[i] > self.silent_ns]
         if not silent:
             # executors deliver bursts topic by topic: only a lasting imbalance is a count mismatch
             if self._imbalance_since is None:
