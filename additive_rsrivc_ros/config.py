@@ -112,6 +112,19 @@ for _sig, _topic in (("reference", "/reference"), ("input", "/plant_input"), ("o
               choices=("position", "velocity", "effort")),
     ]
 
+# Verified stream alignment (core/alignment.py): the controller invariant u = C_d(q)(r - y) re-pairs r, u, y.
+ALIGN_PARAMS: list[Param] = [
+    Param("alignment.mode", "string", "auto", "Verify and re-establish the pairing of r, u, y from the controller "
+          "invariant u = C_d(q)(r - y): auto (closed loop with Float64 signals; JointState stamps are exact) or off.",
+          read_only=True, choices=("auto", "off")),
+    Param("alignment.max_shift", "int", 3, "Largest index offset of u or r against y searched (samples).", 1, 20,
+          True),
+    Param("alignment.lag_s", "double", 0.008, "Samples are released this late so that a shift detected within it "
+          "is corrected before the estimator sees it (s; at least a few samples).", 0.0, 10.0, True),
+    Param("alignment.switch_nats", "double", 40.0, "Evidence (log-likelihood ratio, nats) a different offset needs "
+          "over the current one before the streams are re-aligned.", 5.0, 1e6, True),
+]
+
 # Fault-diagnosis parameters: owned by core/faults.py (appended there or here by its owner).
 FAULT_PARAMS: list[Param] = [
     Param("faults.enabled", "bool", True, "Run the structural fault tests (estimation and health run regardless)."),
@@ -211,7 +224,7 @@ NODE_PARAMS: list[Param] = [
 
 def all_params() -> list[Param]:
     """Every parameter row, in declaration order."""
-    return [*CORE_PARAMS, *SIGNAL_PARAMS, *FAULT_PARAMS, *NODE_PARAMS]
+    return [*CORE_PARAMS, *SIGNAL_PARAMS, *ALIGN_PARAMS, *FAULT_PARAMS, *NODE_PARAMS]
 
 
 def param_table() -> dict[str, Param]:

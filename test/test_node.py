@@ -82,7 +82,8 @@ def test_stamped_inputs_params_services_and_restart(ros_env, tmp_path):
         # the same samples through the offline pipeline
         params = load_params_file(PAPER)
         params["modes.memory_s"] = [memory] * 3
-        pipe = MonitorPipeline(MonitorConfig.from_params(params))
+        params.update({f"{s}.type": "sensor_msgs/msg/JointState" for s in ("reference", "input", "output")})
+        pipe = MonitorPipeline(MonitorConfig.from_params(params))     # as the node: stamped, paired exactly
         reports = pipe.push(stamps * 1e-9, sc.r, sc.u, sc.y)
         ref = reports[-1]
         assert ref.phase == "monitoring", "test data too short to learn a baseline"

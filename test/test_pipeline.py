@@ -42,6 +42,7 @@ def beam_fault_run():
     reports = []
     for k in range(0, data.t.size, n):       # 0.1 s blocks, as the node feeds them
         reports += pipe.push(data.t[k:k + n], data.r[k:k + n], data.u[k:k + n], data.y[k:k + n])
+    reports += pipe.flush()      # the end of the record: the aligner's held-back samples
     return data, pipe, reports
 
 

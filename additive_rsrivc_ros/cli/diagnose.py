@@ -117,6 +117,10 @@ def run_pipeline(sig: Any, cfg: Any, *, chunk_s: float = 1.0, progress: Progress
                 events[(e.mode, e.quantity, e.alarm_time_s)] = e
         if progress is not None:
             progress.update(float(sig.t[b - 1]))
+    for rep in pipe.flush():       # the end of the record: samples the stream aligner held back
+        reports.append(rep)
+        for e in (*rep.events_opened, *rep.events_closed):
+            events[(e.mode, e.quantity, e.alarm_time_s)] = e
     ordered = sorted(events.values(), key=lambda e: (e.onset_time_s, e.mode, e.quantity))
     return reports, ordered
 

@@ -145,6 +145,9 @@ def run_pipeline(data: Any, block_s: float = 0.1) -> tuple[list[FaultEvent], lis
         for rep in pipe.push(data.t[k:k + n], None if r is None else r[k:k + n], data.u[k:k + n], data.y[k:k + n]):
             reports.append({"time_s": rep.time_s, "phase": rep.phase, "health_level": int(rep.health["level"]),
                             "hold": bool(rep.health["hold"]), "issues": list(rep.health.get("issues", []))})
+    for rep in pipe.flush():
+        reports.append({"time_s": rep.time_s, "phase": rep.phase, "health_level": int(rep.health["level"]),
+                        "hold": bool(rep.health["hold"]), "issues": list(rep.health.get("issues", []))})
     return list(pipe.faults.events), reports, time.perf_counter() - t_wall
 
 

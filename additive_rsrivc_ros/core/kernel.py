@@ -194,9 +194,11 @@ def run_block(r: np.ndarray, u: np.ndarray, y: np.ndarray, valid: np.ndarray, al
         ok = valid[k] != 0 and math.isfinite(uk) and math.isfinite(yk)
         if closed and not math.isfinite(rk):
             ok = False
-        if not ok:
-            rk = fst[F_RLAST]
-            uk = fst[F_ULAST]
+        if not ok:   # no update; an input that is known keeps driving the filters, a missing one is held
+            if not math.isfinite(rk):
+                rk = fst[F_RLAST]
+            if not math.isfinite(uk):
+                uk = fst[F_ULAST]
         pos = ist[I_POS]
         ud_prev = ubuf[pos]
         zd_prev = zbuf[pos] if closed else ud_prev

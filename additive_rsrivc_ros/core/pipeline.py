@@ -2,6 +2,11 @@
 
 The one object the node (``rsrivc_monitor``) and the offline tool (``rsrivc_diagnose``) drive:
 
+0. **Alignment** (closed loop, Float64 signals): :class:`.alignment.InvariantAligner` checks the controller
+   invariant ``u = C_d(q)(r - y)`` sample by sample and re-pairs streams in which one lost or repeated a
+   message (a lost sample becomes an invalid grid sample, a surplus one is dropped); samples are released
+   ``alignment.lag_s`` late so a shift is corrected before the estimator sees it; :meth:`flush` releases the
+   rest at the end of a record. What it found and could not decide is reported on health.
 1. **Validation** of each incoming sample ``(t, r, u, y)``: non-finite, out-of-order and duplicate stamps
    are dropped; non-finite values and outputs that exactly repeat the previous value (a dropped sample
    held by the receiver) are given to the estimator as *invalid* (no update; the kernel holds the input
@@ -28,6 +33,7 @@ from typing import Any
 
 import numpy as np
 
+from .alignment import AlignedBlock, InvariantAligner
 from .faults import (
     BASELINE_KEYS,
     QUANTITIES,
@@ -39,6 +45,7 @@ from .faults import (
 )
 
 STATE_VERSION = 1
+FLOAT64_TYPE = "std_msgs/msg/Float64"
 
 
 class PipelineError(ValueError):
@@ -161,6 +168,7 @@ class MonitorPipeline:
         self.counters = _Counters()
         self.t0: float | None = None          # absolute time of the first sample
         self.t_last: float | None = None      # absolute time of the last accepted sample
+        self.t_stamp_last: float | None = None  # last stamp accepted by step 1 (the aligner may hold samples back)
         self.next_publish = 0.0               # time (since t0) of the next report
         self.initialized = False
         self.stuck = False
@@ -174,6 +182,10 @@ class MonitorPipeline:
         self.pending_opened: list[FaultEvent] = []
         self.pending_closed: list[FaultEvent] = []
         self.last_report: Report | None = None
+        self.aligner = _make_aligner(self.cfg)
+        self._align_notes: list[str] = []     # re-alignments since the last report
+        self._align_late = 0
+        self._align_prev = (0, 0)             # (samples_out, undecided) at the last report
 
     def reset(self) -> None:
         """Start over: new estimator (initialized from the next data), no baseline, counters zeroed."""
@@ -234,20 +246,33 @@ class MonitorPipeline:
         if not (t.ndim == r.ndim == u.ndim == y.ndim == 1 and t.size == r.size == u.size == y.size):
             raise PipelineError(f"t, r, u, y must be 1-D of equal length, got sizes {t.size}, {r.size}, {u.size}, "
                                 f"{y.size}")
-        reports: list[Report] = []
         if t.size == 0:
-            return reports
+            return []
+        self.counters.samples_in += t.size
+        t, r, u, y = self._accept_stamps(t, r, u, y)
+        if t.size == 0:
+            return []
+        if self.aligner is None:
+            return self._ingest(t, r, u, y)
+        return self._ingest_aligned(self.aligner.push(t, r, u, y))
+
+    def flush(self) -> list[Report]:
+        """End of a record: release the samples the stream aligner still holds back (``alignment.lag_s``)."""
+        if self.aligner is None:
+            return []
+        return self._ingest_aligned(self.aligner.flush())
+
+    def _accept_stamps(self, t: np.ndarray, r: np.ndarray, u: np.ndarray,
+                       y: np.ndarray) -> tuple[np.ndarray, ...]:
+        """Step 1: drop samples with non-finite, duplicate and out-of-order stamps (they never touch the grid)."""
         c = self.counters
-        c.samples_in += t.size
-        s = self.settings
-        # 1. stamps: drop non-finite, duplicate and out-of-order stamps (they never touch the grid)
         finite_t = np.isfinite(t)
         if self.t0 is None:
             if not finite_t.any():
                 c.samples_dropped += t.size
-                return reports
+                return t[:0], r[:0], u[:0], y[:0]
             self.t0 = float(t[np.argmax(finite_t)])
-        start = -np.inf if self.t_last is None else self.t_last
+        start = -np.inf if self.t_stamp_last is None else self.t_stamp_last
         prev = np.maximum.accumulate(np.concatenate(([start], np.where(finite_t, t, -np.inf))))[:-1]
         ok_t = finite_t & (t > prev)
         if not ok_t.all():
@@ -263,9 +288,34 @@ class MonitorPipeline:
                 self.health.note("out_of_order", t_note, f"{c.out_of_order} out-of-order or invalid time stamps "
                                  "dropped")
         idx = np.flatnonzero(ok_t)
-        if idx.size == 0:
-            return reports
-        ta, ra, ua, ya = t[idx], r[idx], u[idx], y[idx]
+        if idx.size:
+            self.t_stamp_last = float(t[idx[-1]])
+        return t[idx], r[idx], u[idx], y[idx]
+
+    def _ingest_aligned(self, blk: AlignedBlock) -> list[Report]:
+        """Samples released by the aligner: its findings become health notes, then the usual validation."""
+        st = self.aligner.stats
+        self._align_notes += [msg for _, msg in st.events]
+        st.events.clear()
+        if st.late > self._align_late:
+            # a shift found after misaligned samples reached the estimator: their filter states are wrong
+            n_late = st.late - self._align_late
+            self._align_late = st.late
+            t_abs = float(blk.t[0]) if blk.n else (self.t_last or 0.0)
+            self.health.note("misaligned", self._rel(t_abs), f"{n_late} samples reached the estimator misaligned "
+                             "before the shift was detected (estimator re-primed)")
+            if self.initialized:
+                self.est.mark_gap()
+        if blk.n == 0:
+            return []
+        return self._ingest(blk.t, blk.r, blk.u, blk.y, aligner_invalid=blk.invalid)
+
+    def _ingest(self, ta: np.ndarray, ra: np.ndarray, ua: np.ndarray, ya: np.ndarray,
+                aligner_invalid: np.ndarray | None = None) -> list[Report]:
+        """Validation (values, gaps, stuck sensor), estimation and reports on stamp-checked samples."""
+        reports: list[Report] = []
+        c = self.counters
+        s = self.settings
         n = ta.size
         # 2. values: non-finite samples are given to the estimator as invalid (skipped, grid kept)
         fin = np.isfinite(ua) & np.isfinite(ya)
@@ -298,6 +348,8 @@ class MonitorPipeline:
             stuck = st_f > 0.5
         valid = fin & ~(rep & s.health_repeated_output_is_missing)
         n_nonfin = int((~fin).sum())
+        if aligner_invalid is not None:   # set aside by the aligner (re-alignment, lost sample): not sensor NaNs
+            n_nonfin -= int((~fin & aligner_invalid).sum())
         if n_nonfin:
             c.nonfinite += n_nonfin
             self.health.note("nonfinite", self._rel(float(ta[np.flatnonzero(~fin)[-1]])),
@@ -434,6 +486,7 @@ class MonitorPipeline:
                                      "later deviations wait until the estimates return to the baseline (or rebaseline)")
             health["level"] = max(int(health["level"]), int(Level.WARN))
             health["ok"] = False
+        self._alignment_health(health)
         health["anomaly_since"] = self.faults.anomaly_since
         health.update(self.counters.to_dict())
         health["estimator"] = {k: _jsonable(v) for k, v in est_health.items()}
@@ -449,6 +502,35 @@ class MonitorPipeline:
         self.pending_opened, self.pending_closed = [], []
         if self.initialized and "divergence" in status.values.get("new_issues", []):
             self._reinitialize(t_rep)
+
+    def _alignment_health(self, health: dict[str, Any]) -> None:
+        """What the stream aligner found since the last report (non-holding: corrected data are valid data)."""
+        if self.aligner is None:
+            health["alignment"] = {"mode": "off"}
+            return
+        st = self.aligner.stats
+        out0, und0 = self._align_prev
+        n_out, n_und = st.samples_out - out0, st.undecided - und0
+        self._align_prev = (st.samples_out, st.undecided)
+        rel = st.relative_residual
+        health["alignment"] = {"mode": "invariant", "verified": self.aligner.verified, **st.to_dict()}
+        notes = []
+        if self._align_notes:
+            notes.append("; ".join(self._align_notes) + " (corrected before estimation)"
+                         if len(self._align_notes) < 4 else
+                         f"{len(self._align_notes)} re-alignments since the last report (lost or repeated messages)")
+            self._align_notes = []
+        if n_out and n_und > ALIGN_UNDECIDED_FRACTION * n_out:
+            notes.append(f"alignment not verifiable for {n_und} of {n_out} samples: the controller invariant "
+                         "u = C_d(q)(r - y) does not separate the shifts (feedforward, saturation or a different "
+                         "controller?); pairing kept as received")
+        if math.isfinite(rel) and rel > ALIGN_APPROXIMATE_RELATIVE:
+            notes.append(f"controller invariant u = C_d(q)(r - y) holds only to {rel:.2g} relative (rounding gives "
+                         "~1e-16): check controller.numerator/denominator")
+        if notes:
+            health["reasons"] = [*health["reasons"], *notes]
+            health["level"] = max(int(health["level"]), int(Level.WARN))
+            health["ok"] = False
 
     def _reinitialize(self, t_rel: float) -> None:
         """Divergence: a fresh estimator initialized on the next data; baseline and events are kept."""
@@ -474,7 +556,8 @@ class MonitorPipeline:
             "pipeline": {"t0": self.t0, "t_last": self.t_last, "next_publish": self.next_publish,
                          "counters": self.counters.to_dict(), "memory_s": self.memory_s.tolist(),
                          "stuck": self.stuck, "last_y": self.last_y, "run_len": self.run_len,
-                         "run_start_t": self.run_start_t},
+                         "run_start_t": self.run_start_t, "t_stamp_last": self.t_stamp_last,
+                         "aligner": None if self.aligner is None else self.aligner.get_state()},
         }
 
     def set_state(self, state: Mapping[str, Any]) -> None:
@@ -502,10 +585,32 @@ class MonitorPipeline:
             self.stuck = bool(p["stuck"])
             self.last_y = None if p["last_y"] is None else float(p["last_y"])
             self.run_len, self.run_start_t = int(p["run_len"]), float(p["run_start_t"])
+            ts = p.get("t_stamp_last", p["t_last"])
+            self.t_stamp_last = None if ts is None else float(ts)
+            if self.aligner is not None and p.get("aligner") is not None:
+                self.aligner.set_state(p["aligner"])
         except PipelineError:
             raise
         except (KeyError, TypeError, ValueError) as exc:
             raise PipelineError(f"saved state is incomplete or corrupt ({type(exc).__name__}: {exc})") from None
+
+
+ALIGN_APPROXIMATE_RELATIVE = 1e-6    # above this the invariant is reported as approximate (float32 control ~1e-7)
+ALIGN_UNDECIDED_FRACTION = 0.5       # report when more than this fraction of a report period is undecidable
+
+
+def _make_aligner(cfg: Any) -> InvariantAligner | None:
+    """The controller-invariant aligner when it applies (closed loop, Float64 signals, ``alignment.mode: auto``)."""
+    p = getattr(cfg, "params", {}) or {}
+    if p.get("alignment.mode", "auto") == "off" or not cfg.closed_loop or cfg.controller is None:
+        return None
+    signals = getattr(cfg, "signals", {}) or {}
+    if any(getattr(sc, "type", FLOAT64_TYPE) != FLOAT64_TYPE for sc in signals.values()):
+        return None   # stamped inputs (JointState) are paired exactly by their header stamps
+    rate = float(cfg.loop_rate_hz)
+    lag = int(math.ceil(float(p.get("alignment.lag_s", 0.008)) * rate))
+    return InvariantAligner(cfg.controller, rate, max_shift=int(p.get("alignment.max_shift", 3)), lag=lag,
+                            switch_nats=float(p.get("alignment.switch_nats", 40.0)))
 
 
 def _ffill(x: np.ndarray, first: float) -> np.ndarray:
