@@ -586,7 +586,7 @@ class MonitorPipeline:
             self.health.note("repeated_output", t_rep, f"output repeats its previous value in {self._win_rep} of "
                              f"{self._win_n} samples (dropped or held sensor samples)")
         self._win_n = self._win_rep = 0
-        if self.initialized and self.cfg.closed_loop:
+        if self.initialized and self.cfg.closed_loop:    # every report (~0.25 ms for K = 2, delay 4)
             problem = self._model_problem("current model")
             if problem is not None:
                 self.counters.invalid_models += 1
@@ -641,11 +641,13 @@ class MonitorPipeline:
         health["model_valid"] = self.initialized
         health["no_model_reason"] = None if self.initialized else (self.no_model or "not initialized yet")
         health["closed_loop_max_pole"] = self.model_max_pole if self.initialized else math.nan
-        tests_on = self.initialized and self.faults.phase in ("learning", "monitoring")
+        paused = self.faults.baseline is None and self.faults.learner.n > 0 and self.faults.learner.paused
+        tests_on = self.initialized and (self.faults.phase in ("learning", "monitoring") or paused)
         if hold and tests_on:
             if self._blind_since is None:
                 self._blind_since = t_rep
-            health["reasons"].append(f"fault tests held (blind) since t={self._blind_since:.1f} s")
+            health["reasons"].append(f"fault tests held (blind) since t={self._blind_since:.1f} s" + (
+                f"; baseline window paused ({self.faults.learner.elapsed_s:.1f} s learned, kept)" if paused else ""))
         elif not hold:
             self._blind_since = None
         health["blind_since"] = self._blind_since
@@ -704,6 +706,7 @@ class MonitorPipeline:
             if state["estimator"] is not None:
                 self.est.set_state({k: np.asarray(v) for k, v in state["estimator"].items()})
                 self.initialized = True
+                self._marked_gaps = int(dict(getattr(self.est, "health", {}) or {}).get("reprimes", 0) or 0)
             self.faults.set_state(state["faults"])
             self.health.set_state(state["health"])
             self.t0 = None if p["t0"] is None else float(p["t0"])
