@@ -4,7 +4,7 @@ The one object the node (``rsrivc_monitor``) and the offline tool (``rsrivc_diag
 
 1. **Validation** of each incoming sample ``(t, r, u, y)``: non-finite, out-of-order and duplicate stamps
    are dropped; non-finite values, values of absurd magnitude (:class:`MagnitudeGuard`: above ``1e6`` x the
-   median ``|value|`` seen so far or ``1e15``; counted as ``outliers``) and outputs that exactly repeat the
+   99th percentile of ``|value|`` seen so far or ``1e15``; counted as ``outliers``) and outputs that exactly repeat the
    previous value (a dropped sample held by the receiver) are given to the estimator as *invalid* (no update; the
    kernel holds a non-finite input and replaces the output by the model prediction), which keeps the sample grid;
    a spacing above ``(1 + faults.health.gap_tolerance) / loop_rate_hz`` is a data gap: a short one (at most 5 %
@@ -131,7 +131,10 @@ EstimatorFactory = Callable[[Any], Any]
 ABSOLUTE_BOUND = 1e15
 """|value| above which a sample is never data (about 1e9 x any physical signal in SI units)."""
 RELATIVE_BOUND = 1e6
-"""|value| above this x the median nonzero |value| seen so far is not data (a corrupt or garbled sample)."""
+"""|value| above this x the running scale (the 99th percentile of the nonzero |value| seen so far) is not data."""
+SCALE_QUANTILE = 0.99
+"""Quantile of |value| used as the running scale: robust to 1 % outliers, and a signal that idles near its noise
+floor for most of the record and then moves (a setpoint starting late) still sets its scale from the motion."""
 MAGNITUDE_MIN_SAMPLES = 32    # nonzero samples seen before the relative bound applies
 _LOG_BINS_PER_DECADE = 4
 _LOG_MIN, _LOG_MAX = -330.0, 310.0
@@ -141,24 +144,25 @@ class MagnitudeGuard:
     """Running robust scale of a signal: a histogram of ``log10 |x|`` over every accepted nonzero sample.
 
     A finite sample is *absurd* when ``|x| > ABSOLUTE_BOUND`` or, once ``MAGNITUDE_MIN_SAMPLES`` nonzero samples were
-    seen, ``|x| > RELATIVE_BOUND x median |x|`` (the median to a quarter decade; one outlier cannot move it).
+    seen, ``|x| > RELATIVE_BOUND x`` the ``SCALE_QUANTILE`` quantile of ``|x|`` (to a quarter decade; isolated
+    outliers cannot move it).
     """
 
     def __init__(self) -> None:
         self.hist = np.zeros(int((_LOG_MAX - _LOG_MIN) * _LOG_BINS_PER_DECADE) + 1, dtype=np.int64)
         self.n = 0
-        self._median = math.nan
+        self._scale = math.nan
         self._n_at_median = 0
 
     def bound(self) -> float:
         """Current magnitude bound (``ABSOLUTE_BOUND`` until enough samples were seen)."""
         if self.n < MAGNITUDE_MIN_SAMPLES:
             return ABSOLUTE_BOUND
-        if self.n >= 2 * self._n_at_median or self.n - self._n_at_median >= 4096 or math.isnan(self._median):
-            k = int(np.searchsorted(np.cumsum(self.hist), (self.n + 1) // 2))
-            self._median = 10.0 ** (_LOG_MIN + (k + 0.5) / _LOG_BINS_PER_DECADE)
+        if self.n >= 2 * self._n_at_median or self.n - self._n_at_median >= 4096 or math.isnan(self._scale):
+            k = int(np.searchsorted(np.cumsum(self.hist), math.ceil(SCALE_QUANTILE * self.n)))
+            self._scale = 10.0 ** (_LOG_MIN + (k + 0.5) / _LOG_BINS_PER_DECADE)
             self._n_at_median = self.n
-        return min(ABSOLUTE_BOUND, RELATIVE_BOUND * self._median)
+        return min(ABSOLUTE_BOUND, RELATIVE_BOUND * self._scale)
 
     def absurd(self, x: np.ndarray) -> np.ndarray:
         """Bool mask of finite samples above the bound (non-finite ones are not flagged here)."""
@@ -181,7 +185,7 @@ class MagnitudeGuard:
         self.hist[:] = 0
         self.hist[np.asarray(d["bins"], dtype=np.int64)] = np.asarray(d["counts"], dtype=np.int64)
         self.n = int(self.hist.sum())
-        self._median, self._n_at_median = math.nan, 0
+        self._scale, self._n_at_median = math.nan, 0
 
 
 def _default_factory(cfg: Any) -> Any:
@@ -466,8 +470,8 @@ class MonitorPipeline:
             self.counters.outliers += n_out
             self.health.note("outlier", self._rel(float(ta[np.flatnonzero(absurd)[-1]])),
                              f"{self.counters.outliers} samples of absurd magnitude skipped as invalid "
-                             f"(latest {worst}; bound {RELATIVE_BOUND:g} x the median |value| so far, at most "
-                             f"{ABSOLUTE_BOUND:g})")
+                             f"(latest {worst}; bound {RELATIVE_BOUND:g} x the 99th percentile of |value| so far, "
+                             f"at most {ABSOLUTE_BOUND:g})")
         return fin & ~absurd, absurd
 
     def _on_break(self, why: str, kind: str | None, t_abs: float) -> None:
