@@ -637,57 +637,7 @@ class FaultMonitor:
         self.last_modal = modal.copy()
         finite = bool(np.all(np.isfinite(modal[:, :3])))
         self.held = hold or not finite
-        if self.phase == "waiting":
-            self.phase, self.t_phase = "settling", t
-        if self.held:
-            if self.phase == "learning":
-                # a data problem (gap, re-priming, sensor, re-initialization) during the window: keep what was
-                # learned, pause, and resume once the estimate has re-settled (see _resume_window)
-                self.learner.pause()
-                self.phase, self.t_phase = "settling", t - self.settle_s
-                if math.isnan(self.break_t):
-                    self.break_t = t
-            for row in self.tests:
-                for test in row:
-                    test.reset(t)
-            return out
-        self._remember(t, modal)
-        if self.phase == "settling":
-            if t - self.t_phase < self.settle_s:
-                return out
-            forced = t - self.t_phase >= self.settings.settle_max_memory_lengths * float(self.memory_s.max())
-            if not (forced or self.converged(t, modal)):
-                return out
-            self.settle_forced = forced and not self.converged(t, modal)
-            if self.baseline is not None:
-                self._start_monitoring(t, t, out)
-            elif self.learner.n > 0:
-                if self._resume_window(t, modal, out):
-                    return out
-            else:
-                self.phase, self.t_phase = "learning", t
-                self.learner.reset(t)
-        if self.phase == "learning" and suspect_since is not None and suspect_since >= self.t_phase:
-            # the estimator came under stress during the window (e.g. a residual-variance jump: the plant may have
-            # just changed): the window must not run into the transient. Keep what was learned before (the change
-            # is then monitored against it; untrusted below half a window), never let the new state become the
-            # baseline; with nothing learned yet, start again once the estimate has settled.
-            if self.learner.n > 0:
-                self._keep_partial(t, suspect_since, f"estimator stress (residual jump or projections) at "
-                                   f"t={suspect_since:.1f} s", out)   # the stress belongs to the monitoring
-            else:
-                self.phase, self.t_phase = "settling", t
-                return out
-        if self.phase == "learning":
-            change = self._window_change(modal)
-            if change is not None:
-                self._keep_partial(t, t, f"the estimate moved during the window ({change})", out)
-                return out
-            self.learner.add(t, modal)
-            if self.learner.elapsed_s >= self.baseline_window_s - 1e-9:
-                self.baseline = self.learner.finish(self.memory_s, self.learner.elapsed_s)
-                self.break_t = math.nan
-                self._start_monitoring(t, t, out)
+        if self._baseline_phases(t, modal, suspect_since, out):
             return out
         if not self.settings.enabled or self.baseline is None:
             return out
@@ -770,6 +720,62 @@ class FaultMonitor:
                 if closed is not None:
                     out.closed.append(closed)
         return out
+
+    def _baseline_phases(self, t: float, modal: np.ndarray, suspect_since: float | None, out: FaultUpdate) -> bool:
+        """Hold, settling and baseline learning (S2, S5); True when this update ends here (no test step)."""
+        if self.phase == "waiting":
+            self.phase, self.t_phase = "settling", t
+        if self.held:
+            if self.phase == "learning":
+                # a data problem (gap, re-priming, sensor, re-initialization) during the window: keep what was
+                # learned, pause, and resume once the estimate has re-settled (see _resume_window)
+                self.learner.pause()
+                self.phase, self.t_phase = "settling", t - self.settle_s
+                if math.isnan(self.break_t):
+                    self.break_t = t
+            for row in self.tests:
+                for test in row:
+                    test.reset(t)
+            return True
+        self._remember(t, modal)
+        if self.phase == "settling":
+            if t - self.t_phase < self.settle_s:
+                return True
+            forced = t - self.t_phase >= self.settings.settle_max_memory_lengths * float(self.memory_s.max())
+            if not (forced or self.converged(t, modal)):
+                return True
+            self.settle_forced = forced and not self.converged(t, modal)
+            if self.baseline is not None:
+                self._start_monitoring(t, t, out)
+            elif self.learner.n > 0:
+                if self._resume_window(t, modal, out):
+                    return True
+            else:
+                self.phase, self.t_phase = "learning", t
+                self.learner.reset(t)
+        if self.phase == "learning" and suspect_since is not None and suspect_since >= self.t_phase:
+            # the estimator came under stress during the window (e.g. a residual-variance jump: the plant may have
+            # just changed): the window must not run into the transient. Keep what was learned before (the change
+            # is then monitored against it; untrusted below half a window), never let the new state become the
+            # baseline; with nothing learned yet, start again once the estimate has settled.
+            if self.learner.n > 0:
+                self._keep_partial(t, suspect_since, f"estimator stress (residual jump or projections) at "
+                                   f"t={suspect_since:.1f} s", out)   # the stress belongs to the monitoring
+            else:
+                self.phase, self.t_phase = "settling", t
+                return True
+        if self.phase == "learning":
+            change = self._window_change(modal)
+            if change is not None:
+                self._keep_partial(t, t, f"the estimate moved during the window ({change})", out)
+                return True
+            self.learner.add(t, modal)
+            if self.learner.elapsed_s >= self.baseline_window_s - 1e-9:
+                self.baseline = self.learner.finish(self.memory_s, self.learner.elapsed_s)
+                self.break_t = math.nan
+                self._start_monitoring(t, t, out)
+            return True
+        return False
 
     def _window_change(self, modal: np.ndarray) -> str | None:
         """A relevant and significant deviation of ``modal`` from the partial baseline learned so far (S3 relevance
