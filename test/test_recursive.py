@@ -326,3 +326,43 @@ def test_p0_from_information_reports_calibrated_uncertainty_from_the_start():
     assert p0_from_information(-p, 100, 0.99) is None and p0_from_information(p * np.nan, 100, 0.99) is None
     with pytest.raises(ValueError):
         _est(PAPER_THETA, False, p0_policy="bogus")
+
+
+@pytest.mark.parametrize("delay", [0, 1, 3])
+def test_closed_loop_spectral_radius_matches_the_simulator_and_the_paper_erratum(delay):
+    """The model's noise-free loop with C_d (which also generates the instrument, 000 eq. 33) built from the kernel's
+    discretization equals the simulator's independent construction (core/simulate.closed_loop_poles); the 000 §5
+    controller as printed (-0.2058) does not stabilize the §5 plant, the corrected one does (NOTES erratum 1)."""
+    from additive_rsrivc_ros.core.controller import DiscreteController
+    from additive_rsrivc_ros.core.recursive import closed_loop_spectral_radius
+    from additive_rsrivc_ros.core.simulate import closed_loop_poles
+
+    rigid = SubmodelStructure(0, 0, 2)
+    cases = [(S3, PAPER_THETA, [0, 0, 0]), ([rigid, SubmodelStructure()], [np.array([0.5]), PAPER_THETA[1]], [2, 0])]
+    for structures, thetas, kinds in cases:
+        for ctrl in (PID, DiscreteController((0.02329, -0.2058, 0.00454), (1.0, -1.0, 0.0))):
+            ref = float(np.max(np.abs(closed_loop_poles(thetas, structures, ctrl, 20.0, delay))))
+            got = closed_loop_spectral_radius(kinds, thetas, 20.0, ctrl, delay)
+            assert got == pytest.approx(ref, rel=1e-9, abs=1e-12)
+    printed = DiscreteController((0.02329, -0.2058, 0.00454), (1.0, -1.0, 0.0))
+    assert closed_loop_spectral_radius([0, 0, 0], PAPER_THETA, 20.0, printed, 1) > 1.0
+    assert closed_loop_spectral_radius([0, 0, 0], PAPER_THETA, 20.0, PID, 1) < 1.0
+    est = _est(PAPER_THETA, True, delay=delay)
+    assert est.closed_loop_max_pole() == pytest.approx(
+        closed_loop_spectral_radius([0, 0, 0], PAPER_THETA, 20.0, PID, delay), rel=1e-12)
+    assert np.isnan(_est(PAPER_THETA, False).closed_loop_max_pole())
+
+
+def test_skipped_outputs_keep_the_known_input_driving_the_filters():
+    """A burst of missing outputs with the input and reference still recorded: no update, and the filters follow the
+    real input, so at the truth on noise-free data the estimate stays exact after the burst (holding the input
+    instead would leave a filter transient that moves the estimate)."""
+    n = 20_000
+    r, u, y = _data(n, True)
+    y = y.copy()
+    y[10_000:10_040] = np.nan
+    est = _est(PAPER_THETA, True)
+    tr = est.update(r, u, y, trace=True)
+    assert est.health["skipped_samples"] == 40
+    for i in range(3):
+        np.testing.assert_allclose(tr[:, i, :3], np.broadcast_to(PAPER_THETA[i], (n, 3)), rtol=1e-9, atol=1e-12)

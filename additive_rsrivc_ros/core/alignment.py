@@ -616,3 +616,12 @@ def _cusum_scan(u, r, y, n_have, j0, n, a0, b0, d, nc, hyp, cur, G, rho, k0, swi
     state[0] = log_scale
     state[1] = log_rel
     return -1, -1
+
+
+def align_record(controller: DiscreteController, rate_hz: float, t: np.ndarray, r: np.ndarray, u: np.ndarray,
+                 y: np.ndarray, **options: float) -> tuple[AlignedBlock, AlignmentStats]:
+    """A whole record through :class:`InvariantAligner` (offline tools: one push and a flush)."""
+    al = InvariantAligner(controller, rate_hz, **options)
+    a, b = al.push(t, r, u, y), al.flush()
+    block = AlignedBlock(*(np.concatenate((getattr(a, k), getattr(b, k))) for k in ("t", "r", "u", "y", "invalid")))
+    return block, al.stats

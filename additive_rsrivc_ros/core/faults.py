@@ -185,17 +185,22 @@ class Baseline:
     t_start: float = math.nan
     t_end: float = math.nan
     n_eff: np.ndarray | None = None
+    learned_s: float = math.nan   # seconds of healthy estimates in the window (breaks excluded)
+    trusted: bool = True          # False: learned over less than half a window (cut by a data problem or a change)
+    note: str = ""                # why the window was cut short (empty for a complete window)
 
     def to_dict(self) -> dict[str, Any]:
         return {"value": self.value.tolist(), "std": self.std.tolist(), "spread": self.spread.tolist(),
                 "source": self.source, "t_start": self.t_start, "t_end": self.t_end,
-                "n_eff": None if self.n_eff is None else self.n_eff.tolist()}
+                "n_eff": None if self.n_eff is None else self.n_eff.tolist(), "learned_s": self.learned_s,
+                "trusted": self.trusted, "note": self.note}
 
     @classmethod
     def from_dict(cls, d: Mapping[str, Any]) -> Baseline:
         return cls(np.asarray(d["value"], float), np.asarray(d["std"], float), np.asarray(d["spread"], float),
                    str(d["source"]), float(d["t_start"]), float(d["t_end"]),
-                   None if d.get("n_eff") is None else np.asarray(d["n_eff"], float))
+                   None if d.get("n_eff") is None else np.asarray(d["n_eff"], float),
+                   float(d.get("learned_s", math.nan)), bool(d.get("trusted", True)), str(d.get("note", "")))
 
     @classmethod
     def given(cls, settings: FaultSettings, n_modes: int) -> Baseline:
@@ -212,7 +217,11 @@ class Baseline:
 
 
 class BaselineLearner:
-    """Accumulates the estimate over a healthy window and returns a :class:`Baseline` (S1, S2)."""
+    """Accumulates the estimate over a healthy window and returns a :class:`Baseline` (S1, S2).
+
+    A window may be paused (:meth:`pause`, a data problem): what was learned is kept and ``elapsed_s`` counts only
+    the healthy stretches, so a window cut by a break resumes instead of starting again.
+    """
 
     def __init__(self, n_modes: int) -> None:
         self.n_modes = n_modes
@@ -222,12 +231,21 @@ class BaselineLearner:
         self.t_start = t_start
         self.t_last = t_start
         self.n = 0
+        self.elapsed_s = 0.0
+        self.paused = False
         self.sum = np.zeros((self.n_modes, 3))
         self.sumsq = np.zeros((self.n_modes, 3))
         self.sum_var = np.zeros((self.n_modes, 3))
 
+    def pause(self) -> None:
+        """A data problem: the time until the next :meth:`add` is not part of the window."""
+        self.paused = True
+
     def add(self, t: float, modal: np.ndarray) -> None:
         x, s = modal[:, :3], modal[:, 3:6]
+        if self.n > 0 and not self.paused:
+            self.elapsed_s += max(t - self.t_last, 0.0)
+        self.paused = False
         self.n += 1
         self.sum += x
         self.sumsq += x * x
@@ -243,14 +261,17 @@ class BaselineLearner:
         spread = np.sqrt(np.maximum(emp_var, self.sum_var / self.n))
         n_eff = np.clip(duration_s / (2.0 * np.asarray(memory_s, float)), 1.0, float(self.n))
         std = spread / np.sqrt(n_eff)[:, None]
-        return Baseline(mean, std, spread, "learned", self.t_start, self.t_last, n_eff)
+        return Baseline(mean, std, spread, "learned", self.t_start, self.t_last, n_eff, float(duration_s))
 
     def to_dict(self) -> dict[str, Any]:
         return {"t_start": self.t_start, "t_last": self.t_last, "n": self.n, "sum": self.sum.tolist(),
-                "sumsq": self.sumsq.tolist(), "sum_var": self.sum_var.tolist()}
+                "sumsq": self.sumsq.tolist(), "sum_var": self.sum_var.tolist(), "elapsed_s": self.elapsed_s,
+                "paused": self.paused}
 
     def load(self, d: Mapping[str, Any]) -> None:
         self.t_start, self.t_last, self.n = float(d["t_start"]), float(d["t_last"]), int(d["n"])
+        self.elapsed_s = float(d.get("elapsed_s", max(self.t_last - self.t_start, 0.0) if self.n else 0.0))
+        self.paused = bool(d.get("paused", False))
         self.sum, self.sumsq = np.asarray(d["sum"], float), np.asarray(d["sumsq"], float)
         self.sum_var = np.asarray(d["sum_var"], float)
 
@@ -449,8 +470,11 @@ class FaultMonitor:
     ``update(t, modal, hold=...)`` is called at the publish rate with the estimator's ``modal()``
     array (K, 6). Phases: ``waiting`` (no estimate yet) -> ``settling`` (settle_memory_lengths x the
     longest memory) -> ``learning`` (baseline window) -> ``monitoring``; with a given baseline the
-    learning phase is skipped. ``hold=True`` (bad health, S5) freezes the tests and restarts a
-    baseline window in progress.
+    learning phase is skipped. ``hold=True`` (bad health or a data problem, S5) freezes the tests; it never
+    resets a baseline: a window in progress is paused and resumes once the estimate has re-settled, unless the
+    estimate then differs from what was learned before by a relevant change (S4 relevance), in which case the
+    partial window becomes the baseline and the change is monitored against it (untrusted below half a window).
+    The same guard runs on every estimate of the window, so a plant change never becomes the baseline silently.
     """
 
     def __init__(self, memory_s: Sequence[float], settings: FaultSettings | None = None, *,
@@ -478,6 +502,7 @@ class FaultMonitor:
         self.settle_forced = False
         self.anomaly_since: float | None = None   # latched advisory stress (S5), see update()
         self.anomaly_quiet_since = math.nan
+        self.break_t = math.nan                   # first data problem that paused the current baseline window
 
     # -- configuration
     @classmethod
@@ -584,6 +609,7 @@ class FaultMonitor:
                 test.reset(t)
         self.baseline = None
         self.anomaly_since, self.anomaly_quiet_since = None, math.nan
+        self.break_t = math.nan
         if self.phase in ("learning", "monitoring"):
             self.phase, self.t_phase = "learning", t
             self.learner.reset(t)
@@ -611,45 +637,7 @@ class FaultMonitor:
         self.last_modal = modal.copy()
         finite = bool(np.all(np.isfinite(modal[:, :3])))
         self.held = hold or not finite
-        if self.phase == "waiting":
-            self.phase, self.t_phase = "settling", t
-        if self.held:
-            if self.phase == "learning":       # the baseline window must be healthy: start it again later
-                self.phase, self.t_phase = "settling", t - self.settle_s
-            for row in self.tests:
-                for test in row:
-                    test.reset(t)
-            return out
-        self._remember(t, modal)
-        if self.phase == "settling":
-            if t - self.t_phase < self.settle_s:
-                return out
-            forced = t - self.t_phase >= self.settings.settle_max_memory_lengths * float(self.memory_s.max())
-            if not (forced or self.converged(t, modal)):
-                return out
-            self.settle_forced = forced and not self.converged(t, modal)
-            if self.baseline is not None:
-                self._start_monitoring(t, t, out)
-            else:
-                self.phase, self.t_phase = "learning", t
-                self.learner.reset(t)
-        if self.phase == "learning" and suspect_since is not None and suspect_since >= self.t_phase:
-            # the estimator came under stress during the window (e.g. a residual-variance jump: the plant may have
-            # just changed): the window must not run into the transient. Keep what was learned before if it is at
-            # least half a window (the change is then monitored against it), else start again once the estimate
-            # has settled (a stress older than the window does not restart it).
-            elapsed = self.learner.t_last - self.t_phase
-            if self.learner.n > 0 and elapsed >= 0.5 * self.baseline_window_s:
-                self.baseline = self.learner.finish(self.memory_s, elapsed)
-                self._start_monitoring(t, suspect_since, out)   # the stress belongs to the monitoring
-            else:
-                self.phase, self.t_phase = "settling", t
-                return out
-        if self.phase == "learning":
-            self.learner.add(t, modal)
-            if t - self.t_phase >= self.baseline_window_s:
-                self.baseline = self.learner.finish(self.memory_s, t - self.t_phase)
-                self._start_monitoring(t, t, out)
+        if self._baseline_phases(t, modal, suspect_since, out):
             return out
         if not self.settings.enabled or self.baseline is None:
             return out
@@ -732,6 +720,114 @@ class FaultMonitor:
                 if closed is not None:
                     out.closed.append(closed)
         return out
+
+    def _baseline_phases(self, t: float, modal: np.ndarray, suspect_since: float | None, out: FaultUpdate) -> bool:
+        """Hold, settling and baseline learning (S2, S5); True when this update ends here (no test step)."""
+        if self.phase == "waiting":
+            self.phase, self.t_phase = "settling", t
+        if self.held:
+            if self.phase == "learning":
+                # a data problem (gap, re-priming, sensor, re-initialization) during the window: keep what was
+                # learned, pause, and resume once the estimate has re-settled (see _resume_window)
+                self.learner.pause()
+                self.phase, self.t_phase = "settling", t - self.settle_s
+                if math.isnan(self.break_t):
+                    self.break_t = t
+            for row in self.tests:
+                for test in row:
+                    test.reset(t)
+            return True
+        self._remember(t, modal)
+        if self.phase == "settling":
+            if t - self.t_phase < self.settle_s:
+                return True
+            forced = t - self.t_phase >= self.settings.settle_max_memory_lengths * float(self.memory_s.max())
+            if not (forced or self.converged(t, modal)):
+                return True
+            self.settle_forced = forced and not self.converged(t, modal)
+            if self.baseline is not None:
+                self._start_monitoring(t, t, out)
+            elif self.learner.n > 0:
+                if self._resume_window(t, modal, out):
+                    return True
+            else:
+                self.phase, self.t_phase = "learning", t
+                self.learner.reset(t)
+        if self.phase == "learning" and suspect_since is not None and suspect_since >= self.t_phase:
+            # the estimator came under stress during the window (e.g. a residual-variance jump: the plant may have
+            # just changed): the window must not run into the transient. Keep what was learned before (the change
+            # is then monitored against it; untrusted below half a window), never let the new state become the
+            # baseline; with nothing learned yet, start again once the estimate has settled.
+            if self.learner.n > 0:
+                self._keep_partial(t, suspect_since, f"estimator stress (residual jump or projections) at "
+                                   f"t={suspect_since:.1f} s", out)   # the stress belongs to the monitoring
+            else:
+                self.phase, self.t_phase = "settling", t
+                return True
+        if self.phase == "learning":
+            change = self._window_change(modal)
+            if change is not None:
+                self._keep_partial(t, t, f"the estimate moved during the window ({change})", out)
+                return True
+            self.learner.add(t, modal)
+            if self.learner.elapsed_s >= self.baseline_window_s - 1e-9:
+                self.baseline = self.learner.finish(self.memory_s, self.learner.elapsed_s)
+                self.break_t = math.nan
+                self._start_monitoring(t, t, out)
+            return True
+        return False
+
+    def _window_change(self, modal: np.ndarray) -> str | None:
+        """A relevant and significant deviation of ``modal`` from the partial baseline learned so far (S3 relevance
+        ``rho`` and ``z >= 3`` with the partial's spread), as ``"mode i quantity +x.x %"``; None if there is none or
+        too little was learned (fewer than two estimates)."""
+        if self.learner.n < 2:
+            return None
+        part = self.learner.finish(self.memory_s, self.learner.elapsed_s)
+        s = self.settings
+        with np.errstate(divide="ignore", invalid="ignore"):
+            rho = np.maximum(np.asarray(s.min_change)[None, :],
+                             s.relevance_spread_factor * part.spread / np.abs(part.value))
+            sx = np.maximum(modal[:, 3:6], part.spread)
+            sigma = np.sqrt(sx * sx + part.std ** 2)
+            dev = modal[:, :3] - part.value
+            rel = dev / np.abs(part.value)
+            hit = (np.abs(rel) >= rho) & (np.abs(dev) >= 3.0 * sigma)
+        best, text = -1.0, None
+        for i in range(self.K):
+            for q in range(3):
+                if self.applicable(i, q) and bool(hit[i, q]) and abs(rel[i, q]) > best:
+                    best, text = abs(rel[i, q]), f"mode {i + 1} {QUANTITIES[q]} {100.0 * rel[i, q]:+.1f} %"
+        return text
+
+    def _resume_window(self, t: float, modal: np.ndarray, out: FaultUpdate) -> bool:
+        """The estimate re-settled after a data problem cut the baseline window: continue learning if it still
+        matches what was learned before, else keep the partial baseline (the change is a fault candidate, never
+        absorbed into the baseline). Returns True when monitoring started."""
+        change = self._window_change(modal)
+        if change is not None:
+            since = self.break_t if math.isfinite(self.break_t) else t
+            self._keep_partial(t, since, f"the estimate after the data break at t={since:.1f} s differs from it "
+                               f"({change})", out)
+            return True
+        self.phase, self.t_phase = "learning", t
+        return False
+
+    def _keep_partial(self, t: float, t_phase: float, why: str, out: FaultUpdate) -> None:
+        """End the window early: the baseline is what was learned so far; untrusted below half a window."""
+        elapsed = self.learner.elapsed_s
+        base = self.learner.finish(self.memory_s, elapsed)
+        base.trusted = elapsed >= 0.5 * self.baseline_window_s
+        base.note = (f"baseline learned over {elapsed:.1f} s of the {self.baseline_window_s:.1f} s window: {why}"
+                     + ("" if base.trusted else "; baseline untrusted"))
+        self.baseline = base
+        self.break_t = math.nan
+        self._start_monitoring(t, min(t_phase, t), out)
+
+    @property
+    def baseline_trusted(self) -> bool:
+        """False while monitoring against a baseline learned over less than half a window."""
+        return self.baseline is None or self.baseline.trusted
 
     def _start_monitoring(self, t: float, t_phase: float, out: FaultUpdate) -> None:
         """Enter the monitoring phase (its start ``t_phase``) with fresh tests."""
@@ -822,7 +918,7 @@ class FaultMonitor:
                 "tests": [[t.to_dict() for t in row] for row in self.tests],
                 "history": [[tp, m.tolist()] for tp, m in self.history], "settle_forced": self.settle_forced,
                 "anomaly_since": self.anomaly_since, "anomaly_quiet_since": self.anomaly_quiet_since,
-                "events": [e.to_dict() for e in self.events]}
+                "break_t": self.break_t, "events": [e.to_dict() for e in self.events]}
 
     def set_state(self, state: Mapping[str, Any]) -> None:
         """Restore :meth:`get_state` output (same number of modes)."""
@@ -837,6 +933,7 @@ class FaultMonitor:
         self.settle_forced = bool(state.get("settle_forced", False))
         self.anomaly_since = state.get("anomaly_since")
         self.anomaly_quiet_since = float(state.get("anomaly_quiet_since", math.nan))
+        self.break_t = float(state.get("break_t", math.nan))
         self.tests = [[SequentialTest.from_dict(d) for d in row] for row in state["tests"]]
         by_key = {(e.mode, e.quantity, e.onset_time_s): e for row in self.tests for t in row
                   if (e := t.event) is not None}
@@ -873,7 +970,11 @@ class HealthMonitor:
     needs that long to re-converge.
     """
 
-    ERROR_KINDS = ("divergence", "stuck_sensor", "reinitializing")
+    ERROR_KINDS = ("divergence", "stuck_sensor", "reinitializing", "no_valid_model")
+    SHORT_KINDS = ("nonfinite", "outlier", "data_gap", "repriming")
+    """Data problems that do not move the estimate: skipped samples (no update; the kernel holds the input and
+    predicts the output) and breaks whose filter transient the estimator's own re-prime hold covers. They hold the
+    tests while they last plus ``health.holdoff_min_s``, not for the re-convergence hold-off."""
     ADVISORY_KINDS = ("residual_jump", "projection_storm")
     """Also the signature of a genuine abrupt structural change: they do not hold structural alarms back,
     they only require that a confirmed fault began together with them (FaultMonitor ``suspect_since``)."""
@@ -899,6 +1000,10 @@ class HealthMonitor:
     def holdoff_s(self) -> float:
         s = self.settings
         return max(s.health_holdoff_min_s, s.health_holdoff_memory_lengths * float(self.memory_s.max()))
+
+    def hold_of(self, kind: str) -> float:
+        """Hold-off (s) after the last sighting of an issue of this kind (see ``SHORT_KINDS``)."""
+        return self.settings.health_holdoff_min_s if kind in self.SHORT_KINDS else self.holdoff_s
 
     def note(self, kind: str, t: float, message: str, count: int = 1) -> None:
         """Record an incident at time ``t`` (s); it stays active for the hold-off."""
@@ -988,13 +1093,13 @@ class HealthMonitor:
 
     def status(self, t: float) -> HealthStatus:
         """Active issues at ``t`` (expired ones are dropped); ``values['new_issues']`` were seen at ``t``."""
-        hold_s = self.holdoff_s
         reasons = []
         level = Level.OK
         new = []
         hold = False
         advisory_since: float | None = None
         for kind, (t_seen, msg) in list(self.active.items()):
+            hold_s = self.hold_of(kind)
             if t - t_seen > hold_s:
                 del self.active[kind]
                 continue

@@ -42,9 +42,10 @@ Stability projection (000 §4.7) reflects right-half-plane roots of ``A_i`` in c
 
 Safeguards (counted, never silent): an update that produces a non-finite value, a non-positive IV
 denominator or a relative parameter step larger than ``max_step`` is rejected (theta, P keep the previous
-iterate); a non-finite or masked sample is skipped (input held, output replaced by the model
-prediction, no update); non-finite filter states reset the filters and re-prime (``hold`` samples
-without updates); P growth without excitation (wind-up) is stopped at ``p_cap`` times P(0).
+iterate); a non-finite or masked sample is skipped (no update, output replaced by the model prediction;
+a non-finite input or reference is held at its last value, a finite one still drives the filters);
+non-finite filter states reset the filters and re-prime (``hold`` samples without updates); P growth
+without excitation (wind-up) is stopped at ``p_cap`` times P(0).
 """
 
 from __future__ import annotations
@@ -191,14 +192,15 @@ def run_block(r: np.ndarray, u: np.ndarray, y: np.ndarray, valid: np.ndarray, al
         rk = r[k]
         uk = u[k]
         yk = y[k]
-        ok = valid[k] != 0 and math.isfinite(uk) and math.isfinite(yk)
-        if closed and not math.isfinite(rk):
-            ok = False
-        if not ok:   # no update; an input that is known keeps driving the filters, a missing one is held
-            if not math.isfinite(rk):
-                rk = fst[F_RLAST]
-            if not math.isfinite(uk):
-                uk = fst[F_ULAST]
+        u_ok = math.isfinite(uk)
+        r_ok = math.isfinite(rk) or not closed
+        ok = valid[k] != 0 and u_ok and r_ok and math.isfinite(yk)
+        # an invalid sample gives no update; only the non-finite signals are held (a known input keeps driving
+        # the filters, so a skipped output costs no filter transient)
+        if not r_ok:
+            rk = fst[F_RLAST]
+        if not u_ok:
+            uk = fst[F_ULAST]
         pos = ist[I_POS]
         ud_prev = ubuf[pos]
         zd_prev = zbuf[pos] if closed else ud_prev

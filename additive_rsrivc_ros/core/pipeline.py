@@ -8,17 +8,24 @@ The one object the node (``rsrivc_monitor``) and the offline tool (``rsrivc_diag
    ``alignment.lag_s`` late so a shift is corrected before the estimator sees it; :meth:`flush` releases the
    rest at the end of a record. What it found and could not decide is reported on health.
 1. **Validation** of each incoming sample ``(t, r, u, y)``: non-finite, out-of-order and duplicate stamps
-   are dropped; non-finite values and outputs that exactly repeat the previous value (a dropped sample
-   held by the receiver) are given to the estimator as *invalid* (no update; the kernel holds the input
-   and replaces the output by the model prediction), which keeps the sample grid; a spacing above
-   ``(1 + faults.health.gap_tolerance) / loop_rate_hz`` is a data gap and an output constant for
-   ``faults.health.stuck_s`` is a stuck sensor (samples withheld). After a gap or a stuck episode the
-   estimator's filters are re-primed (``mark_gap``, 000 Algorithm 2 step 1). Garbage never reaches the
-   estimator as data.
+   are dropped; non-finite values, values of absurd magnitude (:class:`MagnitudeGuard`: above ``1e6`` x the
+   99th percentile of ``|value|`` seen so far or ``1e15``; counted as ``outliers``) and outputs that exactly repeat the
+   previous value (a dropped sample held by the receiver) are given to the estimator as *invalid* (no update; the
+   kernel holds a non-finite input and replaces the output by the model prediction), which keeps the sample grid;
+   a spacing above ``(1 + faults.health.gap_tolerance) / loop_rate_hz`` is a data gap: a short one (at most 5 %
+   of the shortest modelled period) is filled with invalid samples, a longer one re-primes the estimator's
+   filters (``mark_gap``, 000 Algorithm 2 step 1), as does the end of a stuck-sensor episode (an output constant
+   for ``faults.health.stuck_s``; samples withheld). Garbage never reaches the estimator as data.
 2. **Initialization**: the first ``init_duration_s`` of valid contiguous data go to the estimator's
-   offline initialization (000 Algorithm 2 step 1, 001 eq. 29); then samples are fed in blocks.
+   offline initialization (000 Algorithm 2 step 1, 001 eq. 29); then samples are fed in blocks. A model is
+   valid only if it is finite and, in closed loop, ``C_d`` (with the input delay) stabilizes it (checked after
+   every initialization and at every report); without a valid model the reports carry NaN and
+   ``estimating=False`` with the reason on health (``no_model_reason``), and the estimator initializes again on
+   new data -- the guesses are never published as estimates.
 3. **Diagnosis** at ``publish_rate_hz``: :class:`..faults.HealthMonitor` (estimator health) and
-   :class:`..faults.FaultMonitor` (baseline, sequential tests) produce a :class:`Report`.
+   :class:`..faults.FaultMonitor` (baseline, sequential tests) produce a :class:`Report`. Data problems hold the
+   tests (health ``hold``, reason ``fault tests held (blind) since ...``) and never reset the baseline: a baseline
+   window in progress is paused and resumed (``faults.py``); a partial baseline is flagged untrusted.
 
 Times: ``push`` takes sample times in seconds on any fixed origin (ROS time, bag log time); reports
 give ``time_s`` since the first sample ever pushed (kept across :meth:`get_state`/:meth:`set_state`).
@@ -112,11 +119,14 @@ class _Counters:
     out_of_order: int = 0
     duplicates: int = 0
     nonfinite: int = 0
+    outliers: int = 0                 # finite samples of absurd magnitude, given as invalid (MagnitudeGuard)
+    filled: int = 0                   # missing grid samples of short gaps, given as invalid (no re-prime)
     repeated: int = 0
     gaps: int = 0
     stuck_episodes: int = 0
     initializations: int = 0
     init_failures: int = 0
+    invalid_models: int = 0           # initializations whose model the controller does not stabilize
     reinitializations: int = 0
 
     def to_dict(self) -> dict[str, int]:
@@ -124,6 +134,65 @@ class _Counters:
 
 
 EstimatorFactory = Callable[[Any], Any]
+
+ABSOLUTE_BOUND = 1e15
+"""|value| above which a sample is never data (about 1e9 x any physical signal in SI units)."""
+RELATIVE_BOUND = 1e6
+"""|value| above this x the running scale (the 99th percentile of the nonzero |value| seen so far) is not data."""
+SCALE_QUANTILE = 0.99
+"""Quantile of |value| used as the running scale: robust to 1 % outliers, and a signal that idles near its noise
+floor for most of the record and then moves (a setpoint starting late) still sets its scale from the motion."""
+MAGNITUDE_MIN_SAMPLES = 32    # nonzero samples seen before the relative bound applies
+_LOG_BINS_PER_DECADE = 4
+_LOG_MIN, _LOG_MAX = -330.0, 310.0
+
+
+class MagnitudeGuard:
+    """Running robust scale of a signal: a histogram of ``log10 |x|`` over every accepted nonzero sample.
+
+    A finite sample is *absurd* when ``|x| > ABSOLUTE_BOUND`` or, once ``MAGNITUDE_MIN_SAMPLES`` nonzero samples were
+    seen, ``|x| > RELATIVE_BOUND x`` the ``SCALE_QUANTILE`` quantile of ``|x|`` (to a quarter decade; isolated
+    outliers cannot move it).
+    """
+
+    def __init__(self) -> None:
+        self.hist = np.zeros(int((_LOG_MAX - _LOG_MIN) * _LOG_BINS_PER_DECADE) + 1, dtype=np.int64)
+        self.n = 0
+        self._scale = math.nan
+        self._n_at_median = 0
+
+    def bound(self) -> float:
+        """Current magnitude bound (``ABSOLUTE_BOUND`` until enough samples were seen)."""
+        if self.n < MAGNITUDE_MIN_SAMPLES:
+            return ABSOLUTE_BOUND
+        if self.n >= 2 * self._n_at_median or self.n - self._n_at_median >= 4096 or math.isnan(self._scale):
+            k = int(np.searchsorted(np.cumsum(self.hist), math.ceil(SCALE_QUANTILE * self.n)))
+            self._scale = 10.0 ** (_LOG_MIN + (k + 0.5) / _LOG_BINS_PER_DECADE)
+            self._n_at_median = self.n
+        return min(ABSOLUTE_BOUND, RELATIVE_BOUND * self._scale)
+
+    def absurd(self, x: np.ndarray) -> np.ndarray:
+        """Bool mask of finite samples above the bound (non-finite ones are not flagged here)."""
+        return np.isfinite(x) & (np.abs(x) > self.bound())
+
+    def learn(self, x: np.ndarray) -> None:
+        """Add accepted samples (finite, not absurd) to the scale."""
+        a = np.abs(x[np.isfinite(x)])
+        a = a[a > 0.0]
+        if a.size:
+            k = np.clip(((np.log10(a) - _LOG_MIN) * _LOG_BINS_PER_DECADE).astype(np.int64), 0, self.hist.size - 1)
+            self.hist += np.bincount(k, minlength=self.hist.size)
+            self.n += int(a.size)
+
+    def get_state(self) -> dict[str, Any]:
+        nz = np.flatnonzero(self.hist)
+        return {"bins": nz.tolist(), "counts": self.hist[nz].tolist()}
+
+    def set_state(self, d: Mapping[str, Any]) -> None:
+        self.hist[:] = 0
+        self.hist[np.asarray(d["bins"], dtype=np.int64)] = np.asarray(d["counts"], dtype=np.int64)
+        self.n = int(self.hist.sum())
+        self._scale, self._n_at_median = math.nan, 0
 
 
 def _default_factory(cfg: Any) -> Any:
@@ -186,6 +255,11 @@ class MonitorPipeline:
         self._align_notes: list[str] = []     # re-alignments since the last report
         self._align_late = 0
         self._align_prev = (0, 0)             # (samples_out, undecided) at the last report
+        self.magnitude = {name: MagnitudeGuard() for name in ("reference", "input", "output")}
+        self.no_model: str | None = None      # why there is no valid model (None: valid, or not tried yet)
+        self.model_max_pole = math.nan        # closed-loop spectral radius of the current model with C_d
+        self._marked_gaps = 0                 # re-primes the pipeline asked for (others: non-finite filter states)
+        self._blind_since: float | None = None
 
     def reset(self) -> None:
         """Start over: new estimator (initialized from the next data), no baseline, counters zeroed."""
@@ -316,11 +390,15 @@ class MonitorPipeline:
         reports: list[Report] = []
         c = self.counters
         s = self.settings
+        # 2. values: non-finite samples and samples of absurd magnitude are given to the estimator as invalid
+        # (skipped, grid kept); so are the missing samples of a short gap (filled in, no re-prime)
+        ta, ra, ua, ya, filled = self._fill_short_gaps(ta, ra, ua, ya)
+        if aligner_invalid is not None and filled.any():
+            grown = np.zeros(filled.size, dtype=bool)
+            grown[~filled] = aligner_invalid
+            aligner_invalid = grown
         n = ta.size
-        # 2. values: non-finite samples are given to the estimator as invalid (skipped, grid kept)
-        fin = np.isfinite(ua) & np.isfinite(ya)
-        if self.cfg.closed_loop:
-            fin &= np.isfinite(ra)
+        fin, absurd = self._valid_values(ta, ra, ua, ya, filled)
         # 3. gaps: spacing above (1 + tol) h between accepted samples
         prev_t = np.concatenate(([self.t_last if self.t_last is not None else ta[0]], ta[:-1]))
         gap = (ta - prev_t) > (1.0 + s.health_gap_tolerance) * self.h
@@ -347,13 +425,19 @@ class MonitorPipeline:
             st_f = _ffill(st_f, 1.0 if self.stuck else 0.0)
             stuck = st_f > 0.5
         valid = fin & ~(rep & s.health_repeated_output_is_missing)
-        n_nonfin = int((~fin).sum())
+        nonfin = ~fin & ~filled & ~absurd
         if aligner_invalid is not None:   # set aside by the aligner (re-alignment, lost sample): not sensor NaNs
-            n_nonfin -= int((~fin & aligner_invalid).sum())
+            nonfin &= ~aligner_invalid
+        n_nonfin = int(nonfin.sum())
         if n_nonfin:
             c.nonfinite += n_nonfin
-            self.health.note("nonfinite", self._rel(float(ta[np.flatnonzero(~fin)[-1]])),
+            self.health.note("nonfinite", self._rel(float(ta[np.flatnonzero(nonfin)[-1]])),
                              f"{c.nonfinite} non-finite sensor samples skipped")
+        n_fill = int(filled.sum())
+        if n_fill:
+            c.filled += n_fill
+            self.health.note("data_gap", self._rel(float(ta[np.flatnonzero(filled)[-1]])),
+                             f"{c.filled} missing samples of short gaps filled as invalid samples (grid kept)")
         # 5. blocks between gaps and stuck transitions
         cuts = np.flatnonzero(gap | np.concatenate(([stuck[0] != self.stuck], stuck[1:] != stuck[:-1])))
         bounds = [0, *[int(j) for j in cuts if j > 0], n]
@@ -380,12 +464,79 @@ class MonitorPipeline:
         self.t_last = float(ta[-1])
         return reports
 
+    def _fill_max_samples(self) -> int:
+        """Longest gap (missing samples) filled with invalid samples instead of a re-prime: 5 % of the shortest
+        period of the modelled modes (the held input then barely moves the filter states), at least one sample."""
+        f = self._modal()[:, 0] if self.initialized else np.array(
+            [m.natural_frequency_hz for m in self.cfg.modes if getattr(m, "natural_frequency_hz", None)], float)
+        f = f[np.isfinite(f) & (f > 0)] if f.size else f
+        if f.size == 0:
+            return 1
+        return max(1, int(math.floor(0.05 * self.rate / float(f.max()))))
+
+    def _fill_short_gaps(self, ta: np.ndarray, ra: np.ndarray, ua: np.ndarray, ya: np.ndarray,
+                         ) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+        """Insert the missing grid samples of short gaps (:meth:`_fill_max_samples`) as NaN samples."""
+        filled = np.zeros(ta.size, dtype=bool)
+        if self.t_last is None and ta.size < 2:
+            return ta, ra, ua, ya, filled
+        prev_t = np.concatenate(([self.t_last if self.t_last is not None else ta[0]], ta[:-1]))
+        dt = ta - prev_t
+        missing = np.rint(dt / self.h).astype(np.int64) - 1
+        short = (dt > (1.0 + self.settings.health_gap_tolerance) * self.h) & (missing >= 1)
+        if not short.any():
+            return ta, ra, ua, ya, filled
+        short &= missing <= self._fill_max_samples()
+        if not short.any():
+            return ta, ra, ua, ya, filled
+        reps = np.where(short, missing + 1, 1)
+        pos = np.repeat(np.arange(ta.size), reps)                     # source sample of every output row
+        k_in = np.arange(pos.size) - np.repeat(np.cumsum(reps) - reps, reps)   # 0..reps-1 within a group
+        is_fill = k_in < reps[pos] - 1
+        frac = (k_in + 1) / reps[pos]
+        t_out = np.where(is_fill, prev_t[pos] + frac * dt[pos], ta[pos])
+        nan = np.full(pos.size, np.nan)
+        return (t_out, np.where(is_fill, nan, ra[pos]), np.where(is_fill, nan, ua[pos]),
+                np.where(is_fill, nan, ya[pos]), is_fill)
+
+    def _valid_values(self, ta: np.ndarray, ra: np.ndarray, ua: np.ndarray, ya: np.ndarray,
+                      filled: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """(valid, absurd): finite samples of plausible magnitude (:class:`MagnitudeGuard`), and the finite ones of
+        absurd magnitude (counted as outliers and noted on health). An absurd value is set to NaN in place: it is
+        never data (the estimator holds that signal at its last value, the initialization skips the sample)."""
+        sigs = [("input", ua), ("output", ya)] + ([("reference", ra)] if self.cfg.closed_loop else [])
+        fin = np.ones(ta.size, dtype=bool)
+        absurd = np.zeros(ta.size, dtype=bool)
+        bad_of = {}
+        worst = ""
+        for name, x in sigs:
+            fin &= np.isfinite(x)
+            bad = bad_of[name] = self.magnitude[name].absurd(x)
+            if bad.any():
+                j = int(np.argmax(np.where(bad, np.abs(x), -1.0)))
+                worst = (f"|{name}| = {abs(float(x[j])):.3g} > {self.magnitude[name].bound():.3g} at "
+                         f"t={self._rel(float(ta[j])):.3f} s")
+            absurd |= bad
+        ok = fin & ~absurd & ~filled
+        for name, x in sigs:
+            self.magnitude[name].learn(x[ok])
+            x[bad_of[name]] = np.nan
+        n_out = int(absurd.sum())
+        if n_out:
+            self.counters.outliers += n_out
+            self.health.note("outlier", self._rel(float(ta[np.flatnonzero(absurd)[-1]])),
+                             f"{self.counters.outliers} samples of absurd magnitude skipped as invalid "
+                             f"(latest {worst}; bound {RELATIVE_BOUND:g} x the 99th percentile of |value| so far, "
+                             f"at most {ABSOLUTE_BOUND:g})")
+        return fin & ~absurd, absurd
+
     def _on_break(self, why: str, kind: str | None, t_abs: float) -> None:
         """The sample grid is broken: re-prime the estimator (000 Algorithm 2 step 1) or restart the init buffer."""
         if kind is not None:
             self.health.note(kind, self._rel(t_abs), f"{why} (estimator re-primed)")
         if self.initialized:
             self.est.mark_gap()
+            self._marked_gaps += 1
         else:
             self._init_buf, self._init_n = [], 0
 
@@ -434,12 +585,44 @@ class MonitorPipeline:
                              f"({type(exc).__name__}: {str(exc).splitlines()[0][:120] if str(exc) else ''}); "
                              "retrying on the next data")
             self.est = self._new_estimator()
+            self._marked_gaps = 0
             return
         self.counters.initializations += 1
+        problem = self._model_problem("initial model")
+        if problem is not None:
+            self.counters.invalid_models += 1
+            self._no_valid_model(self._rel(t_end), problem)
+            return
         self.initialized = True
+        self.no_model = None
         modal = self._modal()
         if self.health.reference_modal is None and np.all(np.isfinite(modal[:, :3])):
             self.health.clear_reference(modal)
+
+    def _model_problem(self, which: str) -> str | None:
+        """Why the current model is no valid model, or None: it must be finite and, in closed loop, the controller
+        ``C_d`` (with the input delay) must stabilize it -- the model's noise-free closed loop generates the
+        instrument (000 eq. 33) and a plant that ``C_d`` does not stabilize cannot have produced the bounded data."""
+        modal = np.asarray(self.est.modal(), dtype=float).reshape(self.K, 6)
+        if not np.all(np.isfinite(modal[:, :3])):
+            return f"{which} is not finite"
+        check = getattr(self.est, "closed_loop_max_pole", None)
+        if check is None:
+            return None
+        rho = float(check())
+        self.model_max_pole = rho
+        if math.isnan(rho) or rho < 1.0:
+            return None
+        return f"{which} destabilizes the loop with C_d: max |closed-loop pole| {rho:.4g}"
+
+    def _no_valid_model(self, t_rel: float, problem: str) -> None:
+        """No valid model: drop the estimator (nothing is published) and initialize again on new data."""
+        self.no_model = f"no valid model: {problem}; re-initializing on new data"
+        self.health.note("no_valid_model", t_rel, self.no_model)
+        self.est = self._new_estimator()
+        self._marked_gaps = 0
+        self.initialized = False
+        self._init_buf, self._init_n = [], 0
 
     # ------------------------------------------------------------------------------------------- reports
     def modal(self) -> np.ndarray:
@@ -447,8 +630,8 @@ class MonitorPipeline:
         return self._modal()
 
     def _modal(self) -> np.ndarray:
-        if not self.initialized:
-            return np.full((self.K, 6), np.nan)
+        if not self.initialized:     # no valid model (before the first accepted initialization, or after one
+            return np.full((self.K, 6), np.nan)   # was rejected / diverged): NaN, never the guesses
         return np.asarray(self.est.modal(), dtype=float).reshape(self.K, 6)
 
     def _report(self, reports: list[Report], t_now: float) -> None:
@@ -463,14 +646,24 @@ class MonitorPipeline:
             self.health.note("repeated_output", t_rep, f"output repeats its previous value in {self._win_rep} of "
                              f"{self._win_n} samples (dropped or held sensor samples)")
         self._win_n = self._win_rep = 0
+        if self.initialized and self.cfg.closed_loop:    # every report (~0.25 ms for K = 2, delay 4)
+            problem = self._model_problem("current model")
+            if problem is not None:
+                self.counters.invalid_models += 1
+                self.counters.reinitializations += 1
+                self._no_valid_model(t_rep, problem)
         modal = self._modal()
         est_health: dict[str, Any] = {}
         if self.initialized:
             est_health = dict(getattr(self.est, "health", {}) or {})
             if int(est_health.get("hold_remaining", 0) or 0) > 0:
-                self.health.note("repriming", t_rep, "estimator filters re-priming after a data break")
+                auto = int(est_health.get("reprimes", 0) or 0) > self._marked_gaps
+                self.health.note("repriming", t_rep, "estimator filters re-priming after non-finite filter states"
+                                 if auto else "estimator filters re-priming after a data break")
             status = self.health.assess(t_rep, modal, est_health)
         else:
+            if self.no_model is not None:
+                self.health.note("no_valid_model", t_rep, self.no_model)
             self.health.note("initializing", t_rep, f"initializing: collecting {self.cfg.init_duration_s:g} s of "
                              "valid data for the offline initialization")
             status = self.health.status(t_rep)
@@ -488,6 +681,7 @@ class MonitorPipeline:
             health["ok"] = False
         self._alignment_health(health)
         health["anomaly_since"] = self.faults.anomaly_since
+        self._health_extras(health, status.hold, t_rep)
         health.update(self.counters.to_dict())
         health["estimator"] = {k: _jsonable(v) for k, v in est_health.items()}
         health["stuck"] = self.stuck
@@ -532,13 +726,38 @@ class MonitorPipeline:
             health["level"] = max(int(health["level"]), int(Level.WARN))
             health["ok"] = False
 
+    def _health_extras(self, health: dict[str, Any], hold: bool, t_rep: float) -> None:
+        """Model validity, blind time of the fault tests and baseline trust on the report's health."""
+        health["model_valid"] = self.initialized
+        health["no_model_reason"] = None if self.initialized else (self.no_model or "not initialized yet")
+        health["closed_loop_max_pole"] = self.model_max_pole if self.initialized else math.nan
+        paused = self.faults.baseline is None and self.faults.learner.n > 0 and self.faults.learner.paused
+        tests_on = self.initialized and (self.faults.phase in ("learning", "monitoring") or paused)
+        if hold and tests_on:
+            if self._blind_since is None:
+                self._blind_since = t_rep
+            health["reasons"].append(f"fault tests held (blind) since t={self._blind_since:.1f} s" + (
+                f"; baseline window paused ({self.faults.learner.elapsed_s:.1f} s learned, kept)" if paused else ""))
+        elif not hold:
+            self._blind_since = None
+        health["blind_since"] = self._blind_since
+        base = self.faults.baseline
+        health["baseline_trusted"] = self.faults.baseline_trusted
+        health["baseline_note"] = "" if base is None else base.note
+        if base is not None and not base.trusted:
+            health["reasons"].append(base.note)
+            health["level"] = max(int(health["level"]), int(Level.WARN))
+            health["ok"] = False
+
     def _reinitialize(self, t_rel: float) -> None:
         """Divergence: a fresh estimator initialized on the next data; baseline and events are kept."""
         self.est = self._new_estimator()
+        self._marked_gaps = 0
         self.initialized = False
         self._init_buf, self._init_n = [], 0
         self.counters.reinitializations += 1
-        self.health.note("reinitializing", t_rel, "estimator diverged: re-initializing on new data")
+        self.no_model = "estimator diverged: re-initializing on new data"
+        self.health.note("reinitializing", t_rel, self.no_model)
 
     # ------------------------------------------------------------------------------------------- state
     def get_state(self) -> dict[str, Any]:
@@ -557,7 +776,9 @@ class MonitorPipeline:
                          "counters": self.counters.to_dict(), "memory_s": self.memory_s.tolist(),
                          "stuck": self.stuck, "last_y": self.last_y, "run_len": self.run_len,
                          "run_start_t": self.run_start_t, "t_stamp_last": self.t_stamp_last,
-                         "aligner": None if self.aligner is None else self.aligner.get_state()},
+                         "aligner": None if self.aligner is None else self.aligner.get_state(),
+                         "magnitude": {k: g.get_state() for k, g in self.magnitude.items()},
+                         "no_model": self.no_model},
         }
 
     def set_state(self, state: Mapping[str, Any]) -> None:
@@ -576,6 +797,7 @@ class MonitorPipeline:
             if state["estimator"] is not None:
                 self.est.set_state({k: np.asarray(v) for k, v in state["estimator"].items()})
                 self.initialized = True
+                self._marked_gaps = int(dict(getattr(self.est, "health", {}) or {}).get("reprimes", 0) or 0)
             self.faults.set_state(state["faults"])
             self.health.set_state(state["health"])
             self.t0 = None if p["t0"] is None else float(p["t0"])
@@ -589,6 +811,10 @@ class MonitorPipeline:
             self.t_stamp_last = None if ts is None else float(ts)
             if self.aligner is not None and p.get("aligner") is not None:
                 self.aligner.set_state(p["aligner"])
+            for k, g in (p.get("magnitude") or {}).items():
+                if k in self.magnitude:
+                    self.magnitude[k].set_state(g)
+            self.no_model = None if self.initialized else p.get("no_model")
         except PipelineError:
             raise
         except (KeyError, TypeError, ValueError) as exc:

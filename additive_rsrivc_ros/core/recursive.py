@@ -86,6 +86,77 @@ def p0_diagonal(theta: np.ndarray, kind: int, p0_relative: tuple[float, float]) 
     return out
 
 
+def closed_loop_matrix(kinds: Sequence[int], thetas: Sequence[np.ndarray], rate_hz: float, controller: Any,
+                       input_delay: int = 0) -> np.ndarray:
+    """State matrix of the noise-free sampled loop ``u = C_d(q)(r - y)`` around the frozen ZOH model (000 eq. 10).
+
+    The same loop generates the closed-loop instrument ``z = S_uo r`` (000 eq. 33, NOTES erratum 3): when it is
+    unstable the instrument and its filters grow without bound and the recursion cannot run. Per mode the kernel's
+    own ZOH discretization of ``1/A_i`` (or ``1/p^l``) with output ``b0 w``; ``d`` input-delay shift states
+    (``x_{k+1} = Phi x_k + Gamma u_{k-d}``); ``C_d`` in transposed direct form II (``scipy.signal.lfilter``).
+    """
+    h = 1.0 / rate_hz
+    blocks = []
+    for kind, th in zip(kinds, thetas, strict=True):
+        th = np.asarray(th, dtype=float)
+        phi, gam = np.zeros((2, 2)), np.zeros(2)
+        if int(kind) == 0:
+            kn.discretize_mode(0, float(th[0]), float(th[1]), h, phi, gam)
+            ns, b0 = 2, float(th[2])
+        else:
+            kn.discretize_mode(int(kind), 0.0, 0.0, h, phi, gam)
+            ns, b0 = int(kind), float(th[0])
+        c = np.zeros(ns)
+        c[0] = b0
+        blocks.append((phi[:ns, :ns], gam[:ns], c))
+    nx = sum(b[0].shape[0] for b in blocks)
+    d = int(input_delay)
+    num, den = np.asarray(controller.num, float), np.asarray(controller.den, float)
+    nc = max(num.size, den.size) - 1
+    nump, denp = np.zeros(nc + 1), np.zeros(nc + 1)
+    nump[:num.size], denp[:den.size] = num / den[0], den / den[0]
+    dc = nump[0]
+    n = nx + d + nc
+    a = np.zeros((n, n))
+    gam_all, c_all = np.zeros(nx), np.zeros(nx)
+    j = 0
+    for phi, gam, c in blocks:
+        ns = phi.shape[0]
+        a[j:j + ns, j:j + ns] = phi
+        gam_all[j:j + ns], c_all[j:j + ns] = gam, c
+        j += ns
+    ic = nx + d                                  # controller states s_1..s_nc
+    # u_k = dc e_k + s_1,k with e_k = -c x_k (r = 0)
+    u_row = np.zeros(n)
+    u_row[:nx] = -dc * c_all
+    if nc:
+        u_row[ic] = 1.0
+    if d == 0:
+        a[:nx, :] += np.outer(gam_all, u_row)
+    else:
+        a[:nx, nx + d - 1] += gam_all            # the oldest delayed input drives the plant
+        a[nx, :] = u_row                         # delay line: newest input first
+        for k in range(1, d):
+            a[nx + k, nx + k - 1] = 1.0
+    for k in range(nc):                          # s_k+ = (n_k - d_k dc) e - d_k s_1 + s_{k+1}
+        a[ic + k, :nx] = -(nump[k + 1] - denp[k + 1] * dc) * c_all
+        a[ic + k, ic] -= denp[k + 1]
+        if k + 1 < nc:
+            a[ic + k, ic + k + 1] += 1.0
+    return a
+
+
+def closed_loop_spectral_radius(kinds: Sequence[int], thetas: Sequence[np.ndarray], rate_hz: float,
+                                controller: Any, input_delay: int = 0) -> float:
+    """Largest modulus of the poles of :func:`closed_loop_matrix` (NaN if the model is not finite)."""
+    if not all(np.all(np.isfinite(np.asarray(t, float))) for t in thetas):
+        return math.nan
+    a = closed_loop_matrix(kinds, thetas, rate_hz, controller, input_delay)
+    if not np.all(np.isfinite(a)):
+        return math.nan
+    return float(np.max(np.abs(np.linalg.eigvals(a)))) if a.size else 0.0
+
+
 class RecursiveAdditiveSRIVC:
     """Recursive additive (CL)SRIVC estimator, 000 Algorithm 2 with the closed-loop instrument eq. 33.
 
@@ -337,6 +408,17 @@ class RecursiveAdditiveSRIVC:
             if np.all(np.isfinite(cov)):
                 out[i, 3:] = modal_std(th, cov, s)
         return out
+
+    def closed_loop_max_pole(self) -> float:
+        """Largest closed-loop pole modulus of the current model with ``C_d`` and the input delay (NaN in open loop).
+
+        ``>= 1``: the model's noise-free closed loop, which also generates the instrument (000 eq. 33), is
+        unstable; the estimate is then no valid model of a plant that the controller stabilizes.
+        """
+        if not self.closed_loop or self.controller is None:
+            return math.nan
+        return closed_loop_spectral_radius(self._s["kind"], self.thetas, self.rate_hz, self.controller,
+                                           int(self._s["cfg_i"][kn.C_DELAY]))
 
     def iv_condition(self) -> np.ndarray:
         """Condition number per mode of the equilibrated IV matrix ``D R D`` (``R = P^-1``, ``D = |theta|``)."""
