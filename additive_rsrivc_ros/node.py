@@ -323,7 +323,10 @@ def make_node_class() -> type:
             if q <= v["sync.stall_s"] or q <= 2 * v["sync.max_backlog_s"]:
                 raise ParamError(f"sync.max_queue_s ({q:g}) must exceed sync.stall_s ({v['sync.stall_s']:g}) and "
                                  f"2 x sync.max_backlog_s ({v['sync.max_backlog_s']:g})")
-            return max(2 * self._backlog_samples(v["sync.max_backlog_s"]), int(math.ceil(q * self.cfg.loop_rate_hz)))
+            # never below the DDS reader history (qos_depth): the node holds no fewer samples than DDS already would
+            depth = v["qos_depth"] or max(100, int(math.ceil(5.0 * self.cfg.loop_rate_hz)))
+            return max(2 * self._backlog_samples(v["sync.max_backlog_s"]), int(math.ceil(q * self.cfg.loop_rate_hz)),
+                       depth)
 
         def _restore(self, cfg: Any, state_file: str) -> Any:
             """The pipeline restored from ``state_file``, or None. A refused file (corrupt, other K, rate,
@@ -488,7 +491,8 @@ def make_node_class() -> type:
             self._errors = 0
             self._last_error = ""
             self._next_graph_ns = 0
-            self._latest_report = None           # newest pipeline report not yet published (worker -> publisher)
+            self._latest_report = None           # newest pipeline report (worker -> publisher)
+            self._last_published = None
             self._reports_made = 0
             self._reports_published = 0
             self._snapshot: tuple[Any, Any] = (None, None)   # (last report, modal) the publisher can always use
@@ -625,9 +629,9 @@ def make_node_class() -> type:
         def _current(self) -> tuple[Any, Any, bool]:
             """(report, modal, new): the newest unpublished report, else the live estimate (when the worker
             lets go of the lock within 20 ms), else the last snapshot."""
-            rep = self._latest_report
-            if rep is not None:
-                self._latest_report = None
+            rep = self._latest_report          # read once; the worker only ever replaces it (no lost update)
+            if rep is not None and rep is not self._last_published:
+                self._last_published = rep
                 self._reports_published += 1
                 return rep, rep.modal, True
             if self.lock.acquire(timeout=0.02):
@@ -678,7 +682,7 @@ def make_node_class() -> type:
         def _delays(self) -> tuple[float, float, float]:
             """Median, p95, max of the delays; recomputed at most once a second (composition stays cheap)."""
             now = time.monotonic_ns()
-            if now - self._delay_cache_ns > 1_000_000_000:
+            if now - self._delay_cache_ns > 1_000_000_000 or math.isnan(self._delay_cache[0]):
                 d = self.delays_ms
                 v = d.values().copy()
                 self._delay_cache = tuple(float(x) for x in np.percentile(v, (50, 95, 100))) if v.size \
@@ -767,6 +771,8 @@ def make_node_class() -> type:
             reasons += lasting
             if (recent or lasting) and level != int(Level.STALE):
                 level = max(level, int(Level.WARN))
+            elif lasting and not silent:       # no estimate yet but data flows: the input problem is the news
+                level = int(Level.WARN)
             if self._errors and self._last_error:
                 reasons.append(f"internal error: {self._last_error}")
                 level = max(level, int(Level.ERROR)) if level != int(Level.STALE) else level
@@ -774,7 +780,7 @@ def make_node_class() -> type:
                 reasons.insert(0, "no data on " + ", ".join(f"{self.cfg.signals[s].topic} for more than "
                                                             f"{self._stale_timeout_s:g} s" for s in silent))
                 level = int(Level.STALE)
-            elif stale and rep is None:
+            elif stale and rep is None and not lasting:
                 level = int(Level.STALE)
             if self._wrong_types:
                 reasons.insert(0, "wrong message type: " + "; ".join(self._wrong_types))
