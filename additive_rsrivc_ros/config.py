@@ -207,9 +207,9 @@ NODE_PARAMS: list[Param] = [
           "message counts are a count mismatch (the unmatched messages are discarded); must exceed the largest "
           "delay between the publications of one sample's r, u and y.", 0.01, 100.0),
     Param("sync.max_queue_s", "double", 10.0, "Bound of every input topic's queue in seconds of samples (at "
-          "loop_rate_hz, at least qos_depth samples; a fixed number of bytes per sample): beyond it the oldest samples are dropped, counted "
-          "per topic and reported once per episode. Must exceed sync.stall_s and sync.max_backlog_s.", 0.5, 600.0,
-          True),
+          "loop_rate_hz, at least qos_depth samples; a fixed number of bytes per sample): beyond it the oldest "
+          "samples are dropped, counted per topic and reported once per episode. Must exceed "
+          "sync.stall_s and sync.max_backlog_s.", 0.5, 600.0, True),
     Param("sync.rate_window_s", "double", 2.0, "Window over which each topic's arrival rate is measured and "
           "compared with loop_rate_hz (times the clock speed under use_sim_time).", 0.2, 60.0, True),
     Param("sync.rate_tolerance", "double", 0.02, "Relative difference between a topic's arrival rate and "

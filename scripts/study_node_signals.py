@@ -81,7 +81,7 @@ def trial(k: int, rng: random.Random, state0: Path, tmp: Path, env: dict, max_de
     if "state saved" in out:
         phase = "saved"
     return {"delay": delay, "signal": signal.Signals(sig).name, "rc": rc, "traceback": "Traceback" in out,
-            "state": check_state(state), "refused": "refused" in out, "exit_s": time.monotonic() - t0,
+            "state": check_state(state), "refused": " refused (" in out, "exit_s": time.monotonic() - t0,
             "lines": len([ln for ln in out.splitlines() if ln.strip()]), "phase": phase, "out": out}
 
 

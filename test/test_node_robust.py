@@ -51,7 +51,7 @@ def test_refused_state_file_is_kept_and_the_run_saves_beside_it(ros_env, tmp_pat
     other = _state_doc(**{"controller.numerator": [0.03, -0.02, 0.004]})
     state.write_text(other)
     out = _run_briefly(ros_env, f"state_file:={state}")
-    refused = [ln for ln in out.splitlines() if "refused" in ln]
+    refused = [ln for ln in out.splitlines() if " refused (" in ln]
     assert len(refused) == 1 and "controller.numerator" in refused[0] and "kept unchanged" in refused[0], out
     assert state.read_text() == other
     beside = sorted(tmp_path.glob("state.*.json"))
@@ -66,12 +66,12 @@ def test_refused_state_file_is_kept_and_the_run_saves_beside_it(ros_env, tmp_pat
         state.write_text(content)
         out = _run_briefly(ros_env, f"state_file:={state}")
         assert state.read_text() == content
-        assert any("refused" in ln and why in ln for ln in out.splitlines()), out
+        assert any(" refused (" in ln and why in ln for ln in out.splitlines()), out
         assert len(list(tmp_path.glob("state.*.json"))) == 1
     # a matching state is restored (and saved back in place)
     state.write_text(_state_doc())
     out = _run_briefly(ros_env, f"state_file:={state}")
-    assert "state restored from" in out and "refused" not in out, out
+    assert "state restored from" in out and " refused (" not in out, out
     assert json.loads(state.read_text())["pipeline"]["model"]["controller_numerator"] == \
         load_params_file(PAPER)["controller.numerator"]
 
@@ -106,7 +106,7 @@ def test_absent_topic_bounded_queue_with_drop_counter(ros_env):
     dom = int(ros_env["ROS_DOMAIN_ID"])
     rate = 400.0
     proc = start_node(ros_env, PAPER, f"loop_rate_hz:={rate}", "sync.stall_s:=0.2", "sync.max_backlog_s:=0.05",
-                      "sync.max_queue_s:=0.5", "stale_timeout_s:=0.5", "publish_rate_hz:=5.0")
+                      "sync.max_queue_s:=0.5", "stale_timeout_s:=0.5", "publish_rate_hz:=5.0", "qos_depth:=100")
     cli = Client(dom, Float64)
     try:
         cli.wait_matched()
