@@ -52,6 +52,28 @@ import time
 from pathlib import Path
 from typing import Any
 
+_STOP_REQUESTED = threading.Event()
+_SIGNAL_NAME = [""]
+
+
+def _request_stop(signum: int, frame: Any) -> None:
+    """SIGINT/SIGTERM: only set a flag; the spin loop returns within one ``spin_once`` timeout.
+
+    rclpy's own handlers end in an asynchronous ``KeyboardInterrupt``; raised inside a ``with lock:`` it can
+    leave the lock held (measured: a SIGINT during activation deadlocked the shutdown in ``Event.set``).
+    ``Event.set`` here runs in the signal handler, between bytecodes of the main thread, never inside another
+    lock operation of this module."""
+    _SIGNAL_NAME[0] = {int(signal.SIGINT): "SIGINT", int(signal.SIGTERM): "SIGTERM"}.get(signum, str(signum))
+    _STOP_REQUESTED.set()
+
+
+# The console script imports this module first: take over SIGINT/SIGTERM before anything slow is imported (a
+# signal during the imports would otherwise end in a KeyboardInterrupt traceback). Only for rsrivc_monitor itself.
+if sys.argv and sys.argv[0].rsplit("/", 1)[-1] == "rsrivc_monitor" and threading.current_thread() is \
+        threading.main_thread():
+    signal.signal(signal.SIGINT, _request_stop)
+    signal.signal(signal.SIGTERM, _request_stop)
+
 USAGE = """usage: rsrivc_monitor [-h] [--ros-args [--params-file FILE.yaml] [-p NAME:=VALUE] [-r __node:=NAME]]
 
 ROS 2 lifecycle node: online closed-loop additive recursive SRIVC of mechanical resonances with fault
@@ -790,21 +812,6 @@ def make_node_class() -> type:
             return cv.status(f"{self.get_name()}: estimator", hw, vals, level, msg)
 
     return MonitorNode
-
-
-_STOP_REQUESTED = threading.Event()
-_SIGNAL_NAME = [""]
-
-
-def _request_stop(signum: int, frame: Any) -> None:
-    """SIGINT/SIGTERM: only set a flag; the spin loop returns within one ``spin_once`` timeout.
-
-    rclpy's own handlers end in an asynchronous ``KeyboardInterrupt``; raised inside a ``with lock:`` it can
-    leave the lock held (measured: a SIGINT during activation deadlocked the shutdown in ``Event.set``).
-    ``Event.set`` here runs in the signal handler, between bytecodes of the main thread, never inside another
-    lock operation of this module."""
-    _SIGNAL_NAME[0] = {int(signal.SIGINT): "SIGINT", int(signal.SIGTERM): "SIGTERM"}.get(signum, str(signum))
-    _STOP_REQUESTED.set()
 
 
 def spin(node: Any, executor: Any, started_ns: int) -> None:

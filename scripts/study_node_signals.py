@@ -6,7 +6,7 @@ SIGTERM after a uniformly random delay and checks the exit: exit code, a traceba
 file afterwards (valid = restorable by MonitorPipeline under the same parameters; lost = missing; corrupt =
 unreadable or refused; also whether the node refused it at start).
 
-    python scripts/study_node_signals.py [--trials 50] [--max-delay 8] [--seed 0]
+    python scripts/study_node_signals.py [--trials 50] [--max-delay 8] [--early-fraction 0.25] [--seed 0]
 """
 
 from __future__ import annotations
@@ -59,10 +59,10 @@ def check_state(path: Path) -> str:
     return "valid"
 
 
-def trial(k: int, rng: random.Random, state0: Path, tmp: Path, env: dict, max_delay: float) -> dict:
+def trial(k: int, rng: random.Random, state0: Path, tmp: Path, env: dict, max_delay: float, early: float) -> dict:
     state = tmp / f"state_{k}.json"
     shutil.copy(state0, state)
-    delay = rng.uniform(0.0, max_delay)
+    delay = rng.uniform(0.0, 0.5) if rng.random() < early else rng.uniform(0.0, max_delay)
     sig = rng.choice((signal.SIGINT, signal.SIGTERM))
     node = subprocess.Popen(["rsrivc_monitor", "--ros-args", "--params-file", str(PARAMS), "-p",
                              f"state_file:={state}"], env=env, stdout=subprocess.PIPE, stderr=subprocess.STDOUT,
@@ -89,6 +89,8 @@ def main() -> int:
     ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     ap.add_argument("--trials", type=int, default=50)
     ap.add_argument("--max-delay", type=float, default=8.0, help="signal after U(0, this) seconds (default 8)")
+    ap.add_argument("--early-fraction", type=float, default=0.25, help="this fraction of the trials signals within "
+                    "U(0, 0.5) s of the start (interpreter start-up, imports, rclpy.init; default 0.25)")
     ap.add_argument("--seed", type=int, default=0)
     args = ap.parse_args()
     domain = 150 + os.getpid() % 80
@@ -105,7 +107,7 @@ def main() -> int:
                                   stderr=subprocess.DEVNULL)
         try:
             for k in range(args.trials):
-                r = trial(k, rng, state0, tmp, env, args.max_delay)
+                r = trial(k, rng, state0, tmp, env, args.max_delay, args.early_fraction)
                 rows.append(r)
                 print(f"trial {k + 1:3d}: {r['signal']} after {r['delay']:.2f} s ({r['phase']}) -> exit {r['rc']} "
                       f"in {r['exit_s']:.2f} s, traceback {r['traceback']}, state {r['state']}"
