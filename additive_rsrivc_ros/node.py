@@ -179,6 +179,13 @@ def make_node_class() -> type:
     from .core.pipeline import MonitorPipeline, PipelineError
     from .ros.sync import InputSync
 
+    def _check_sync_params(v: dict[str, Any]) -> None:
+        """sync.max_queue_s must exceed the stall and backlog allowances (ParamError, one line)."""
+        q = v["sync.max_queue_s"]
+        if q <= v["sync.stall_s"] or q <= 2 * v["sync.max_backlog_s"]:
+            raise ParamError(f"sync.max_queue_s ({q:g}) must exceed sync.stall_s ({v['sync.stall_s']:g}) and "
+                             f"2 x sync.max_backlog_s ({v['sync.max_backlog_s']:g})")
+
     class MonitorNode(LifecycleNode):
         """Managed node around :class:`MonitorPipeline`; see the module docstring."""
 
@@ -239,6 +246,7 @@ def make_node_class() -> type:
                 valid = validate_params(cand, strict=False)
                 cfg = MonitorConfig.from_params(valid)
                 FaultSettings.from_params(valid).check(cfg.K)
+                _check_sync_params(valid)
             except (ParamError, ValueError) as exc:
                 return SetParametersResult(successful=False, reason=f"rejected: {exc}")
             return SetParametersResult(successful=True)
@@ -288,6 +296,7 @@ def make_node_class() -> type:
                 values = validate_params(self.values())
                 cfg = MonitorConfig.from_params(values)
                 FaultSettings.from_params(values).check(cfg.K)
+                _check_sync_params(values)
             except (ParamError, ValueError) as exc:
                 self.config_error = str(exc)
                 self.get_logger().error(f"configuration rejected: {exc}")
@@ -342,9 +351,6 @@ def make_node_class() -> type:
         def _queue_samples(self, v: dict[str, Any]) -> int:
             """sync.max_queue_s in samples; it must exceed the stall and backlog allowances (ParamError)."""
             q = v["sync.max_queue_s"]
-            if q <= v["sync.stall_s"] or q <= 2 * v["sync.max_backlog_s"]:
-                raise ParamError(f"sync.max_queue_s ({q:g}) must exceed sync.stall_s ({v['sync.stall_s']:g}) and "
-                                 f"2 x sync.max_backlog_s ({v['sync.max_backlog_s']:g})")
             # never below the DDS reader history (qos_depth): the node holds no fewer samples than DDS already would
             depth = v["qos_depth"] or max(100, int(math.ceil(5.0 * self.cfg.loop_rate_hz)))
             return max(2 * self._backlog_samples(v["sync.max_backlog_s"]), int(math.ceil(q * self.cfg.loop_rate_hz)),
