@@ -85,7 +85,11 @@ def test_early_sigint_exits_cleanly_and_keeps_the_state(ros_env, tmp_path):
         time.sleep(delay)
         proc.send_signal(signal.SIGINT)
         out, _ = proc.communicate(timeout=60)
-        assert proc.returncode == 0 and "Traceback" not in out and "KeyboardInterrupt" not in out, out
+        assert "Traceback" not in out and "KeyboardInterrupt" not in out, out
+        # exit 0 with one line; or, on a loaded machine, the signal landed during the interpreter's own start-up
+        # (before any code of the package ran: default action, no output, nothing loaded or written)
+        assert proc.returncode == 0 or (proc.returncode == -2 and not out.strip()), (proc.returncode, out)
+        assert proc.returncode != 0 or "stopping (SIGINT)" in out, out
         cfg = MonitorConfig.from_params(load_params_file(PAPER))
         MonitorPipeline(cfg, state=json.loads(state.read_text())["pipeline"])     # valid, restorable
         assert not list(tmp_path.glob(".state.json.tmp*")), "a temporary file was left behind"
