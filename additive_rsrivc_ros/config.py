@@ -68,7 +68,9 @@ CORE_PARAMS: list[Param] = [
           "lambda = 1 - 1/(memory_s * loop_rate_hz).", 1e-3, 1e7),
     Param("init_duration_s", "double", 5.0, "Data used for the offline initialization before the recursion "
           "starts (000 Algorithm 2 step 1).", 0.0, 1e5, True),
-    Param("publish_rate_hz", "double", 10.0, "Output rate of estimates and diagnostics.", 0.01, 1000.0),
+    Param("publish_rate_hz", "double", 10.0, "Output rate of estimates and diagnostics. At most 100 Hz: a report "
+          "costs the pipeline ~1.3 ms (measured), so 1000 Hz would need more than a core and stop the consumption of "
+          "4096 Hz inputs (scripts/bench_node.py --publish-rate).", 0.01, 100.0),
     Param("estimator.block_sweeps", "int", 1, "M_l: block-coordinate sweeps over the modes per sample.", 1, 20,
           True),
     Param("estimator.refinements", "int", 0, "M_s: SRIVC refinements per mode and sweep.", 0, 20, True),
@@ -219,6 +221,15 @@ NODE_PARAMS: list[Param] = [
     Param("sync.quiet_s", "double", 0.5, "Float64 topics: when every topic has been quiet this long, unequal "
           "message counts are a count mismatch (the unmatched messages are discarded); must exceed the largest "
           "delay between the publications of one sample's r, u and y.", 0.01, 100.0),
+    Param("sync.max_queue_s", "double", 10.0, "Bound of every input topic's queue in seconds of samples (at "
+          "loop_rate_hz, at least qos_depth samples; a fixed number of bytes per sample): beyond it the oldest "
+          "samples are dropped, counted per topic and reported once per episode. Must exceed "
+          "sync.stall_s and sync.max_backlog_s.", 0.5, 600.0, True),
+    Param("sync.rate_window_s", "double", 2.0, "Window over which each topic's arrival rate is measured and "
+          "compared with loop_rate_hz (times the clock speed under use_sim_time).", 0.2, 60.0, True),
+    Param("sync.rate_tolerance", "double", 0.02, "Relative difference between a topic's arrival rate and "
+          "loop_rate_hz above which (in two consecutive checks) the estimator status warns of a wrong time base.",
+          0.001, 1.0, True),
 ]
 
 

@@ -28,6 +28,16 @@ reader history overflow when the executor falls behind (a loaded CPU), and five 
 such stalls (Float64 messages are 8 bytes of payload; 4096 Hz x 3 topics x 5 s is a few MB). The
 EventsExecutor serves bursts topic by topic (measured: 3000 messages of one topic before the next), so the
 alignment tolerates large temporary count differences between the topics.
+
+Resources and timing (issue 13): every input queue is bounded (``sync.max_queue_s``, oldest dropped, counted per
+topic, one log line per episode); a separate publisher thread publishes the newest report and one
+``/diagnostics`` array per publish period, so publishing never holds up the consumption of the inputs (reports
+produced faster than they can be published are coalesced and counted). Each topic's arrival rate is compared
+with ``loop_rate_hz`` (``sync.rate_window_s``, ``sync.rate_tolerance``): a mismatch is a WARN naming the topic.
+The node measures its own loop: a topic is silent (STALE) only when the executor was spinning for longer than
+``stale_timeout_s`` and nothing arrived; a late burst caused by the node's own stall (start-up, GC, a busy
+worker) is not an input pause. ``state_file``: a file refused at start (other model, rate or corrupt) is never
+overwritten; this run's state is saved beside it (``<stem>.<UTC time>.json``). SIGINT/SIGTERM only set a flag.
 """
 
 from __future__ import annotations
@@ -42,7 +52,27 @@ import time
 from pathlib import Path
 from typing import Any
 
-import numpy as np
+_STOP_REQUESTED = threading.Event()
+_SIGNAL_NAME = [""]
+
+
+def _request_stop(signum: int, frame: Any) -> None:
+    """SIGINT/SIGTERM: only set a flag; the spin loop returns within one ``spin_once`` timeout.
+
+    rclpy's own handlers end in an asynchronous ``KeyboardInterrupt``; raised inside a ``with lock:`` it can
+    leave the lock held (measured: a SIGINT during activation deadlocked the shutdown in ``Event.set``).
+    ``Event.set`` here runs in the signal handler, between bytecodes of the main thread, never inside another
+    lock operation of this module."""
+    _SIGNAL_NAME[0] = {int(signal.SIGINT): "SIGINT", int(signal.SIGTERM): "SIGTERM"}.get(signum, str(signum))
+    _STOP_REQUESTED.set()
+
+
+# The console script imports this module first: take over SIGINT/SIGTERM before anything slow is imported (a
+# signal during the imports would otherwise end in a KeyboardInterrupt traceback). Only for rsrivc_monitor itself.
+if sys.argv and sys.argv[0].rsplit("/", 1)[-1] == "rsrivc_monitor" and threading.current_thread() is \
+        threading.main_thread():
+    signal.signal(signal.SIGINT, _request_stop)
+    signal.signal(signal.SIGTERM, _request_stop)
 
 USAGE = """usage: rsrivc_monitor [-h] [--ros-args [--params-file FILE.yaml] [-p NAME:=VALUE] [-r __node:=NAME]]
 
@@ -58,13 +88,42 @@ example:
 """
 
 ALLOWED_EXTRA_PARAMS = ("use_sim_time", "start_type_description_service")
+STALL_NS = 250_000_000     # the executor or the worker not running for this long is a stall of the node itself
+
+
+def _beside(path: str) -> str:
+    """Where this run saves when ``path`` was refused: ``<stem>.<UTC time>.json`` next to it (never ``path``)."""
+    p = Path(path)
+    stamp = time.strftime("%Y%m%dT%H%M%SZ", time.gmtime())
+    out = p.with_name(f"{p.stem}.{stamp}.json")
+    k = 1
+    while out.exists():
+        out = p.with_name(f"{p.stem}.{stamp}-{k}.json")
+        k += 1
+    return str(out)
+
+
+def _write_atomic(path: str, text: str) -> None:
+    """Write ``text`` to ``path`` so that it is either the old or the complete new file (temp, fsync, replace)."""
+    d = os.path.dirname(os.path.abspath(path))
+    tmp = os.path.join(d, f".{os.path.basename(path)}.tmp{os.getpid()}")
+    try:
+        with open(tmp, "w") as f:
+            f.write(text)
+            f.flush()
+            os.fsync(f.fileno())
+        os.replace(tmp, path)
+    finally:
+        if os.path.exists(tmp):
+            os.unlink(tmp)
 
 
 def _import_ros() -> None:
     """Import rclpy and the message packages lazily (``--help`` must work without ROS)."""
     global rclpy, LifecycleNode, TransitionCallbackReturn, LifecycleState, EventsExecutor
     global ExternalShutdownException, QoSProfile, ReliabilityPolicy, HistoryPolicy, DurabilityPolicy
-    global Float64, JointState, Float64MultiArray, DiagnosticArray, Trigger, SetParametersResult, Parameter, cv
+    global Float64, JointState, Float64MultiArray, DiagnosticArray, Trigger, SetParametersResult, Parameter, cv, np
+    import numpy as np
     import rclpy  # noqa: F401
     import rclpy.lifecycle
     from diagnostic_msgs.msg import DiagnosticArray
@@ -120,6 +179,13 @@ def make_node_class() -> type:
     from .core.pipeline import MonitorPipeline, PipelineError
     from .ros.sync import InputSync
 
+    def _check_sync_params(v: dict[str, Any]) -> None:
+        """sync.max_queue_s must exceed the stall and backlog allowances (ParamError, one line)."""
+        q = v["sync.max_queue_s"]
+        if q <= v["sync.stall_s"] or q <= 2 * v["sync.max_backlog_s"]:
+            raise ParamError(f"sync.max_queue_s ({q:g}) must exceed sync.stall_s ({v['sync.stall_s']:g}) and "
+                             f"2 x sync.max_backlog_s ({v['sync.max_backlog_s']:g})")
+
     class MonitorNode(LifecycleNode):
         """Managed node around :class:`MonitorPipeline`; see the module docstring."""
 
@@ -143,6 +209,9 @@ def make_node_class() -> type:
             self._worker: threading.Thread | None = None
             self._stop = threading.Event()
             self.idle_since_ns = 0
+            self.looking_since_ns = 0          # start of the executor's current uninterrupted run (0: not yet)
+            self._pub_thread: threading.Thread | None = None
+            self._save_path = ""               # where save_state writes ("" -> the state_file parameter)
             self._closed = False
             self._reset_stats()
 
@@ -177,6 +246,7 @@ def make_node_class() -> type:
                 valid = validate_params(cand, strict=False)
                 cfg = MonitorConfig.from_params(valid)
                 FaultSettings.from_params(valid).check(cfg.K)
+                _check_sync_params(valid)
             except (ParamError, ValueError) as exc:
                 return SetParametersResult(successful=False, reason=f"rejected: {exc}")
             return SetParametersResult(successful=True)
@@ -226,22 +296,14 @@ def make_node_class() -> type:
                 values = validate_params(self.values())
                 cfg = MonitorConfig.from_params(values)
                 FaultSettings.from_params(values).check(cfg.K)
+                _check_sync_params(values)
             except (ParamError, ValueError) as exc:
                 self.config_error = str(exc)
                 self.get_logger().error(f"configuration rejected: {exc}")
                 return TransitionCallbackReturn.FAILURE
             self.cfg = cfg
             v = values
-            pipeline = None
-            state_file = v["state_file"]
-            if state_file and Path(state_file).is_file():
-                try:
-                    saved = json.loads(Path(state_file).read_text())
-                    pipeline = MonitorPipeline(cfg, state=saved["pipeline"])
-                    self.get_logger().info(f"state restored from {state_file} (estimating: {pipeline.initialized})")
-                except (OSError, ValueError, KeyError, TypeError, PipelineError) as exc:
-                    self.get_logger().warning(f"state file {state_file} not restored ({exc}); starting fresh")
-                    pipeline = None
+            pipeline = self._restore(cfg, v["state_file"])
             try:
                 self.pipeline = pipeline or MonitorPipeline(cfg)
             except (PipelineError, ValueError) as exc:
@@ -254,7 +316,10 @@ def make_node_class() -> type:
                 self.signals, cfg.loop_rate_hz, stamped=all(t == "sensor_msgs/msg/JointState" for t in types),
                 max_backlog=self._backlog_samples(v["sync.max_backlog_s"]),
                 quiet_s=v["sync.quiet_s"], gap_s=self._gap_s(v["sync.gap_s"]), hold_s=v["sync.hold_s"],
-                silent_s=v["stale_timeout_s"], stall_s=v["sync.stall_s"])
+                silent_s=v["stale_timeout_s"], stall_s=v["sync.stall_s"],
+                max_queue=self._queue_samples(v), labels=tuple(cfg.signals[s].topic for s in self.signals),
+                rate_window_s=v["sync.rate_window_s"], rate_tolerance=v["sync.rate_tolerance"])
+            self._use_sim_time = bool(self.get_parameter("use_sim_time").value)
             if self.pipeline.t_last is not None:
                 self.sync.set_time_floor(self.pipeline.t_last)
             self._stale_timeout_s = v["stale_timeout_s"]
@@ -279,14 +344,43 @@ def make_node_class() -> type:
             self.get_logger().info(
                 f"configured: K={cfg.K}, {cfg.loop_rate_hz:g} Hz, {'closed' if cfg.closed_loop else 'open'} loop, "
                 f"inputs {', '.join(cfg.signals[s].topic for s in self.signals)} "
-                f"({'stamped' if self.sync.stamped else 'arrival order'}), QoS depth {depth}")
+                f"({'stamped' if self.sync.stamped else 'arrival order'}), QoS depth {depth}, input queues "
+                f"bounded at {self.sync.max_queue} samples per topic (<= {self.sync.queue_bytes() / 1e6:.3g} MB)")
             return TransitionCallbackReturn.SUCCESS
+
+        def _queue_samples(self, v: dict[str, Any]) -> int:
+            """sync.max_queue_s in samples; it must exceed the stall and backlog allowances (ParamError)."""
+            q = v["sync.max_queue_s"]
+            # never below the DDS reader history (qos_depth): the node holds no fewer samples than DDS already would
+            depth = v["qos_depth"] or max(100, int(math.ceil(5.0 * self.cfg.loop_rate_hz)))
+            return max(2 * self._backlog_samples(v["sync.max_backlog_s"]), int(math.ceil(q * self.cfg.loop_rate_hz)),
+                       depth)
+
+        def _restore(self, cfg: Any, state_file: str) -> Any:
+            """The pipeline restored from ``state_file``, or None. A refused file (corrupt, other K, rate,
+            controller, delay, loop or structures) is kept untouched: this run saves beside it (one log line)."""
+            self._save_path = state_file
+            if not state_file or not Path(state_file).exists():
+                return None
+            try:
+                saved = json.loads(Path(state_file).read_text())
+                pipeline = MonitorPipeline(cfg, state=saved["pipeline"])
+            except (OSError, ValueError, KeyError, TypeError, PipelineError) as exc:
+                reason = str(exc) if isinstance(exc, PipelineError) else f"unreadable: {type(exc).__name__}: {exc}"
+                self._save_path = _beside(state_file)
+                self.get_logger().warning(f"state file {state_file} refused ({reason}); starting fresh, the file is "
+                                          f"kept unchanged and this run's state will be saved to {self._save_path}")
+                return None
+            self.get_logger().info(f"state restored from {state_file} (estimating: {pipeline.initialized})")
+            return pipeline
 
         def on_activate(self, state: Any) -> Any:
             self._stop.clear()
             self._active = True
             self._worker = threading.Thread(target=self._run_worker, name="rsrivc_worker", daemon=True)
             self._worker.start()
+            self._pub_thread = threading.Thread(target=self._run_publisher, name="rsrivc_publisher", daemon=True)
+            self._pub_thread.start()
             return super().on_activate(state)
 
         def on_deactivate(self, state: Any) -> Any:
@@ -306,9 +400,10 @@ def make_node_class() -> type:
         def _stop_worker(self) -> None:
             self._active = False
             self._stop.set()
-            if self._worker is not None and self._worker is not threading.current_thread():
-                self._worker.join(timeout=10.0)
-            self._worker = None
+            for th in (self._worker, self._pub_thread):
+                if th is not None and th is not threading.current_thread():
+                    th.join(timeout=10.0)
+            self._worker = self._pub_thread = None
 
         def _destroy_interfaces(self) -> None:
             for s in self._subs:
@@ -329,8 +424,9 @@ def make_node_class() -> type:
                 self.save_state()
 
         def save_state(self) -> str:
-            """Write the pipeline state to ``state_file`` atomically; returns a one-line result."""
-            path = self.get_parameter("state_file").value
+            """Write the pipeline state atomically (temp file, fsync, ``os.replace``) to ``state_file`` or, when
+            that file was refused at start, beside it; returns a one-line result."""
+            path = self._save_path if self.pipeline is not None else self.get_parameter("state_file").value
             if not path:
                 return "state_file is empty: nothing saved"
             with self.lock:
@@ -338,24 +434,26 @@ def make_node_class() -> type:
                     return "not configured: nothing saved"
                 doc = {"node": self.get_fully_qualified_name(), "saved_unix_s": time.time(),
                        "pipeline": self.pipeline.get_state()}
-            tmp = f"{path}.tmp{os.getpid()}"
-            Path(tmp).write_text(json.dumps(doc))
-            os.replace(tmp, path)
+            _write_atomic(path, json.dumps(doc))
             self.get_logger().info(f"state saved to {path}")
             return f"state saved to {path}"
 
         # ------------------------------------------------------------------------------------ callbacks
         def _float_cb(self, i: int) -> Any:
             q = self.sync.queues[i]
+            over, cap = self.sync.overflow, self.sync.max_queue
             mono = time.monotonic_ns
 
             def cb(msg: Any) -> None:
                 if self._active:
+                    if len(q) >= cap:          # the bounded deque drops its oldest item: count it
+                        over[i] += 1
                     q.append((msg.data, mono()))
             return cb
 
         def _joint_cb(self, i: int, sig: str, sc: Any) -> Any:
             q = self.sync.queues[i]
+            over, cap = self.sync.overflow, self.sync.max_queue
             mono = time.monotonic_ns
             joint, fld = sc.joint, sc.field
 
@@ -369,6 +467,8 @@ def make_node_class() -> type:
                     self._malformed[sig] = self._malformed.get(sig, 0) + 1
                     return
                 st = msg.header.stamp
+                if len(q) >= cap:
+                    over[i] += 1
                 q.append((value, mono(), st.sec * 1_000_000_000 + st.nanosec))
             return cb
 
@@ -408,6 +508,8 @@ def make_node_class() -> type:
         # ------------------------------------------------------------------------------------ worker
         def _reset_stats(self) -> None:
             self.delays_ms = _RingStats()
+            self._delay_cache = (math.nan, math.nan, math.nan)
+            self._delay_cache_ns = 0
             self._busy_s = 0.0
             self._data_s = 0.0
             self._cpu0 = (time.process_time(), time.monotonic())
@@ -416,8 +518,19 @@ def make_node_class() -> type:
             self._wrong_types: list[str] = []
             self._errors = 0
             self._last_error = ""
-            self._last_pub_ns = 0
             self._next_graph_ns = 0
+            self._latest_report = None           # newest pipeline report (worker -> publisher)
+            self._last_published = None
+            self._reports_made = 0
+            self._reports_published = 0
+            self._snapshot: tuple[Any, Any] = (None, None)   # (last report, modal) the publisher can always use
+            self._push_started_ns = 0
+            self._last_step_ns = 0
+            self.node_stalls = 0                 # executor stalls (the node did not look at its inputs)
+            self.node_stall_max_s = 0.0
+            self.worker_stalls = 0               # worker steps further apart than STALL_NS (GC, compile, ...)
+            self.worker_stall_max_s = 0.0
+            self._clock_pts: list[tuple[int, float]] = []
 
         def _run_worker(self) -> None:
             while not self._stop.wait(self._block_period_s):
@@ -429,42 +542,102 @@ def make_node_class() -> type:
                     if msg != self._last_error:
                         self.get_logger().error(f"estimation step failed ({msg}); continuing")
                     self._last_error = msg
+                finally:
+                    self._push_started_ns = 0
 
         def _ros_now_s(self) -> float:
             return self.get_clock().now().nanoseconds * 1e-9
 
+        def note_stall(self, start_ns: int, end_ns: int) -> None:
+            """The executor did not run from ``start_ns`` to ``end_ns`` (called by :func:`spin`)."""
+            self.node_stalls += 1
+            self.node_stall_max_s = max(self.node_stall_max_s, (end_ns - start_ns) * 1e-9)
+            sync = self.sync
+            if sync is not None:
+                sync.note_stall(start_ns, end_ns)
+
         def step(self) -> None:
-            """Align what arrived, feed it to the pipeline, publish due reports and periodic diagnostics."""
+            """Align what arrived and feed it to the pipeline; the publisher thread publishes (never this one)."""
             now = time.monotonic_ns()
+            if self._last_step_ns and now - self._last_step_ns > STALL_NS:
+                self.worker_stalls += 1
+                self.worker_stall_max_s = max(self.worker_stall_max_s, (now - self._last_step_ns) * 1e-9)
+            self._last_step_ns = now
             with self.lock:
                 sync, pipe = self.sync, self.pipeline
                 if sync is None or pipe is None:
                     return
                 n_ev = sync.n_events
                 blk = sync.collect(now, idle_since_ns=self.idle_since_ns, ros_now_s=self._ros_now_s())
-                for ev in list(sync.events)[-min(sync.n_events - n_ev, len(sync.events)):] if sync.n_events > n_ev \
-                        else []:
-                    self.get_logger().warning(f"input: {ev}")
-                reports = []
                 if blk is not None:
                     was_init = pipe.initialized
                     c0 = time.perf_counter()
+                    self._push_started_ns = time.monotonic_ns()
                     reports = pipe.push(blk.t, blk.r, blk.u, blk.y)
+                    self._push_started_ns = 0
                     self._busy_s += time.perf_counter() - c0
                     self._data_s += len(blk) / self.cfg.loop_rate_hz
                     if was_init and pipe.initialized:
                         self.delays_ms.extend((time.monotonic_ns() - blk.arrival_ns) * 1e-6)
-            if now >= self._next_graph_ns:
-                self._check_graph()
-                c = (time.process_time(), time.monotonic())
-                if c[1] > self._cpu0[1]:
-                    self._cpu_fraction = (c[0] - self._cpu0[0]) / (c[1] - self._cpu0[1])
-                self._cpu0 = c
-                self._next_graph_ns = now + 1_000_000_000
-            for rep in reports:
-                self._publish(rep)
-            if not reports and now - self._last_pub_ns > 1.5 * self._publish_period_s * 1e9:
-                self._publish(None)
+                    if reports:
+                        self._reports_made += len(reports)
+                        self._latest_report = reports[-1]
+                        self._snapshot = (reports[-1], reports[-1].modal)
+                if now >= self._next_graph_ns:
+                    self._once_per_second(now, sync)
+                self._log_events(sync, n_ev)
+            self._last_step_ns = time.monotonic_ns()
+
+        def _log_events(self, sync: Any, n_ev: int) -> None:
+            """Log the sync events raised since ``n_ev`` (each is one line, once per episode)."""
+            new = sync.n_events - n_ev
+            if new > 0:
+                for ev in list(sync.events)[-min(new, len(sync.events)):]:
+                    self.get_logger().warning(f"input: {ev}")
+
+        def _once_per_second(self, now: int, sync: Any) -> None:
+            """Graph (wrong types), CPU, arrival rates."""
+            self._next_graph_ns = now + 1_000_000_000
+            self._check_graph()
+            c = (time.process_time(), time.monotonic())
+            if c[1] > self._cpu0[1]:
+                self._cpu_fraction = (c[0] - self._cpu0[0]) / (c[1] - self._cpu0[1])
+            self._cpu0 = c
+            sync.check_rates(now, self._clock_speed(now))
+
+        def _clock_speed(self, now: int) -> float:
+            """Speed of the node clock vs wall time over the rate window (1 without sim time; nan when the sim
+            clock does not advance: the rate check is then skipped)."""
+            if not self._use_sim_time:
+                return 1.0
+            self._clock_pts.append((now, self._ros_now_s()))
+            lo = now - self.sync.rate_window_ns
+            while len(self._clock_pts) > 2 and self._clock_pts[1][0] <= lo:
+                self._clock_pts.pop(0)
+            (a0, r0), (a1, r1) = self._clock_pts[0], self._clock_pts[-1]
+            if a1 - a0 < 0.5 * self.sync.rate_window_ns or r1 <= r0:
+                return math.nan
+            return (r1 - r0) / ((a1 - a0) * 1e-9)
+
+        def _run_publisher(self) -> None:
+            """Publish the newest report (~/modes) and one /diagnostics array per publish period."""
+            nxt = time.monotonic()
+            while not self._stop.is_set():
+                period = self._publish_period_s
+                nxt += period
+                now = time.monotonic()
+                if nxt < now - period:         # fell behind (loaded CPU): no catch-up burst
+                    nxt = now
+                if self._stop.wait(max(0.0, nxt - now)):
+                    break
+                try:
+                    self._publish()
+                except Exception as exc:  # noqa: BLE001 - reported like a worker error
+                    self._errors += 1
+                    msg = f"publishing failed: {type(exc).__name__}: {exc}"
+                    if msg != self._last_error:
+                        self.get_logger().error(msg)
+                    self._last_error = msg
 
         def _check_graph(self) -> None:
             """A configured topic carrying another message type: name the topic and both types."""
@@ -481,40 +654,50 @@ def make_node_class() -> type:
             self._wrong_types = wrong
 
         # ------------------------------------------------------------------------------------ output
-        def _publish(self, rep: Any) -> None:
-            """Publish one report (``None``: no data is flowing; the current estimate with level STALE)."""
-            self._last_pub_ns = time.monotonic_ns()
-            name = self.get_name()
-            hw = self.get_fully_qualified_name()
-            now_mono = time.monotonic_ns()
-            silent = self.sync.silent(now_mono, self._stale_timeout_s)
-            with self.lock:
-                if rep is None:
-                    rep = self.pipeline.last_report
-                    modal = self.pipeline._modal()
-                else:
-                    modal = rep.modal
-                    self._modes_pub.publish(cv.modes_array(modal))
-                stale = bool(silent) or rep is None or not rep.estimating
+        def _current(self) -> tuple[Any, Any, bool]:
+            """(report, modal, new): the newest unpublished report, else the live estimate (when the worker
+            lets go of the lock within 20 ms), else the last snapshot."""
+            rep = self._latest_report          # read once; the worker only ever replaces it (no lost update)
+            if rep is not None and rep is not self._last_published:
+                self._last_published = rep
+                self._reports_published += 1
+                return rep, rep.modal, True
+            if self.lock.acquire(timeout=0.02):
+                try:
+                    if self.pipeline is not None:
+                        self._snapshot = (self.pipeline.last_report, self.pipeline._modal())
+                finally:
+                    self.lock.release()
+            return self._snapshot[0], self._snapshot[1], False
+
+        def _publish(self) -> None:
+            """Compose and publish once: ~/modes (a new report only) and /diagnostics (always)."""
+            sync, modes_pub, diag_pub = self.sync, self._modes_pub, self._diag_pub
+            if sync is None or modes_pub is None or diag_pub is None or not self._active:
+                return
+            rep, modal, new = self._current()
+            if new:
+                modes_pub.publish(cv.modes_array(modal))
+            silent = sync.silent(time.monotonic_ns(), self._stale_timeout_s, self.looking_since_ns)
+            stale = bool(silent) or rep is None or not rep.estimating
+            name, hw = self.get_name(), self.get_fully_qualified_name()
             arr = DiagnosticArray()
             arr.header.stamp = self.get_clock().now().to_msg()
-            K = self.cfg.K
-            for i in range(K):
-                vals = {f: float(modal[i, j]) for j, f in enumerate(cv.MODE_FIELDS)}
-                level, msg = int(Level.STALE), "no data"
+            for i in range(self.cfg.K):
+                vals = {f: math.nan for f in cv.MODE_FIELDS} if modal is None else \
+                    {f: float(modal[i, j]) for j, f in enumerate(cv.MODE_FIELDS)}
+                level, msg = int(Level.STALE), "initializing" if self.looking_since_ns else "starting"
                 if rep is not None:
                     md = rep.mode_dict(i)
                     vals.update({k: md[k] for k in (*cv.BASELINE_FIELDS, *cv.FLAG_FIELDS)})
-                    level = int(rep.mode_levels[i])
-                    msg = self._mode_message(rep, i)
+                    level, msg = int(rep.mode_levels[i]), self._mode_message(rep, i)
                 if silent:
                     level, msg = int(Level.STALE), "no data on " + ", ".join(self.cfg.signals[s].topic for s in silent)
                 elif rep is None or not rep.estimating:
-                    level = int(Level.STALE)
-                    msg = "initializing" if rep is not None else "no data"
+                    level, msg = int(Level.STALE), "initializing"
                 arr.status.append(cv.mode_status(f"{name}: mode {i + 1}", hw, vals, level, msg))
             arr.status.append(self._estimator_status(rep, silent, stale, hw))
-            self._diag_pub.publish(arr)
+            diag_pub.publish(arr)
 
         @staticmethod
         def _mode_message(rep: Any, i: int) -> str:
@@ -524,15 +707,26 @@ def make_node_class() -> type:
                 return "fault: " + ", ".join(faults)
             return rep.phase
 
-        def _estimator_status(self, rep: Any, silent: list[str], stale: bool, hw: str) -> Any:
+        def _delays(self) -> tuple[float, float, float]:
+            """Median, p95, max of the delays; recomputed at most once a second (composition stays cheap)."""
+            now = time.monotonic_ns()
+            if now - self._delay_cache_ns > 1_000_000_000 or math.isnan(self._delay_cache[0]):
+                d = self.delays_ms
+                v = d.values().copy()
+                self._delay_cache = tuple(float(x) for x in np.percentile(v, (50, 95, 100))) if v.size \
+                    else (math.nan,) * 3
+                self._delay_cache_ns = now
+            return self._delay_cache
+
+        def _estimator_values(self, rep: Any, h: dict[str, Any], silent: list[str]) -> dict[str, Any]:
+            """Key/values of the estimator status (counters, health, timing)."""
             sync, pipe = self.sync, self.pipeline
             sc = sync.counters
-            h = dict(rep.health) if rep is not None else {}
-            h.update(pipe.counters.to_dict())      # live counters (the report may be older)
             est = h.get("estimator", {}) or {}
             cond = [c for c in est.get("cond", []) if c is not None]
             rtf = self._data_s / self._busy_s if self._busy_s > 0 else math.nan
-            vals: dict[str, Any] = {
+            d50, d95, dmax = self._delays()
+            return {
                 "phase": rep.phase if rep is not None else pipe.phase,
                 "samples_received": sum(sc.received),
                 "samples_aligned": sc.aligned,
@@ -549,6 +743,19 @@ def make_node_class() -> type:
                 "malformed_messages": sum(self._malformed.values()),
                 "queue_backlog": max((len(q) + len(p) for q, p in zip(sync.queues, sync.pending, strict=True)),
                                      default=0),
+                "queue_bound_samples": sync.max_queue,
+                "queue_dropped": sum(sc.queue_dropped),
+                "queue_dropped_per_topic": " ".join(f"{lb}={n}" for lb, n in zip(sync.labels, sc.queue_dropped,
+                                                                                strict=True)),
+                "arrival_rate_hz": " ".join(f"{lb}={cv.num(round(r, 1))}" for lb, r in zip(sync.labels,
+                                                                                      sync.measured_rate, strict=True)),
+                "rate_mismatches": sc.rate_mismatches,
+                "node_stalls": self.node_stalls,
+                "node_stall_max_s": float(self.node_stall_max_s),
+                "node_stall_gaps": sc.node_stall_gaps,
+                "worker_stalls": self.worker_stalls,
+                "worker_stall_max_s": float(self.worker_stall_max_s),
+                "reports_coalesced": max(0, self._reports_made - self._reports_published),
                 "projections": int(sum(est.get("projections", []) or [0])),
                 "reprimes": int(est.get("reprimes", 0) or 0),
                 "condition_number": float(max(cond)) if cond else math.nan,
@@ -558,19 +765,42 @@ def make_node_class() -> type:
                 "reinitializations": int(h.get("reinitializations", 0)),
                 "real_time_factor": float(rtf),
                 "cpu_fraction": float(self._cpu_fraction),
-                "delay_median_ms": self.delays_ms.percentile(50),
-                "delay_p95_ms": self.delays_ms.percentile(95),
-                "delay_max_ms": self.delays_ms.percentile(100),
+                "delay_median_ms": d50,
+                "delay_p95_ms": d95,
+                "delay_max_ms": dmax,
                 "internal_errors": self._errors,
                 "silent_topics": " ".join(self.cfg.signals[s].topic for s in silent),
                 "wrong_types": "; ".join(self._wrong_types),
             }
+
+        def _input_reasons(self, sync: Any) -> list[str]:
+            """Open input problems that last (rate mismatch, queue overflow, a busy estimator): WARN reasons."""
+            out = [sync.rate_reason(lb, r, sync.expected_rate) for lb, r in list(sync.rate_mismatch.items())]
+            out += [f"queue of {lb} full: dropping the oldest messages ({n} so far)"
+                    for lb, n, ov in zip(sync.labels, sync.counters.queue_dropped, sync._overflowing, strict=True)
+                    if ov]
+            busy = self._push_started_ns
+            if busy and time.monotonic_ns() - busy > 500_000_000:
+                out.append(f"estimator busy for {(time.monotonic_ns() - busy) * 1e-9:.1f} s (the node, not the "
+                           "inputs: samples wait in the queues)")
+            return out
+
+        def _estimator_status(self, rep: Any, silent: list[str], stale: bool, hw: str) -> Any:
+            sync, pipe = self.sync, self.pipeline
+            h = dict(rep.health) if rep is not None else {}
+            h.update(pipe.counters.to_dict())      # live counters (the report may be older)
+            vals = self._estimator_values(rep, h, silent)
             reasons = list(h.get("reasons", []))
             level = int(h.get("level", 0)) if rep is not None else int(Level.STALE)
+            lasting = self._input_reasons(sync)
             recent = time.monotonic_ns() - sync.last_event_ns < 5e9 and sync.last_event_ns > 0
-            if recent:
+            if recent and sync.events and sync.events[-1] not in lasting:
                 reasons.append(sync.events[-1])
-                level = max(level, int(Level.WARN)) if level != int(Level.STALE) else level
+            reasons += lasting
+            if (recent or lasting) and level != int(Level.STALE):
+                level = max(level, int(Level.WARN))
+            elif lasting and not silent:       # no estimate yet but data flows: the input problem is the news
+                level = int(Level.WARN)
             if self._errors and self._last_error:
                 reasons.append(f"internal error: {self._last_error}")
                 level = max(level, int(Level.ERROR)) if level != int(Level.STALE) else level
@@ -578,7 +808,7 @@ def make_node_class() -> type:
                 reasons.insert(0, "no data on " + ", ".join(f"{self.cfg.signals[s].topic} for more than "
                                                             f"{self._stale_timeout_s:g} s" for s in silent))
                 level = int(Level.STALE)
-            elif stale and rep is None:
+            elif stale and rep is None and not lasting:
                 level = int(Level.STALE)
             if self._wrong_types:
                 reasons.insert(0, "wrong message type: " + "; ".join(self._wrong_types))
@@ -590,27 +820,26 @@ def make_node_class() -> type:
     return MonitorNode
 
 
-_STOP_REQUESTED = threading.Event()
-
-
-def _request_stop(signum: int, frame: Any) -> None:
-    """SIGINT/SIGTERM: only set a flag; the spin loop returns within one ``spin_once`` timeout.
-
-    rclpy's own handlers end in an asynchronous ``KeyboardInterrupt``; raised inside a ``with lock:`` it can
-    leave the lock held (measured: a SIGINT during activation deadlocked the shutdown in ``Event.set``).
-    ``Event.set`` here runs in the signal handler, between bytecodes of the main thread, never inside another
-    lock operation of this module."""
-    _STOP_REQUESTED.set()
-
-
-def spin(node: Any, executor: Any) -> None:
-    """``spin_once`` loop (see module docstring); records when the executor was idle (input pause checks)."""
+def spin(node: Any, executor: Any, started_ns: int) -> None:
+    """``spin_once`` loop (see module docstring); records when the executor was idle (input pause checks) and
+    when it did not run (the node's own stalls, from ``started_ns``: start-up counts as one)."""
+    last = started_ns
+    node.looking_since_ns = 0
     while rclpy.ok() and not _STOP_REQUESTED.is_set():
         t0 = time.monotonic_ns()
+        if t0 - last > STALL_NS:
+            node.note_stall(last, t0)
+            node.looking_since_ns = t0
+        elif not node.looking_since_ns:
+            node.looking_since_ns = t0
         executor.spin_once(timeout_sec=0.05)
         t1 = time.monotonic_ns()
+        if t1 - t0 > STALL_NS + 50_000_000:
+            node.note_stall(t0, t1)
+            node.looking_since_ns = t1
         if t1 - t0 >= 40_000_000:
             node.idle_since_ns = t1
+        last = t1
 
 
 def main(argv: list[str] | None = None) -> int:
@@ -624,12 +853,13 @@ def main(argv: list[str] | None = None) -> int:
         print(f"rsrivc_monitor: unknown argument(s) {' '.join(own)} (ROS arguments go after --ros-args; see --help)",
               file=sys.stderr)
         return 2
+    started_ns = time.monotonic_ns()
+    signal.signal(signal.SIGINT, _request_stop)      # first: a signal at any later moment only sets the flag
+    signal.signal(signal.SIGTERM, _request_stop)
     _import_ros()
     from rclpy.signals import SignalHandlerOptions
 
     rclpy.init(args=["rsrivc_monitor", *args], signal_handler_options=SignalHandlerOptions.NO)
-    signal.signal(signal.SIGINT, _request_stop)
-    signal.signal(signal.SIGTERM, _request_stop)
     node = None
     code = 0
     try:
@@ -643,7 +873,9 @@ def main(argv: list[str] | None = None) -> int:
                 return 1
             if not _STOP_REQUESTED.is_set():
                 node.trigger_activate()
-        spin(node, executor)
+        if not _STOP_REQUESTED.is_set():
+            spin(node, executor, started_ns)
+        print(f"rsrivc_monitor: stopping ({_SIGNAL_NAME[0] or 'shutdown'})", file=sys.stderr)
     except (KeyboardInterrupt, ExternalShutdownException):
         pass
     except Exception as exc:  # noqa: BLE001 - parameter declaration errors etc.: one line, non-zero exit

@@ -7,7 +7,14 @@ it (measured inside the node: arrival of the sample's last message -> return of 
 updated the estimator with it), the estimator's real-time factor, the final estimate vs the truth, and, with
 ``--speedups``, the highest loop rate sustained without loss (the bag replayed faster than recorded).
 
-    python scripts/bench_node.py [--duration 60] [--speedups 2 4 8] [--speedup-duration 10]
+Issue 13 options: ``--hog N`` runs N busy-loop subprocesses beside the node (CPU contention) and says whether the
+node reported every loss (never misaligned or lost in silence); ``--publish-rate HZ`` sets publish_rate_hz (does
+publishing keep up with 4096 Hz x 3 inputs?); ``--rss-absent SECONDS`` instead replays only /plant_input and
+/plant_output (looped; /reference absent) and prints the node's RSS every ``--rss-every`` seconds with the growth
+rate extrapolated to one hour.
+
+    python scripts/bench_node.py [--duration 60] [--speedups 2 4 8] [--speedup-duration 10] [--hog 2]
+                                 [--publish-rate 1000] [--rss-absent 180 --rss-every 10]
 """
 
 from __future__ import annotations
@@ -79,19 +86,50 @@ class Listener:
         self.th.join(timeout=5)
 
 
-def run_once(bag: Path, speed: float, domain: int, env: dict) -> dict:
-    """Start a fresh node, replay ``bag`` at ``speed``, return the node's figures."""
-    node = subprocess.Popen(["rsrivc_monitor", "--ros-args", "--params-file", str(PARAMS)], env=env,
-                            stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True)
+def start_hogs(n: int) -> list[subprocess.Popen]:
+    """``n`` busy-loop subprocesses (one core each when free)."""
+    return [subprocess.Popen([sys.executable, "-c", "while True: pass"]) for _ in range(n)]
+
+
+def stop_hogs(hogs: list[subprocess.Popen]) -> None:
+    for h in hogs:
+        h.kill()
+        h.wait()
+
+
+def rss_mb(pid: int) -> float:
+    """Resident set size of a process in MB (/proc/<pid>/status VmRSS)."""
+    for line in Path(f"/proc/{pid}/status").read_text().splitlines():
+        if line.startswith("VmRSS:"):
+            return int(line.split()[1]) / 1024.0
+    return float("nan")
+
+
+def node_cmd(extra: list[str]) -> list[str]:
+    cmd = ["rsrivc_monitor", "--ros-args", "--params-file", str(PARAMS)]
+    for p in extra:
+        cmd += ["-p", p]
+    return cmd
+
+
+def run_once(bag: Path, speed: float, domain: int, env: dict, extra: list[str] | None = None,
+             hogs: int = 0) -> dict:
+    """Start a fresh node, replay ``bag`` at ``speed`` (with ``hogs`` busy loops beside), return the figures."""
+    node = subprocess.Popen(node_cmd(extra or []), env=env, stdout=subprocess.PIPE, stderr=subprocess.STDOUT,
+                            text=True)
     lis = Listener(domain)
+    hog = []
     try:
         t_wait = time.monotonic()
         while not lis.est and time.monotonic() - t_wait < 60:
             time.sleep(0.1)
+        hog = start_hogs(hogs)
         cpu0, w0 = proc_cpu_s(node.pid), time.monotonic()
         rep = subprocess.run(["rsrivc_replay", str(bag), "--rate", str(speed), "--topics", *SIGNALS,
                               "--wait-for-subscribers", "60", "--stats"], env=env, capture_output=True, text=True)
         cpu_r, w_r = proc_cpu_s(node.pid), time.monotonic()
+        stop_hogs(hog)
+        hog = []
         if rep.returncode != 0:
             raise RuntimeError(f"rsrivc_replay failed: {rep.stderr.strip()}")
         # let the node drain its queues and publish a final status
@@ -101,6 +139,7 @@ def run_once(bag: Path, speed: float, domain: int, env: dict) -> dict:
         modes = None if lis.modes is None else lis.modes.copy()
         alive = node.poll() is None
     finally:
+        stop_hogs(hog)
         lis.close()
         node.terminate()
         out, _ = node.communicate(timeout=30)
@@ -111,12 +150,72 @@ def run_once(bag: Path, speed: float, domain: int, env: dict) -> dict:
             "replay": rep.stdout.strip() + rep.stderr.strip(), "alive": alive, "rc": node.returncode, "log": out}
 
 
+def loss_verdict(e: dict, published: int, n: int) -> str:
+    """Did the node keep up, or report what it lost? (Float64 carries no sequence numbers: a message lost before
+    the node's queue shows as a count mismatch, a pause or a dropped count, never as nothing.)"""
+    recv = int(e.get("samples_received", 0))
+    aligned = int(e.get("samples_aligned", 0))
+    counted = {k: int(float(e.get(k, 0) or 0)) for k in ("samples_dropped", "misaligned_events", "input_pauses",
+                                                        "node_stall_gaps", "queue_dropped", "gaps")}
+    if recv == published and aligned == n:
+        return "verdict: kept up (every message received and aligned)"
+    said = {k: v for k, v in counted.items() if v}
+    if said:
+        return (f"verdict: did not keep up ({published - recv} messages not received, {n - aligned} samples not "
+                f"aligned) and reported it: " + ", ".join(f"{k} {v}" for k, v in said.items()))
+    return (f"verdict: LOST IN SILENCE ({published - recv} messages not received, {n - aligned} samples not "
+            "aligned, no counter moved)")
+
+
+def rss_absent(bag: Path, domain: int, env: dict, extra: list[str], seconds: float, every: float) -> int:
+    """RSS of the node while /reference is absent and the other two topics stream (looped replay)."""
+    node = subprocess.Popen(node_cmd(extra), env=env, stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True)
+    lis = Listener(domain)
+    rep = None
+    pts: list[tuple[float, float]] = []
+    try:
+        rep = subprocess.Popen(["rsrivc_replay", str(bag), "--loop", "--topics", *SIGNALS[1:],
+                                "--wait-for-subscribers", "60"], env=env, stdout=subprocess.DEVNULL,
+                               stderr=subprocess.DEVNULL)
+        t0 = time.monotonic()
+        while time.monotonic() - t0 < seconds:
+            time.sleep(every)
+            t, m = time.monotonic() - t0, rss_mb(node.pid)
+            pts.append((t, m))
+            e = lis.est
+            print(f"t {t:6.0f} s  RSS {m:7.1f} MB  received {e.get('samples_received')}  queue backlog "
+                  f"{e.get('queue_backlog')}  queue drops {e.get('queue_dropped_per_topic')}", flush=True)
+    finally:
+        if rep is not None:
+            rep.send_signal(2)
+            rep.wait(timeout=20)
+        lis.close()
+        node.terminate()
+        out, _ = node.communicate(timeout=30)
+    late = [(t, m) for t, m in pts if t >= min(60.0, seconds / 2)]
+    if len(late) >= 2:
+        slope = np.polyfit([t for t, _ in late], [m for _, m in late], 1)[0]
+        print(f"RSS growth after {late[0][0]:.0f} s: {slope * 60:.3f} MB/min (least squares), extrapolated to 60 min: "
+              f"{late[-1][1] + slope * (3600 - late[-1][0]):.1f} MB (last {late[-1][1]:.1f} MB)")
+    print("node log lines about the absent topic / queues:")
+    for ln in out.splitlines():
+        if "queue of" in ln or "no data on" in ln:
+            print("  " + ln.strip()[:200])
+    return 0
+
+
 def main() -> int:
     ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     ap.add_argument("--duration", type=float, default=60.0, help="seconds of beam data (default 60)")
     ap.add_argument("--speedups", type=float, nargs="*", default=[], help="replay speed factors to try for the "
                     "highest loss-free loop rate, e.g. 2 4 8")
     ap.add_argument("--speedup-duration", type=float, default=10.0, help="seconds of bag per speed-up run")
+    ap.add_argument("--hog", type=int, default=0, help="busy-loop subprocesses running beside the node")
+    ap.add_argument("--publish-rate", type=float, default=0.0, help="publish_rate_hz of the node (default: the "
+                    "params file's)")
+    ap.add_argument("--rss-absent", type=float, default=0.0, help="instead: seconds of RSS measurement with "
+                    "/reference absent")
+    ap.add_argument("--rss-every", type=float, default=10.0, help="RSS print interval in s (default 10)")
     args = ap.parse_args()
     domain = 150 + os.getpid() % 80
     env = dict(os.environ, ROS_DOMAIN_ID=str(domain), ROS_AUTOMATIC_DISCOVERY_RANGE="LOCALHOST",
@@ -130,7 +229,13 @@ def main() -> int:
         n = sc.t.size
         print(f"beam bag: {args.duration:g} s at {sc.rate_hz:g} Hz, {n} samples per topic "
               f"(simulated in {time.monotonic() - t0:.1f} s)")
-        r = run_once(bag, 1.0, domain, env)
+        extra = [f"publish_rate_hz:={args.publish_rate}"] if args.publish_rate else []
+        if args.rss_absent:
+            return rss_absent(bag, domain, env, extra, args.rss_absent, args.rss_every)
+        r = run_once(bag, 1.0, domain, env, extra, args.hog)
+        if args.hog or args.publish_rate:
+            print(f"conditions: {args.hog} busy-loop subprocess(es) beside the node, publish_rate_hz "
+                  f"{args.publish_rate or 'from beam.yaml'}; load average {os.getloadavg()[0]:.2f}")
         e = r["est"]
         recv = int(e.get("samples_received", 0))
         aligned = int(e.get("samples_aligned", 0))
@@ -146,6 +251,11 @@ def main() -> int:
               f"{float(e.get('delay_p95_ms', 'nan')):.2f} ms, max {float(e.get('delay_max_ms', 'nan')):.2f} ms")
         print(f"estimator real-time factor: {float(e.get('real_time_factor', 'nan')):.1f}, phase {e.get('phase')}, "
               f"health: {e.get('reasons') or 'ok'}")
+        print(f"node's own timing: executor stalls {e.get('node_stalls')} (max {e.get('node_stall_max_s')} s), "
+              f"worker stalls {e.get('worker_stalls')} (max {e.get('worker_stall_max_s')} s), time gaps from node "
+              f"stalls {e.get('node_stall_gaps')}, queue drops {e.get('queue_dropped_per_topic')}, reports "
+              f"coalesced {e.get('reports_coalesced')}, arrival rates {e.get('arrival_rate_hz')}")
+        print(loss_verdict(e, 3 * n, n))
         if r["modes"] is not None:
             truth = sc.truth[:, -1, :]
             for i in range(sc.n_estimated):

@@ -148,3 +148,99 @@ def test_order_mode_a_topic_stalled_by_dds_retransmission_loses_nothing():
     assert s.counters.dropped == 0 and s.counters.mismatches == 0 and s.counters.gaps == 0
     with pytest.raises(ValueError):
         make(stall_s=-1.0)
+
+
+def test_absent_topic_keeps_the_queues_bounded_with_a_per_topic_drop_counter():
+    """One topic never arrives: the others' samples are held at most max_queue each (oldest dropped, counted per
+    topic, one event per episode), and memory stays flat (tracemalloc) however long the topic is absent."""
+    import tracemalloc
+
+    s = make(max_backlog=20, max_queue=200, stall_s=0.2)
+    tracemalloc.start()
+    peaks = []
+    for k0 in range(0, 20000, 100):                # 20 s at 1 kHz, reference absent
+        feed(s, range(k0, k0 + 100), 0, topics=(1, 2))
+        assert collect_all(s, (k0 + 100) * H_NS) == []
+        assert all(len(p) + len(q) <= 2 * s.max_queue for p, q in zip(s.pending, s.queues, strict=True))
+        if k0 in (5000, 19900):
+            peaks.append(tracemalloc.get_traced_memory()[0])
+    tracemalloc.stop()
+    assert peaks[1] - peaks[0] < 200 * 2 * 200, peaks        # no growth beyond a couple of queue bounds
+    c = s.counters
+    assert c.queue_dropped[0] == 0 and c.queue_dropped[1] > 0 and c.queue_dropped[2] > 0
+    assert c.received[1] == 20000 and c.queue_dropped[1] >= 20000 - 2 * s.max_queue
+    full = [e for e in s.events if "full" in e]
+    assert len(full) == 2 and all("dropping the oldest" in e for e in full), list(s.events)   # one per topic
+    # the reference comes back: aligned again (no misaligned sample), the episode ends once
+    feed(s, range(20000, 20300), 0)
+    out = collect_all(s, 20300 * H_NS + 1000)
+    t = assert_aligned(out)
+    assert t.size >= 200
+    assert sum("below its bound again" in e for e in s.events) == 2
+
+
+def test_callback_deque_overflow_is_counted_as_dropped_and_received():
+    s = make(max_backlog=20, max_queue=100)
+    for k in range(250):                         # the worker did not drain: the callback deque overflows
+        for i in range(3):
+            if len(s.queues[i]) >= s.max_queue:
+                s.overflow[i] += 1               # what the node's callback does
+            s.queues[i].append((float(k), k * H_NS))
+    collect_all(s, 250 * H_NS)
+    assert s.counters.received == [250, 250, 250] and s.counters.queue_dropped == [150, 150, 150]
+
+
+def _rate_feed(s: InputSync, seconds: float, rate: float, t0_ns: int = 0, burst_every: int = 0) -> int:
+    """Feed all topics at `rate` Hz (arrival stamps), draining every 2 ms; returns the end time."""
+    h = 1e9 / rate
+    n = int(seconds * rate)
+    now = t0_ns
+    k = 0
+    next_check = t0_ns + 1_000_000_000
+    while k < n:
+        now += 2_000_000
+        while k < n and t0_ns + k * h <= now:
+            arr = now if burst_every and (k // burst_every) % 2 else int(t0_ns + k * h)
+            for i in range(3):
+                s.queues[i].append((float(k), arr))
+            k += 1
+        s.collect(now, idle_since_ns=0, ros_now_s=100.0)
+        if now >= next_check:
+            s.check_rates(now)
+            next_check += 1_000_000_000
+    return now
+
+
+def test_arrival_rate_at_half_loop_rate_is_a_mismatch_with_a_one_line_reason():
+    s = make(max_backlog=500, max_queue=20000, labels=("/reference", "/plant_input", "/plant_output"))
+    _rate_feed(s, 6.0, RATE / 2)
+    assert set(s.rate_mismatch) == {"/reference", "/plant_input", "/plant_output"}
+    assert s.counters.rate_mismatches == 3
+    ev = [e for e in s.events if e.startswith("arrival rate")]
+    assert len(ev) == 3 and ev[-1] == "arrival rate 500 Hz on /plant_output, loop_rate_hz 1000", ev
+    ok = make(max_backlog=500, max_queue=20000)
+    _rate_feed(ok, 6.0, RATE * 1.005)             # within the 2 % tolerance
+    assert not ok.rate_mismatch and ok.counters.rate_mismatches == 0
+    assert abs(ok.measured_rate[0] / (RATE * 1.005) - 1) < 0.002
+
+
+def test_stall_of_the_node_is_not_an_input_pause():
+    """Samples held back by the node's own stall (the executor did not run) and partly lost: a time gap counted as
+    the node's stall, not as an input pause; a real pause of the same length is an input pause."""
+    s = make()
+    feed(s, range(100), 0)
+    collect_all(s, 100 * H_NS)
+    s.note_stall(100 * H_NS, 100 * H_NS + 400_000_000)
+    late = 100 * H_NS + 400_000_000               # 100 samples lost in the stall, the rest arrive after it
+    for k in range(200, 300):
+        for i in range(3):
+            s.queues[i].append((float(k), late + (k - 200) * H_NS))
+    assert_aligned(collect_all(s, late + 100 * H_NS + 300_000_000))
+    assert s.counters.node_stall_gaps == 1 and s.counters.gaps == 0
+    p = make()
+    feed(p, range(100), 0)
+    collect_all(p, 100 * H_NS)
+    feed(p, range(100, 200), 300_000_000)
+    collect_all(p, 200 * H_NS + 600_000_000)
+    assert p.counters.gaps == 1 and p.counters.node_stall_gaps == 0
+    assert s.silent(late, 0.1, looking_since_ns=late - 50_000_000) == []      # not looking long enough

@@ -770,7 +770,8 @@ class MonitorPipeline:
         if self.initialized:
             est = {k: _jsonable(v) for k, v in self.est.get_state().items()}
         return {
-            "version": STATE_VERSION, "K": self.K, "loop_rate_hz": self.rate, "estimator": est,
+            "version": STATE_VERSION, "K": self.K, "loop_rate_hz": self.rate, "model": self._model_record(),
+            "estimator": est,
             "faults": self.faults.get_state(), "health": self.health.get_state(),
             "pipeline": {"t0": self.t0, "t_last": self.t_last, "next_publish": self.next_publish,
                          "counters": self.counters.to_dict(), "memory_s": self.memory_s.tolist(),
@@ -781,14 +782,45 @@ class MonitorPipeline:
                          "no_model": self.no_model},
         }
 
+    def _model_record(self) -> dict[str, Any]:
+        """What a saved estimate is only valid for: rate, loop structure, controller, delay, mode structures."""
+        c = getattr(self.cfg, "controller", None)
+        return {"loop_rate_hz": self.rate, "closed_loop": bool(getattr(self.cfg, "closed_loop", False)),
+                "controller_numerator": None if c is None else [float(v) for v in c.numerator],
+                "controller_denominator": None if c is None else [float(v) for v in c.denominator],
+                "input_delay_samples": int(getattr(self.cfg, "input_delay_samples", 0)),
+                "integrators": [int(s.integrators) for s in self.cfg.structures],
+                "orders": [[int(s.n), int(s.m)] for s in self.cfg.structures]}
+
+    def _check_model_record(self, saved: Any) -> None:
+        """Refuse (one line) a state saved under another model: another controller, delay, loop or structures."""
+        if not isinstance(saved, Mapping):
+            raise PipelineError("saved state does not record its controller, input delay and mode structures "
+                                "(saved by an older version); not restored")
+        mine = self._model_record()
+        names = {"loop_rate_hz": "loop_rate_hz", "closed_loop": "closed_loop",
+                 "controller_numerator": "controller.numerator", "controller_denominator": "controller.denominator",
+                 "input_delay_samples": "input_delay_samples", "integrators": "modes.integrators",
+                 "orders": "mode orders"}
+        for key, label in names.items():
+            if key not in saved:
+                raise PipelineError(f"saved state does not record {label}; not restored")
+            a, b = saved[key], mine[key]
+            same = (a is None) == (b is None) and (a is None or np.array_equal(np.asarray(a, dtype=float),
+                                                                               np.asarray(b, dtype=float)))
+            if not same:
+                raise PipelineError(f"saved state is for {label} {a}, the configuration has {b}; not restored")
+
     def set_state(self, state: Mapping[str, Any]) -> None:
-        """Restore :meth:`get_state` output (same K and loop rate); raises :class:`PipelineError` otherwise."""
+        """Restore :meth:`get_state` output (same K, rate, controller, input delay, loop and mode structures);
+        raises :class:`PipelineError` with a one-line reason otherwise (never a silent restore)."""
         try:
             if int(state["version"]) != STATE_VERSION:
                 raise PipelineError(f"saved state version {state['version']} is not {STATE_VERSION}")
             if int(state["K"]) != self.K or float(state["loop_rate_hz"]) != self.rate:
                 raise PipelineError(f"saved state is for K={state['K']} at {state['loop_rate_hz']} Hz, the "
                                     f"configuration has K={self.K} at {self.rate} Hz")
+            self._check_model_record(state.get("model"))
             p = state["pipeline"]
             self._new_run()
             mem = np.asarray(p["memory_s"], dtype=float)

@@ -17,14 +17,34 @@ Two modes (../shared/CONTRACT.md "Signals in"):
 
 Callbacks only append ``(value, arrival_ns[, stamp_ns])`` tuples to :attr:`InputSync.queues` (a deque
 append is atomic under the GIL); :meth:`InputSync.collect` runs in the estimation worker.
+
+Bounded resources: every topic holds at most ``max_queue`` samples in its callback deque and at most
+``max_queue`` in its pending list (a fixed number of bytes per sample, :data:`BYTES_PER_SAMPLE`); beyond that
+the oldest are dropped, counted per topic (:attr:`SyncCounters.queue_dropped`) and announced once per episode
+(an event when it starts and one when the queue is below half the bound again). In order mode a drop
+restarts the grid after re-aligning the heads by arrival time.
+
+Arrival-rate check (:meth:`InputSync.check_rates`): the slope of each topic's message count over its arrival
+times in a window (``rate_window_s``) is compared with ``loop_rate_hz`` x the clock speed; a relative
+difference above ``rate_tolerance`` in two consecutive checks is a rate mismatch (event, counter,
+:attr:`InputSync.rate_mismatch`). Windows with a pause or a stall of the node are not judged.
+
+The node's own stalls (``stalls``: intervals in which the executor did not run) are not input pauses: a
+lateness jump overlapping such an interval is counted in :attr:`SyncCounters.node_stall_gaps` with its own
+message (the samples were not taken in time, e.g. a reader history overflow), never as an input pause.
 """
 
 from __future__ import annotations
 
+import bisect
 from collections import deque
 from dataclasses import dataclass, field
 
 import numpy as np
+
+# bytes one queued sample costs at most: a 2- or 3-tuple (56-64 B), a float (24 B), one or two ints (<= 36 B
+# each), a deque/list slot (8 B); measured with tracemalloc in test/test_node_sync.py
+BYTES_PER_SAMPLE = 200
 
 
 @dataclass
@@ -53,6 +73,9 @@ class SyncCounters:
     out_of_order: int = 0                                # stamped mode: stamps not increasing on a topic
     unmatched: int = 0                                   # stamped mode: stamps without partners
     gaps: int = 0                                        # order mode: pauses turned into time gaps
+    queue_dropped: list[int] = field(default_factory=list)  # per signal: oldest dropped at the queue bound
+    rate_mismatches: int = 0                             # arrival-rate mismatch episodes
+    node_stall_gaps: int = 0                             # time gaps caused by the node's own stalls
 
     def to_dict(self) -> dict[str, int | list[int]]:
         return dict(self.__dict__)
@@ -67,13 +90,17 @@ class InputSync:
 
     def __init__(self, signals: tuple[str, ...], rate_hz: float, *, stamped: bool, max_backlog: int,
                  quiet_s: float, gap_s: float, hold_s: float, skew_s: float | None = None,
-                 silent_s: float | None = None, stall_s: float = 4.0) -> None:
+                 silent_s: float | None = None, stall_s: float = 4.0, max_queue: int = 1 << 20,
+                 labels: tuple[str, ...] | None = None, rate_window_s: float = 2.0,
+                 rate_tolerance: float = 0.02) -> None:
         if not signals or not all(s in ("reference", "input", "output") for s in signals):
             raise ValueError(f"signals must be a non-empty subset of reference/input/output, got {signals}")
         if not (rate_hz > 0.0):
             raise ValueError(f"rate_hz must be > 0, got {rate_hz}")
         if max_backlog < 1 or quiet_s <= 0.0 or gap_s <= 0.0 or hold_s < 0.0 or not stall_s >= 0.0:
             raise ValueError("max_backlog >= 1, quiet_s > 0, gap_s > 0, hold_s >= 0 and stall_s >= 0 are required")
+        if max_queue < 2 * max_backlog or not rate_window_s > 0.0 or not rate_tolerance > 0.0:
+            raise ValueError("max_queue >= 2 max_backlog, rate_window_s > 0 and rate_tolerance > 0 are required")
         self.signals = tuple(signals)
         self.n = len(signals)
         self.rate = float(rate_hz)
@@ -84,10 +111,25 @@ class InputSync:
         self.gap_ns = int(gap_s * 1e9)
         self.hold_ns = int(hold_s * 1e9)
         self.skew_ns = int((0.5 / self.rate if skew_s is None else skew_s) * 1e9)
-        self.queues: list[deque] = [deque() for _ in signals]
+        self.labels = tuple(labels) if labels is not None else self.signals
+        self.max_queue = int(max_queue)
+        # callbacks append here; a full deque drops its oldest item, the callback counts it in `overflow`
+        self.queues: list[deque] = [deque(maxlen=self.max_queue) for _ in signals]
+        self.overflow = [0] * self.n
+        self._overflow_seen = [0] * self.n
+        self._overflowing = [0] * self.n          # messages dropped in the current episode (0: none open)
         self.pending: list[list[tuple]] = [[] for _ in signals]
         self.last_arrival_ns = [0] * self.n
-        self.counters = SyncCounters(received=[0] * self.n)
+        self.counters = SyncCounters(received=[0] * self.n, queue_dropped=[0] * self.n)
+        self.rate_window_ns = int(rate_window_s * 1e9)
+        self.rate_tolerance = float(rate_tolerance)
+        self._rate_pts: list[deque] = [deque() for _ in signals]   # (last arrival ns, cumulative count)
+        self._rate_bad = [0] * self.n
+        self._rate_good = [0] * self.n
+        self.rate_mismatch: dict[str, float] = {}    # label -> measured arrival rate (Hz) while mismatched
+        self.measured_rate: list[float] = [float("nan")] * self.n
+        self.stalls: deque[tuple[int, int]] = deque(maxlen=64)
+        self.expected_rate = self.rate   # the node's own stalls (start, end) ns
         self.events: deque[str] = deque(maxlen=20)
         self.n_events = 0
         self.last_event_ns = 0
@@ -138,13 +180,44 @@ class InputSync:
     def _drain(self, now_ns: int) -> None:
         for i, q in enumerate(self.queues):
             m = len(q)
+            lost = self.overflow[i] - self._overflow_seen[i]
+            self._overflow_seen[i] += lost
             if m:
                 items = [q.popleft() for _ in range(m)]
-                self.counters.received[i] += m
+                self.counters.received[i] += m + lost
                 self.last_arrival_ns[i] = items[-1][1]
+                pts = self._rate_pts[i]
+                pts.append((items[-1][1], self.counters.received[i]))
+                while pts and pts[0][0] < now_ns - 2 * self.rate_window_ns:
+                    pts.popleft()
                 if self.stamped:
                     items = self._increasing(i, items, now_ns)
                 self.pending[i].extend(items)
+            excess = len(self.pending[i]) - self.max_queue
+            if excess > 0:
+                del self.pending[i][:excess]
+            self._queue_drops(i, lost + max(excess, 0), now_ns)
+
+    def _queue_drops(self, i: int, n_drop: int, now_ns: int) -> None:
+        """Count oldest-dropped samples of topic ``i``; one event when an episode starts and one when it ends."""
+        if n_drop > 0:
+            self.counters.queue_dropped[i] += n_drop
+            self.counters.dropped += n_drop
+            if not self._overflowing[i]:
+                self._event(now_ns, f"queue of {self.labels[i]} full ({self.max_queue} samples, "
+                            f"{self.max_queue / self.rate:.3g} s): dropping the oldest messages")
+            self._overflowing[i] += n_drop
+            if not self.stamped:
+                self._restart_grid()
+                self._align_heads = True
+        elif self._overflowing[i] and len(self.pending[i]) + len(self.queues[i]) < self.max_queue // 2:
+            self._event(now_ns, f"queue of {self.labels[i]} below its bound again; {self._overflowing[i]} "
+                        "oldest messages were dropped")
+            self._overflowing[i] = 0
+
+    def queue_bytes(self) -> int:
+        """Upper bound of the memory the queued samples take (both bounded stages of every topic)."""
+        return 2 * self.n * self.max_queue * BYTES_PER_SAMPLE
 
     def _increasing(self, i: int, items: list[tuple], now_ns: int) -> list[tuple]:
         """Stamped mode: drop messages whose stamp does not increase on their topic."""
@@ -162,10 +235,96 @@ class InputSync:
             self._event(now_ns, f"{self.signals[i]}: {bad} out-of-order or repeated stamps dropped")
         return keep
 
-    def silent(self, now_ns: int, timeout_s: float) -> list[str]:
-        """Signals without a message for ``timeout_s`` (never received counts as silent)."""
+    def latest_arrival(self, i: int) -> int:
+        """Arrival (ns) of topic ``i``'s newest message, including messages the worker has not drained yet."""
+        try:
+            return max(self.last_arrival_ns[i], self.queues[i][-1][1])
+        except IndexError:
+            return self.last_arrival_ns[i]
+
+    def silent(self, now_ns: int, timeout_s: float, looking_since_ns: int = 0) -> list[str]:
+        """Signals without a message for ``timeout_s`` (never received counts as silent) although the node
+        was looking: only when the executor has been running for longer than ``timeout_s``
+        (``looking_since_ns``: start of its current uninterrupted run); otherwise nothing can be told."""
         lim = int(timeout_s * 1e9)
-        return [s for s, a in zip(self.signals, self.last_arrival_ns, strict=True) if a == 0 or now_ns - a > lim]
+        if looking_since_ns and now_ns - looking_since_ns <= lim:
+            return []
+        out = []
+        for i, s in enumerate(self.signals):
+            a = self.latest_arrival(i)
+            if a == 0 or now_ns - a > lim:
+                out.append(s)
+        return out
+
+    def note_stall(self, start_ns: int, end_ns: int) -> None:
+        """The node's own stall (the executor did not run from ``start_ns`` to ``end_ns``)."""
+        self.stalls.append((int(start_ns), int(end_ns)))
+
+    def _stalled_between(self, a_ns: int, b_ns: int) -> int:
+        """Length (ns) of the node's stalls overlapping ``[a_ns, b_ns]``."""
+        return sum(max(0, min(e, b_ns) - max(s, a_ns)) for s, e in list(self.stalls))
+
+    def check_rates(self, now_ns: int, time_scale: float = 1.0) -> list[str]:
+        """Arrival rate of each topic over the last ``rate_window_s`` vs ``rate_hz * time_scale`` (the speed of
+        the sample clock, 1 without sim time); returns the newly mismatched topics' one-line reasons."""
+        new = []
+        expected = self.rate * time_scale
+        self.expected_rate = expected
+        for i, pts in enumerate(self._rate_pts):
+            rate = self._window_rate(i, pts, now_ns)
+            self.measured_rate[i] = rate
+            if rate != rate or not expected > 0.0:       # not judged (nan): pause, stall or too few data
+                continue
+            label = self.labels[i]
+            if abs(rate / expected - 1.0) > self.rate_tolerance:
+                self._rate_good[i] = 0
+                self._rate_bad[i] += 1
+                if self._rate_bad[i] >= 2 and label not in self.rate_mismatch:
+                    self.counters.rate_mismatches += 1
+                    msg = self.rate_reason(label, rate, expected)
+                    self._event(now_ns, msg)
+                    new.append(msg)
+                if label in self.rate_mismatch:
+                    self.rate_mismatch[label] = rate
+                elif self._rate_bad[i] >= 2:
+                    self.rate_mismatch[label] = rate
+            else:
+                self._rate_bad[i] = 0
+                self._rate_good[i] += 1
+                if self._rate_good[i] >= 2 and self.rate_mismatch.pop(label, None) is not None:
+                    self._event(now_ns, f"arrival rate on {label} matches loop_rate_hz again ({rate:.0f} Hz)")
+        return new
+
+    def rate_reason(self, label: str, rate: float, expected: float | None = None) -> str:
+        """One line: ``arrival rate 2048 Hz on /plant_output, loop_rate_hz 4096``."""
+        exp = self.rate if expected is None else expected
+        scale = "" if abs(exp - self.rate) < 1e-9 * self.rate else f" x clock speed {exp / self.rate:.3g}"
+        return f"arrival rate {rate:.0f} Hz on {label}, loop_rate_hz {self.rate:g}{scale}"
+
+    def _window_rate(self, i: int, pts: deque, now_ns: int) -> float:
+        """Least-squares slope of the message count over arrival time in the window; nan when not judgeable."""
+        lo = now_ns - self.rate_window_ns
+        sel = [p for p in list(pts) if p[0] >= lo]
+        if len(sel) < 8:
+            return float("nan")
+        a = np.array([p[0] for p in sel], dtype=np.int64)
+        c = np.array([p[1] for p in sel], dtype=float)
+        span = int(a[-1] - a[0])
+        if span < 0.75 * self.rate_window_ns or now_ns - int(a[-1]) > self.gap_ns:
+            return float("nan")
+        if int(np.max(np.diff(a))) > self.gap_ns or self._stalled_between(int(a[0]), now_ns) > 0:
+            return float("nan")                       # a pause of the topic or a stall of the node
+        x = (a - a[0]) * 1e-9
+        x -= x.mean()
+        slope = float(np.dot(x, c - c.mean()) / np.dot(x, x))
+        if not slope > 0.0:
+            return float("nan")
+        # bursts (a lagging publisher catching up, an executor serving topic by topic) are not a rate: judge
+        # only windows whose arrivals stay within half a gap of a straight line
+        resid_s = np.max(np.abs(c - c.mean() - slope * x)) / slope
+        if resid_s > 0.5 * self.gap_ns * 1e-9:
+            return float("nan")
+        return slope
 
     # ----------------------------------------------------------------------------------------- alignment
     def collect(self, now_ns: int, *, idle_since_ns: int = 0, ros_now_s: float = 0.0) -> Aligned | None:
@@ -215,9 +374,10 @@ class InputSync:
                 stale = [i for i, a in enumerate(heads) if a < newest - self.skew_ns]
                 if not stale:
                     break
-                for i in stale:
-                    self.pending[i].pop(0)
-                    self.counters.dropped += 1
+                for i in stale:   # arrivals increase along a topic: cut all heads older than newest - skew at once
+                    k = bisect.bisect_left(self.pending[i], newest - self.skew_ns, key=lambda it: it[1])
+                    del self.pending[i][:max(k, 1)]
+                    self.counters.dropped += max(k, 1)
             if not all(self.pending):
                 return None
             self._align_heads = False
@@ -273,9 +433,15 @@ class InputSync:
                     n = j + int(jl)
                 else:
                     pause = True
-                    self.counters.gaps += 1
-                    self._event(now_ns, f"input pause of {(lag[jl] - base[jl]) * 1e-9:.3g} s: time gap, "
-                                "estimator re-primed")
+                    jump = (lag[jl] - base[jl]) * 1e-9
+                    a_prev = int(arr[j + jl - 1]) if j + jl > 0 else self._last_arr
+                    if self._stalled_between(a_prev, int(arr[j + jl])) > 0.5 * (lag[jl] - base[jl]):
+                        self.counters.node_stall_gaps += 1
+                        self._event(now_ns, f"the node stalled ({jump:.3g} s late samples not taken back): time "
+                                    "gap, estimator re-primed (not an input pause)")
+                    else:
+                        self.counters.gaps += 1
+                        self._event(now_ns, f"input pause of {jump:.3g} s: time gap, estimator re-primed")
                 stop = int(jl)
                 break
             t[j:j + stop] = self._anchor_t + kk[:stop] * h
