@@ -750,6 +750,7 @@ def make_node_class() -> type:
                 "arrival_rate_hz": " ".join(f"{lb}={cv.num(round(r, 1))}" for lb, r in zip(sync.labels,
                                                                                       sync.measured_rate, strict=True)),
                 "rate_mismatches": sc.rate_mismatches,
+                **_alignment_values(h.get("alignment") or {}),
                 "node_stalls": self.node_stalls,
                 "node_stall_max_s": float(self.node_stall_max_s),
                 "node_stall_gaps": sc.node_stall_gaps,
@@ -818,6 +819,18 @@ def make_node_class() -> type:
             return cv.status(f"{self.get_name()}: estimator", hw, vals, level, msg)
 
     return MonitorNode
+
+
+def _alignment_values(al: dict[str, Any]) -> dict[str, Any]:
+    """Estimator-status values of the stream aligner (controller invariant; core/alignment.py)."""
+    if al.get("mode") != "invariant":
+        return {"alignment": al.get("mode", "off")}
+    return {"alignment": "verified" if al.get("verified") else "approximate",
+            "alignment_offset_u_r": " ".join(str(v) for v in al.get("offset", [])),
+            "alignment_realignments": int(al.get("realignments", 0)),
+            "alignment_refilled": int(al.get("reconstructed", 0)),
+            "alignment_set_aside": int(al.get("invalidated", 0)) + int(al.get("late", 0)),
+            "alignment_relative_residual": float(al.get("relative_residual", math.nan))}
 
 
 def spin(node: Any, executor: Any, started_ns: int) -> None:

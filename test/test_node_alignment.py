@@ -58,6 +58,9 @@ def test_one_lost_input_message_is_realigned_live(ros_env):
         reasons = [st.message + " " + " ".join(kv.value for kv in st.values)
                    for arr in cli.diags for st in arr.status if st.name.endswith(": estimator")]
         assert any("re-aligned" in x for x in reasons), "the re-alignment was not reported on /diagnostics"
+        vals = cli.status("estimator")["values"]
+        assert vals["alignment"] == "verified" and int(vals["alignment_realignments"]) >= 1
+        assert int(vals["alignment_refilled"]) >= 1        # the lost input sample, recomputed from C_d
     finally:
         cli.close()
         rc, out = stop_node(proc, "INT")
