@@ -43,8 +43,8 @@ class BlindInterval:
     startup: bool = False   # part of the normal start-up before the first monitoring
 
     def to_dict(self) -> dict[str, Any]:
-        return {"start_s": round(self.start_s, 6), "end_s": round(self.end_s, 6), "reason": self.reason, "kind": self.kind,
-                "startup": self.startup}
+        return {"start_s": round(self.start_s, 6), "end_s": round(self.end_s, 6), "reason": self.reason,
+                "kind": self.kind, "startup": self.startup}
 
 
 @dataclass
