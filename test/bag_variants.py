@@ -58,7 +58,7 @@ def damage(kind: str, t_ns: np.ndarray, r: np.ndarray | None, u: np.ndarray, y: 
         t = t[0] + h_ns * np.arange(t.size + 1, dtype=np.int64)
         return t, ins(r), ins(u), ins(y)
     if kind == "nan40":
-        y[k + np.arange(40) * int(rate_hz // 40)] = np.nan
+        y[k + np.arange(40) * max(1, int(rate_hz // 40))] = np.nan
     elif kind == "huge":
         y[k] = 1e300
     elif kind == "pause":
