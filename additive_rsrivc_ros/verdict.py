@@ -29,6 +29,8 @@ from typing import Any
 
 LEVELS = ("OK", "FAULT", "DEGRADED", "NO ESTIMATE")
 STARTUP_ISSUES = ("initializing",)       # health issue kinds of a normal start (not a disruption)
+ADVISORY_ISSUES = ("residual_jump", "projection_storm")   # = core.faults.HealthMonitor.ADVISORY_KINDS: never hold
+ADVISORY_REASONS = ("residual variance jumped", "projection storm")   # their reason texts (when no 'issues')
 _SUFFIX = re.compile(r"\s*\((recovering|hold-off)[^)]*\)\s*$")
 
 
@@ -74,14 +76,19 @@ def _clean(reason: str) -> str:
 
 
 def _disruption(health: Mapping[str, Any]) -> list[str]:
-    """The health reasons that held the tests back for something other than the normal start-up."""
+    """The health reasons that held the tests back for something other than the normal start-up.
+
+    Advisory issues (a residual jump, a projection storm: also the signature of a genuine structural change) never
+    hold the tests back (:class:`.core.faults.HealthMonitor`), so they are no disruption even during a hold."""
     if not health.get("hold"):
         return []
-    reasons = [_clean(r) for r in health.get("reasons", [])]
     issues = health.get("issues")
-    if issues is not None and all(str(k) in STARTUP_ISSUES for k in issues):
+    holding = None if issues is None else [str(k) for k in issues if str(k) not in STARTUP_ISSUES + ADVISORY_ISSUES]
+    if holding is not None and not holding:
         return []
-    return [r for r in reasons if not r.startswith(STARTUP_ISSUES)] or (["health hold"] if issues else [])
+    reasons = [_clean(r) for r in health.get("reasons", [])]
+    reasons = [r for r in reasons if not r.startswith(STARTUP_ISSUES + ADVISORY_REASONS)]
+    return reasons or [", ".join(holding or ["health hold"])]
 
 
 def _state(rep: Any, seen: dict[str, bool]) -> tuple[str, str]:
@@ -248,5 +255,6 @@ def assess(reports: Sequence[Any], duration_s: float,
     if disrupted:
         text = f"{cov}; blind {spans}; no structural fault detected while they ran."
         return Verdict("DEGRADED", text, duration_s, monitored, first_mon, blind)
-    return Verdict("OK", f"no structural fault detected; {cov}, after the start-up (initialization, settling, "
-                   "learning the baseline).", duration_s, monitored, first_mon, blind)
+    return Verdict("OK", f"no structural fault detected in the {monitored:.1f} s the fault tests ran (from "
+                   f"{first_mon:.1f} s to the end of the {duration_s:.1f} s record; before that the start-up: "
+                   "initialization, settling, learning the baseline).", duration_s, monitored, first_mon, blind)

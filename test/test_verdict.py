@@ -50,7 +50,7 @@ def test_ok_after_a_normal_startup() -> None:
     assert v.monitored_s == pytest.approx(14.0, abs=1e-6) and v.monitoring_start_s == pytest.approx(6.0)
     assert [b.kind for b in v.blind_intervals] == ["initializing", "settling", "learning"]
     assert all(b.startup for b in v.blind_intervals)
-    assert "14.0 s of 20.0 s" in v.text
+    assert "in the 14.0 s the fault tests ran (from 6.0 s to the end of the 20.0 s record" in v.text
     _partition_ok(v, 20.0)
 
 
@@ -139,3 +139,21 @@ def test_estimate_lost_after_monitoring_is_blind() -> None:
     assert v.level == "DEGRADED" and v.monitored_s == pytest.approx(4.0, abs=1e-6)
     assert v.blind_intervals[-1].kind == "no_estimate" and "re-initializing" in v.blind_intervals[-1].reason
     _partition_ok(v, 20.0)
+
+
+def test_advisory_issue_during_the_startup_hold_is_no_disruption() -> None:
+    """The clean beam bag: a residual jump (advisory) appears while the start-up hold is still active."""
+    both = {"hold": True, "issues": ["initializing", "residual_jump"],
+            "reasons": ["initializing: collecting 2 s of valid data (recovering, hold-off until t=3.0 s)",
+                        "residual variance jumped x3.18 over its healthy level"]}
+    reps = (_run(0, 2, "initializing", False, INIT) + _run(2, 3, "settling", True, both) + _run(3, 4, "settling")
+            + _run(4, 6, "learning") + _run(6, 20, "monitoring"))
+    v = assess(reps, 20.0)
+    assert v.level == "OK" and all(b.startup for b in v.blind_intervals)
+
+
+def test_advisory_kinds_match_the_health_monitor() -> None:
+    from additive_rsrivc_ros.core.faults import HealthMonitor
+    from additive_rsrivc_ros.verdict import ADVISORY_ISSUES
+
+    assert set(ADVISORY_ISSUES) == set(HealthMonitor.ADVISORY_KINDS)
