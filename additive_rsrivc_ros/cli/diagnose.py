@@ -7,11 +7,15 @@ checks topics, types, counts, sample spacing and reports NaNs). Writes into DIR 
 
 * ``estimates.csv``: one row per mode per output instant at which an estimate exists;
 * ``events.csv``: one row per structural fault event (empty clear time while open);
-* ``summary.json``: verdict, per-mode final values, events, timings, health and parameters;
+* ``summary.json``: verdict (:mod:`..verdict`: ``verdict`` OK | FAULT | DEGRADED | NO ESTIMATE, ``monitored_s``,
+  ``blind_intervals``), per-mode final values, events, timings, health and parameters;
 * ``report.html`` (self-contained, :mod:`..report`) and ``modes.png``.
 
-Prints a verdict and a per-mode summary table to stdout. Bad input (params file, bag) gives one line
-on stderr and exit status 2; ``--fail-on-fault`` makes a detected fault exit with status 3.
+DIR is written all-or-nothing (:class:`.atomic.AtomicDir`): the files go to a temporary sibling folder that
+replaces DIR (an older run's folder is replaced whole) only when complete. Prints a verdict and a per-mode
+summary table to stdout. Bad input (params file, bag) gives one line on stderr and exit status 2;
+``--fail-on-fault`` makes a detected fault exit with status 3; SIGINT/SIGTERM give one line, exit status
+130/143 and DIR as it was.
 """
 
 from __future__ import annotations
