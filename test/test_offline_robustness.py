@@ -244,3 +244,24 @@ def test_pause_gives_a_blind_interval_not_ok(tmp_path: Path, capsys: pytest.Capt
     blind_s = sum(b["end_s"] - b["start_s"] for b in summary["blind_intervals"])
     assert summary["monitored_s"] + blind_s == pytest.approx(duration, abs=1e-3)
     assert "data gap" in line and f"of {duration:.1f} s" in line
+
+
+@pytest.mark.parametrize("exchange", [True, False])
+def test_atomic_dir_commit_and_discard(tmp_path: Path, monkeypatch: pytest.MonkeyPatch, exchange: bool) -> None:
+    """Both commit paths (renameat2 exchange, and the two-rename fallback) replace the folder whole."""
+    from additive_rsrivc_ros.cli import atomic
+
+    if not exchange:
+        monkeypatch.setattr(atomic, "_exchange", lambda a, b: False)
+    out = tmp_path / "out"
+    _old_run(out)
+    d = atomic.AtomicDir(out, diagnose.OUTPUT_FILES)
+    (d.open() / "summary.json").write_text("new")
+    d.discard()                                  # abandoned: the old folder stays, the temporary one is gone
+    assert (out / "summary.json").read_bytes() == b'{"bag": "an older run"}\n' and _siblings(out) == []
+    d = atomic.AtomicDir(out, diagnose.OUTPUT_FILES)
+    (d.open() / "summary.json").write_text("new")
+    d.commit()
+    d.discard()                                  # no-op after a commit
+    assert [p.name for p in out.iterdir()] == ["summary.json"] and (out / "summary.json").read_text() == "new"
+    assert _siblings(out) == []

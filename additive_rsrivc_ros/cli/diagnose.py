@@ -217,9 +217,22 @@ OUTPUT_FILES = ("estimates.csv", "events.csv", "summary.json", "report.html", "m
 
 def _warn_bad_samples(sig: Any, stderr: TextIO) -> None:
     """One warning line per category of bad samples the reader found (the pipeline handles them)."""
+    import numpy as np
+
     if sig.nonfinite:
         by = ", ".join(f"{k}: {v}" for k, v in sig.nonfinite_by_signal.items() if v)
         print(f"{PROG}: warning: {sig.nonfinite} non-finite samples ({by}); the estimator skips them", file=stderr)
+    from ..core.screening import ABSURD_ABS, ABSURD_REL, absurd_mask
+
+    absurd = {name: absurd_mask(x) for name, x in (("reference", sig.r), ("input", sig.u), ("output", sig.y))
+              if x is not None}
+    absurd = {k: m for k, m in absurd.items() if m.any()}
+    if absurd:
+        first = min(float(sig.t[np.argmax(m)]) for m in absurd.values())
+        by = ", ".join(f"{k}: {int(m.sum())}" for k, m in absurd.items())
+        print(f"{PROG}: warning: {sum(int(m.sum()) for m in absurd.values())} sample(s) of absurd magnitude ({by}; "
+              f"|x| > {ABSURD_ABS:g} or more than {ABSURD_REL:g} robust scales from the median), first at "
+              f"{first:.6g} s; see the verdict for what they cost", file=stderr)
     lost = {k: v for k, v in sig.unmatched_by_signal.items() if v}
     if lost:
         by = ", ".join(f"{k}: {v}" for k, v in lost.items())
