@@ -143,9 +143,10 @@ def main() -> int:
     n_tb = sum(r["traceback"] for r in rows)
     n_left = sum(bool(r["leftovers"]) for r in rows)
     n_bad = sum(r["bad_stderr"] for r in rows)
-    n_done_sig = sum(r["outcome"] == "complete" and r["rc"] in (130, 143) for r in rows)
+    n_done_sig = sum(r["outcome"] == "complete" and (r["rc"] in (130, 143) or r["rc"] < 0) for r in rows)
     print(f"tracebacks: {n_tb}; temporary folders left: {n_left}; interrupted runs without exactly one stderr line: "
-          f"{n_bad}; complete output but interrupted exit code (signal after the rename): {n_done_sig}; "
+          f"{n_bad}; complete output but an interrupt exit code (signal after the rename; negative: killed by it "
+          f"during interpreter exit, after main returned): {n_done_sig}; "
           f"signal not sent (run had finished): {sum(not r['sent'] for r in rows)}")
     for r in rows:
         if r["traceback"] or r["bad_stderr"] or r["outcome"] == "MIXED":

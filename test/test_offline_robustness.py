@@ -265,3 +265,25 @@ def test_atomic_dir_commit_and_discard(tmp_path: Path, monkeypatch: pytest.Monke
     d.discard()                                  # no-op after a commit
     assert [p.name for p in out.iterdir()] == ["summary.json"] and (out / "summary.json").read_text() == "new"
     assert _siblings(out) == []
+
+
+def test_interrupt_inside_a_c_callback_is_kept_not_printed(capsys: pytest.CaptureFixture) -> None:
+    """Measured in scripts/study_interrupts.py: a SIGINT landing in numba's llvmlite cache callback was printed as
+    a traceback and then lost (the run completed with exit 0). Now it is kept and raised at the next safe point."""
+    import ctypes
+
+    from additive_rsrivc_ros.cli import atomic
+
+    def callback() -> None:
+        os.kill(os.getpid(), signal.SIGTERM)
+        for _ in range(1000):       # the Python handler runs between these bytecodes, inside the callback
+            time.sleep(0.001)
+
+    with atomic.interrupts():
+        ctypes.CFUNCTYPE(None)(callback)()          # the Interrupted cannot propagate through C
+        assert atomic.received() == signal.SIGTERM
+        with pytest.raises(atomic.Interrupted) as exc:
+            atomic.raise_if_interrupted()
+    assert exc.value.exit_code == 143
+    assert "Traceback" not in capsys.readouterr().err
+    assert signal.getsignal(signal.SIGTERM) is not atomic._raise   # handlers restored

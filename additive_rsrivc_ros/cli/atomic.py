@@ -17,6 +17,7 @@ import ctypes
 import os
 import shutil
 import signal
+import sys
 from collections.abc import Callable, Collection, Iterator
 from contextlib import contextmanager
 from pathlib import Path
@@ -48,24 +49,60 @@ def exit_code(exc: BaseException) -> int:
     return exc.exit_code if isinstance(exc, Interrupted) else 128 + int(signal.SIGINT)
 
 
+_swallowed: list[int] = []   # signals whose Interrupted was raised inside a C callback and swallowed there
+_received: list[int] = []    # every handled signal (a library may turn the Interrupted into another exception)
+
+
 def _raise(signum: int, frame: FrameType | None) -> None:
     for s in HANDLED:   # one interrupt only: the clean-up that follows must run to its end
         signal.signal(s, signal.SIG_IGN)
+    _received.append(signum)
     raise Interrupted(signum)
+
+
+def received() -> int | None:
+    """The signal that interrupted the run (inside :func:`interrupts`), if any: an error seen after it is a
+    consequence of the interrupt, not of the input."""
+    return _received[0] if _received else None
+
+
+def _unraisable(hook: Callable) -> Callable:
+    """A ``sys.unraisablehook`` that keeps an :class:`Interrupted` swallowed by a C callback (e.g. numba's llvmlite
+    object-cache callback during compilation) for :func:`raise_if_interrupted` instead of printing a traceback."""
+    def handle(info: object) -> None:
+        if isinstance(getattr(info, "exc_value", None), Interrupted):
+            _swallowed.append(info.exc_value.signum)
+            return
+        hook(info)
+    return handle
+
+
+def raise_if_interrupted() -> None:
+    """Raise the :class:`Interrupted` a C callback swallowed (call at safe points: between blocks, before a commit)."""
+    if _swallowed:
+        raise Interrupted(_swallowed[0])
 
 
 @contextmanager
 def interrupts() -> Iterator[None]:
-    """SIGINT and SIGTERM raise :class:`Interrupted` inside the block (main thread only); old handlers restored."""
+    """SIGINT and SIGTERM raise :class:`Interrupted` inside the block (main thread only); old handlers restored.
+
+    Where the signal lands inside a C callback, the exception cannot propagate; it is kept (no traceback) and
+    raised by the next :func:`raise_if_interrupted`."""
     old: dict[int, Callable | int | None] = {}
+    hook = sys.unraisablehook
+    _swallowed.clear()
+    _received.clear()
     try:
         for s in HANDLED:
             old[s] = signal.signal(s, _raise)
     except ValueError:          # not the main thread: leave the handlers alone
         old = {}
+    sys.unraisablehook = _unraisable(hook)
     try:
         yield
     finally:
+        sys.unraisablehook = hook
         for s, h in old.items():
             signal.signal(s, h if h is not None else signal.SIG_DFL)
 
@@ -122,6 +159,7 @@ class AtomicDir:
     def commit(self) -> Path:
         """Move the finished temporary folder into place (an older ``target`` is replaced whole)."""
         with signals_blocked():
+            raise_if_interrupted()
             check_replaceable(self.target, self.owned)
             old = self.target.parent / f".{self.target.name}.old-{os.getpid()}"
             if self.target.exists():
@@ -166,6 +204,7 @@ def atomic_write_text(path: str | Path, text: str) -> Path:
             fh.flush()
             os.fsync(fh.fileno())
         with signals_blocked():
+            raise_if_interrupted()
             os.replace(tmp, path)
     finally:
         if tmp.exists():

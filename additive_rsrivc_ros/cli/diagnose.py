@@ -104,6 +104,7 @@ def run_pipeline(sig: Any, cfg: Any, *, chunk_s: float = 1.0, progress: Progress
     keyed by (mode, quantity, alarm time), in order of onset.
     """
     from ..core.pipeline import MonitorPipeline
+    from .atomic import raise_if_interrupted
 
     pipe = MonitorPipeline(cfg)
     n = sig.t.size
@@ -117,6 +118,7 @@ def run_pipeline(sig: Any, cfg: Any, *, chunk_s: float = 1.0, progress: Progress
             reports.append(rep)
             for e in (*rep.events_opened, *rep.events_closed):
                 events[(e.mode, e.quantity, e.alarm_time_s)] = e
+        raise_if_interrupted()       # an interrupt that landed in a C callback (numba compilation) stops here
         if progress is not None:
             progress.update(float(sig.t[b - 1]))
     ordered = sorted(events.values(), key=lambda e: (e.onset_time_s, e.mode, e.quantity))
@@ -405,16 +407,27 @@ def _interrupted(exc: BaseException, state: dict[str, Any], code: int) -> int:
 
 
 def _run(argv: list[str] | None, state: dict[str, Any]) -> int:
-    args = _parser().parse_args(argv)
-    from ..bagio import BagError
-    from ..config import ParamError
+    return _diagnose_or_error(_parser().parse_args(argv), state)
+
+
+def _diagnose_or_interrupt(args: argparse.Namespace, state: dict[str, Any]) -> int:
+    from .atomic import Interrupted, received
 
     try:
-        from ..core.pipeline import PipelineError
-    except ImportError:  # pragma: no cover - the pipeline module is part of the package
-        PipelineError = ValueError  # noqa: N806
-    try:
         return diagnose(args, sys.stdout, sys.stderr, state)
+    except Exception:
+        if received() is not None:   # a library turned the interrupt into its own exception
+            raise Interrupted(received()) from None
+        raise
+
+
+def _diagnose_or_error(args: argparse.Namespace, state: dict[str, Any]) -> int:
+    from ..bagio import BagError
+    from ..config import ParamError
+    from ..core.pipeline import PipelineError
+
+    try:
+        return _diagnose_or_interrupt(args, state)
     except (BagError, ParamError, PipelineError) as exc:
         print(f"{PROG}: error: {_line(exc)}", file=sys.stderr)
         return 2

@@ -19,7 +19,7 @@ from collections.abc import Callable
 from pathlib import Path
 from typing import TYPE_CHECKING, Any
 
-from .atomic import atomic_write_text, exit_code, interrupts
+from .atomic import Interrupted, atomic_write_text, exit_code, interrupts, raise_if_interrupted, received
 
 if TYPE_CHECKING:   # the numerical modules are imported inside the functions: SIGINT/SIGTERM handling comes first
     import numpy as np
@@ -132,6 +132,7 @@ def run(bag: str, params_file: str, out: str, method: str = "auto", max_iteratio
                    r=sig.r[k] if closed else None, controller=cfg.controller if closed else None,
                    input_delay=cfg.input_delay_samples, method=method, max_iterations=iters, tol=tol,
                    projection=cfg.estimator.stability_projection)
+    raise_if_interrupted()
     doc = json_safe(res.to_dict())
     doc["data_gaps"] = sc.gaps
     doc["screening"] = {**sc.to_dict(), "segment_s": [float(sig.t[k[0]]), float(sig.t[k[-1]])]}
@@ -162,6 +163,20 @@ def _num(v: Any) -> str:
     return "n/a" if not isinstance(v, int | float) else f"{v:.4g}"
 
 
+def _error(exc: Exception) -> int:
+    """One line on stderr: 2 for bad input (ParamError, BagError, ClosedLoopUnstableError are ValueErrors), 1 for an
+    internal error (RSRIVC_DEBUG=1 re-raises it with its traceback)."""
+    msg = " ".join(str(exc).split()) or type(exc).__name__
+    if isinstance(exc, ValueError | OSError):
+        print(f"rsrivc_identify: error: {msg}", file=sys.stderr)
+        return 2
+    if os.environ.get("RSRIVC_DEBUG"):
+        raise exc
+    print(f"rsrivc_identify: internal error: {type(exc).__name__}: {msg} (set RSRIVC_DEBUG=1 for a traceback)",
+          file=sys.stderr)
+    return 1
+
+
 def main(argv: list[str] | None = None) -> int:
     """0 on success, 2 with a one-line reason on bad input, 1 on an internal error, 130/143 on SIGINT/SIGTERM
     (one line; the output file is then left as it was)."""
@@ -170,20 +185,17 @@ def main(argv: list[str] | None = None) -> int:
             args = _parser().parse_args(argv)
             doc = run(args.bag, args.params_file, args.out, args.method, args.max_iterations, args.tol,
                       args.node_name)
+        except Exception as exc:
+            if received() is None:
+                return _error(exc)
+            exc = Interrupted(received())   # a library turned the interrupt into its own exception
+            print(f"rsrivc_identify: interrupted ({exc.name}); the output file left as it was", file=sys.stderr)
+            return exc.exit_code
         except KeyboardInterrupt as exc:
             print(f"rsrivc_identify: interrupted ({getattr(exc, 'name', 'SIGINT')}); the output file left as it was",
                   file=sys.stderr)
             return exit_code(exc)
-        except (ValueError, OSError) as exc:   # ParamError, ClosedLoopUnstableError, BagError are ValueErrors
-            print(f"rsrivc_identify: error: {' '.join(str(exc).split())}", file=sys.stderr)
-            return 2
-        except Exception as exc:  # noqa: BLE001 - never a traceback for users; RSRIVC_DEBUG=1 shows it
-            if os.environ.get("RSRIVC_DEBUG"):
-                raise
-            msg = " ".join(str(exc).split()) or type(exc).__name__
-            print(f"rsrivc_identify: internal error: {type(exc).__name__}: {msg} (set RSRIVC_DEBUG=1 for a "
-                  "traceback)", file=sys.stderr)
-            return 1
+
     status = "converged" if doc["converged"] else f"NOT converged ({doc.get('message')})"
     print(f"rsrivc_identify: {doc['method']} {status} after {doc['iterations']} iterations; "
           f"residual variance {_num(doc.get('residual_variance'))}; wrote {args.out}")
