@@ -2,7 +2,8 @@
 
 Used by ``rsrivc_diagnose`` (``DIR/report.html`` and ``DIR/modes.png``). Contents, top to bottom:
 
-* a verdict line (structural faults found or not, estimator health) and a per-mode summary table;
+* a verdict line (:mod:`.verdict`: structural faults found or not, and for how many seconds the fault tests
+  actually ran), where and why the tests were blind, and a per-mode summary table;
 * per mode, natural frequency (Hz), damping ratio and gain over time with +-2 sigma bands (sigma from
   ``sigma^2 P_bar`` by the delta method, 000 eq. 32 and :func:`.core.model.modal_std`), the learned
   baseline, the truth when the bag has ``/truth/modes``, and the fault intervals shaded;

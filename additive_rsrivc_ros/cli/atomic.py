@@ -13,9 +13,7 @@
 
 from __future__ import annotations
 
-import ctypes
 import os
-import shutil
 import signal
 import sys
 from collections.abc import Callable, Collection, Iterator
@@ -123,6 +121,8 @@ def signals_blocked() -> Iterator[None]:
 
 def _exchange(a: Path, b: Path) -> bool:
     """Swap two paths atomically (Linux ``renameat2(RENAME_EXCHANGE)``); False where unsupported."""
+    import ctypes
+
     try:
         fn = ctypes.CDLL(None, use_errno=True).renameat2   # the running process's libc (glibc >= 2.28)
     except (OSError, AttributeError):
@@ -150,6 +150,8 @@ class AtomicDir:
 
     def open(self) -> Path:
         """Create the temporary folder (register the object for :meth:`discard` before calling this)."""
+        import shutil
+
         check_replaceable(self.target, self.owned)
         self.target.parent.mkdir(parents=True, exist_ok=True)
         shutil.rmtree(self.tmp, ignore_errors=True)
@@ -158,6 +160,8 @@ class AtomicDir:
 
     def commit(self) -> Path:
         """Move the finished temporary folder into place (an older ``target`` is replaced whole)."""
+        import shutil
+
         with signals_blocked():
             raise_if_interrupted()
             check_replaceable(self.target, self.owned)
@@ -176,6 +180,8 @@ class AtomicDir:
 
     def discard(self) -> None:
         """Remove the temporary folder (after a failure or an interrupt); the target is untouched."""
+        import shutil
+
         if not self.committed:
             with signals_blocked():
                 shutil.rmtree(self.tmp, ignore_errors=True)
