@@ -105,7 +105,9 @@ def _state(rep: Any, seen: dict[str, bool]) -> tuple[str, str]:
     phase = str(rep.phase)
     if phase in ("settling", "waiting", "initializing"):
         if seen["baseline_window"] or bad:
-            return "settling", f"baseline window restarted after: {bad[0]}" if bad else "baseline window restarted"
+            # the cause: what held the tests, else what the health reports (e.g. a residual jump restarted it)
+            cause = bad or [r for r in map(_clean, health.get("reasons", [])) if not r.startswith(STARTUP_ISSUES)]
+            return "settling", f"baseline window restarted after: {cause[0]}" if cause else "baseline window restarted"
         return "settling", "settling: estimator converging before the baseline is learned"
     if phase == "learning":
         seen["baseline_window"] = True

@@ -157,3 +157,13 @@ def test_advisory_kinds_match_the_health_monitor() -> None:
     from additive_rsrivc_ros.verdict import ADVISORY_ISSUES
 
     assert set(ADVISORY_ISSUES) == set(HealthMonitor.ADVISORY_KINDS)
+
+
+def test_restart_without_a_hold_names_its_cause() -> None:
+    """The fault monitor restarts the baseline window on a stress (residual jump) without a hold: still DEGRADED,
+    and the reason shows the health report of that moment."""
+    jump = {"hold": False, "issues": ["residual_jump"], "reasons": ["residual variance jumped x587"]}
+    reps = _startup() + _run(6, 12, "settling", True, jump) + _run(12, 14, "learning") + _run(14, 20, "monitoring")
+    v = assess(reps, 20.0)
+    assert v.level == "DEGRADED" and v.monitored_s == pytest.approx(6.0, abs=1e-6)
+    assert "6.0–14.0 s (baseline window restarted after: residual variance jumped x587)" in v.text
