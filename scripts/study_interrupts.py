@@ -69,6 +69,17 @@ def _same_tree(a: Path, b: Path) -> bool:
     return not mismatch and not errors
 
 
+def _catches_sigterm(pid: int) -> bool:
+    """Whether rsrivc's handlers are installed (Linux /proc SigCgt: Python itself catches only SIGINT)."""
+    try:
+        for line in Path(f"/proc/{pid}/status").read_text().splitlines():
+            if line.startswith("SigCgt:"):
+                return bool(int(line.split()[1], 16) >> (signal.SIGTERM - 1) & 1)
+    except OSError:
+        pass
+    return False
+
+
 def classify(out: Path, old: Path | None, bag: Path) -> str:
     if not out.exists():
         return "no folder"
@@ -87,18 +98,19 @@ def trial(k: int, bag: Path, params: Path, work: Path, old: Path, t_full: float,
     delay = rng.uniform(0.0, 1.1 * t_full)
     p = subprocess.Popen(_cmd(bag, params, out), stdout=subprocess.DEVNULL, stderr=subprocess.PIPE, text=True,
                          env=_env())
-    sent = False
+    sent = early = False
     try:
         p.wait(timeout=delay)
     except subprocess.TimeoutExpired:
+        early = not _catches_sigterm(p.pid)
         p.send_signal(sig)
         sent = True
     _, err = p.communicate(timeout=600)
     left = sorted(x.name for x in out.parent.iterdir() if x.name != "out")
     outcome = classify(out, old if with_old else None, bag)
     interrupted = p.returncode in (130, 143)
-    return {"signal": sig.name, "delay_s": delay, "sent": sent, "with_old": with_old, "rc": p.returncode,
-            "outcome": outcome, "traceback": "Traceback" in err, "leftovers": left,
+    return {"signal": sig.name, "delay_s": delay, "sent": sent, "early": early, "with_old": with_old,
+            "rc": p.returncode, "outcome": outcome, "traceback": "Traceback" in err, "leftovers": left,
             "bad_stderr": interrupted and len(err.strip().splitlines()) != 1, "stderr": err.strip()}
 
 
@@ -124,7 +136,7 @@ def main() -> int:
         for k in range(args.trials):
             rows.append(trial(k, bag, params, work, old, t_full, rng))
             r = rows[-1]
-            flags = ("  TRACEBACK" if r["traceback"] else "") + \
+            flags = ("  TRACEBACK" if r["traceback"] else "") + ("  (during start-up)" if r["early"] else "") + \
                 (f"  LEFTOVERS {r['leftovers']}" if r["leftovers"] else "")
             print(f"  trial {k:3d}: {r['signal']:7s} at {r['delay_s']:5.1f} s "
                   f"{'(old folder)' if r['with_old'] else '(no folder)':13s} -> {r['outcome']:10s} rc={r['rc']}{flags}",
@@ -147,7 +159,8 @@ def main() -> int:
     print(f"tracebacks: {n_tb}; temporary folders left: {n_left}; interrupted runs without exactly one stderr line: "
           f"{n_bad}; complete output but an interrupt exit code (signal after the rename; negative: killed by it "
           f"during interpreter exit, after main returned): {n_done_sig}; "
-          f"signal not sent (run had finished): {sum(not r['sent'] for r in rows)}")
+          f"signal not sent (run had finished): {sum(not r['sent'] for r in rows)}; signal during interpreter start-up "
+          f"(before rsrivc's handlers; Python's default behaviour): {sum(r['early'] for r in rows)}")
     for r in rows:
         if r["traceback"] or r["bad_stderr"] or r["outcome"] == "MIXED":
             print(f"  example: {r['signal']} at {r['delay_s']:.2f} s -> {r['outcome']}, rc {r['rc']}: "
