@@ -2,7 +2,8 @@
 
 Used by ``rsrivc_diagnose`` (``DIR/report.html`` and ``DIR/modes.png``). Contents, top to bottom:
 
-* a verdict line (structural faults found or not, estimator health) and a per-mode summary table;
+* a verdict line (:mod:`.verdict`: structural faults found or not, and for how many seconds the fault tests
+  actually ran), where and why the tests were blind, and a per-mode summary table;
 * per mode, natural frequency (Hz), damping ratio and gain over time with +-2 sigma bands (sigma from
   ``sigma^2 P_bar`` by the delta method, 000 eq. 32 and :func:`.core.model.modal_std`), the learned
   baseline, the truth when the bag has ``/truth/modes``, and the fault intervals shaded;
@@ -32,6 +33,7 @@ import numpy as np
 from scipy import signal
 
 from .core.model import SubmodelStructure, split_theta, theta_from_modal
+from .verdict import Verdict, assess
 
 QUANTITIES = ("natural_frequency", "damping", "gain")
 QUANTITY_LABELS = ("natural frequency [Hz]", "damping ratio [-]", "gain (DC) [y/u]")
@@ -55,6 +57,8 @@ class DiagnosisSeries:
     health: dict[str, np.ndarray]       # HEALTH_KEYS -> (N,) float (NaN where not reported)
     phase: list[str]
     reasons: list[list[str]]
+    hold: np.ndarray = field(default_factory=lambda: np.zeros(0, bool))      # (N,) health hold
+    issues: list[list[str] | None] = field(default_factory=list)             # health issue kinds (None: unknown)
 
     @property
     def K(self) -> int:
@@ -70,7 +74,8 @@ class DiagnosisSeries:
         n = len(reports)
         out = cls(time_s=np.zeros(n), modal=np.full((n, K, 6), np.nan), baseline=np.full((n, K, 3), np.nan),
                   flags=np.zeros((n, K, 3), bool), estimating=np.zeros(n, bool), health_level=np.zeros(n, int),
-                  health={k: np.full(n, np.nan) for k in HEALTH_KEYS}, phase=[], reasons=[])
+                  health={k: np.full(n, np.nan) for k in HEALTH_KEYS}, phase=[], reasons=[],
+                  hold=np.zeros(n, bool), issues=[])
         for j, rep in enumerate(reports):
             out.time_s[j] = rep.time_s
             out.modal[j] = np.asarray(rep.modal, float).reshape(K, 6)
@@ -85,6 +90,23 @@ class DiagnosisSeries:
                     out.health[k][j] = float(v)
             out.phase.append(str(rep.phase))
             out.reasons.append([str(x) for x in h.get("reasons", [])])
+            out.hold[j] = bool(h.get("hold", False))
+            iss = h.get("issues")
+            out.issues.append(None if iss is None else [str(x) for x in iss])
+        return out
+
+    def records(self) -> list[Any]:
+        """The per-report fields :func:`..verdict.assess` reads, as light objects."""
+        from types import SimpleNamespace
+
+        out = []
+        for j in range(self.n):
+            h: dict[str, Any] = {"hold": bool(self.hold[j]) if self.hold.size == self.n else False,
+                                 "reasons": self.reasons[j] if j < len(self.reasons) else []}
+            if j < len(self.issues) and self.issues[j] is not None:
+                h["issues"] = self.issues[j]
+            out.append(SimpleNamespace(time_s=float(self.time_s[j]), phase=self.phase[j],
+                                       estimating=bool(self.estimating[j]), health=h))
         return out
 
     def first_estimate(self) -> int | None:
@@ -165,6 +187,11 @@ class ReportInput:
     frf_start: FrfEstimate | None = None
     frf_end: FrfEstimate | None = None
     param_help: dict[str, str] = field(default_factory=dict)
+    verdict: Verdict | None = None           # from the reports (..verdict.assess); None: from ``series``
+
+    def get_verdict(self) -> Verdict:
+        return self.verdict if self.verdict is not None else assess_series(self.events, self.series,
+                                                                             self.duration_s)
 
 
 # ------------------------------------------------------------------------------------------------- numerics
@@ -269,32 +296,15 @@ def frf_windows(n: int, rate_hz: float, init_duration_s: float = 0.0) -> tuple[s
     return slice(0, q), slice(n - q, n)
 
 
+def assess_series(events: Sequence[Mapping[str, Any]], series: DiagnosisSeries, duration_s: float) -> Verdict:
+    """:func:`..verdict.assess` over a :class:`DiagnosisSeries` (the same rules as over the reports)."""
+    return assess(series.records(), duration_s, events)
+
+
 def verdict(events: Sequence[Mapping[str, Any]], series: DiagnosisSeries, duration_s: float) -> tuple[str, str]:
-    """``(level, sentence)`` for the top of the report and the CLI: level FAULT | OK | NO ESTIMATE | DEGRADED."""
-    if series.first_estimate() is None:
-        return "NO ESTIMATE", (f"No estimate: the estimator did not finish its initialization within "
-                               f"{duration_s:.3g} s of data.")
-    if events:
-        parts = []
-        for e in events[:4]:
-            rel = _rel_change(e.get("value"), e.get("baseline"))
-            state = "still open at the end" if e.get("clear_time_s") in (None, "") else \
-                f"cleared at {float(e['clear_time_s']):.2f} s"
-            parts.append(f"mode {e['mode']} {e['quantity'].replace('_', ' ')} {e['direction']}"
-                         f"{f' {rel:+.1f} %' if rel is not None else ''} since {float(e['onset_time_s']):.2f} s "
-                         f"({state})")
-        more = f" and {len(events) - 4} more" if len(events) > 4 else ""
-        return "FAULT", f"{len(events)} structural fault event(s): " + "; ".join(parts) + more + "."
-    lvl = int(series.health_level[-1]) if series.n else 0
-    base_ok = bool(np.any(np.isfinite(series.baseline)))
-    if lvl >= 1:
-        why = "; ".join(series.reasons[-1][:2]) if series.reasons and series.reasons[-1] else "see health plot"
-        return "DEGRADED", f"No structural fault detected; estimator health {LEVEL_NAMES[min(lvl, 3)]} at the end " \
-                           f"({why})."
-    if not base_ok:
-        return "OK", (f"No structural fault detected in {duration_s:.3g} s, but no baseline was learned yet "
-                      "(bag shorter than settling + baseline window): faults could not be tested.")
-    return "OK", f"No structural fault detected in {duration_s:.3g} s of data; estimator healthy."
+    """``(level, sentence)``: level OK | FAULT | DEGRADED | NO ESTIMATE (see :mod:`..verdict`)."""
+    v = assess_series(events, series, duration_s)
+    return v.level, v.text
 
 
 def _rel_change(value: Any, base: Any) -> float | None:
@@ -412,6 +422,8 @@ def timeline_figure(inp: ReportInput) -> Any:
             t_end = t[b] if b < t.size else end
             ax.broken_barh([(t[a], max(t_end - t[a], 0.0))], (ypos["estimator health"] - 0.35, 0.7),
                            color=LEVEL_COLORS[int(lvl[a])], lw=0)
+    for b in inp.get_verdict().blind_intervals:   # where the structural tests were blind
+        ax.axvspan(b.start_s, b.end_s, color="#bdbdbd" if b.startup else "#ffcc80", alpha=0.35, lw=0, zorder=0)
     for iv in intervals:
         if iv["kind"] == "structural" and iv["quantity"] in QUANTITIES and isinstance(iv["mode"], int) \
                 and 1 <= iv["mode"] <= K:
@@ -444,7 +456,9 @@ def timeline_figure(inp: ReportInput) -> Any:
 
     legend = [Patch(color="#e53935", alpha=0.8, label="detected fault (onset → clear); ▼ alarm"),
               Patch(facecolor="none", edgecolor="#2e7d32", hatch="///", label="true fault (bag /truth/fault)"),
-              *[Patch(color=LEVEL_COLORS[k], label=f"health {LEVEL_NAMES[k]}") for k in range(3)]]
+              *[Patch(color=LEVEL_COLORS[k], label=f"health {LEVEL_NAMES[k]}") for k in range(3)],
+              Patch(color="#bdbdbd", alpha=0.35, label="tests blind: start-up"),
+              Patch(color="#ffcc80", alpha=0.35, label="tests blind: disruption")]
     ax.legend(handles=legend, loc="upper left", bbox_to_anchor=(1.0, 1.0), fontsize=8, frameon=False)
     ax.set_title("Fault timeline")
     return fig
@@ -606,7 +620,8 @@ def _table(header: Iterable[str], rows: Iterable[Iterable[str]]) -> str:
 
 def render_html(inp: ReportInput, figures: Mapping[str, bytes]) -> str:
     """The report page; ``figures`` maps modes/timeline/frf/health to PNG bytes (missing ones are skipped)."""
-    level, text = verdict(inp.events, inp.series, inp.duration_s)
+    v = inp.get_verdict()
+    level, text = v.level, v.text
     cls = level.split()[0]
     esc = html.escape
     parts = [f"<!DOCTYPE html><html><head><meta charset='utf-8'><title>{esc(inp.title)} – resonance diagnosis"
@@ -618,6 +633,7 @@ def render_html(inp: ReportInput, figures: Mapping[str, bytes]) -> str:
              "uncertainty. After it settles, a baseline is learned from a healthy stretch; a fault is flagged "
              "when a quantity moves away from its baseline by more than the relevant change for long enough "
              "(sequential CUSUM test).</p>"]
+    parts += _coverage_html(v)
     rows = []
     for r in summary_rows(inp):
         fault_cls = " class='fault'" if r["fault"] != "-" and "cleared" not in r["fault"] else ""
@@ -640,7 +656,8 @@ def render_html(inp: ReportInput, figures: Mapping[str, bytes]) -> str:
                   "detected fault intervals."),
         "timeline": ("Fault timeline", "Red bars: detected structural faults from the estimated change time to "
                      "the clear time (▼ marks when the alarm was raised). Hatched green: the true fault schedule "
-                     "when the bag has one. Top row: estimator health."),
+                     "when the bag has one. Top row: estimator health. Shaded: the fault tests were blind (grey: "
+                     "start-up; orange: data gap, health hold or baseline window restarted)."),
         "frf": ("Frequency response: model vs data", "Lines: frequency response of the estimated model (with the "
                 "known input delay, zero-order hold) at the first and the last estimate. Dots: nonparametric "
                 "estimate from the first and the last quarter of the data, only at frequencies the excitation "
@@ -658,6 +675,19 @@ def render_html(inp: ReportInput, figures: Mapping[str, bytes]) -> str:
             for k, v in sorted(inp.params.items())]
     parts += ["<h2>Parameters used</h2>", _table(["parameter", "value", "meaning"], prow), "</body></html>"]
     return "\n".join(parts)
+
+
+def _coverage_html(v: Verdict) -> list[str]:
+    """'Where the fault tests ran' section: monitored seconds and the blind intervals with their reasons."""
+    esc = html.escape
+    pct = 100.0 * v.monitored_s / v.duration_s if v.duration_s > 0 else 0.0
+    head = (f"<p>The structural fault tests ran against a trusted baseline for <b>{v.monitored_s:.1f} s of "
+            f"{v.duration_s:.1f} s</b> ({pct:.0f} % of the record). Faults that happened while they were blind can "
+            "only be seen once they run again, and not at all if the baseline was learned after the change.</p>")
+    rows = [[f"<td class='num'>{b.start_s:.2f}</td>", f"<td class='num'>{b.end_s:.2f}</td>",
+             "start-up" if b.startup else "<b>disruption</b>", esc(b.reason)] for b in v.blind_intervals]
+    table = _table(["from [s]", "to [s]", "", "why the fault tests did not run"], rows) if rows else ""
+    return ["<h2>Where the fault tests ran</h2>", head, table]
 
 
 def _pct(v: float | None) -> str:

@@ -7,11 +7,15 @@ checks topics, types, counts, sample spacing and reports NaNs). Writes into DIR 
 
 * ``estimates.csv``: one row per mode per output instant at which an estimate exists;
 * ``events.csv``: one row per structural fault event (empty clear time while open);
-* ``summary.json``: verdict, per-mode final values, events, timings, health and parameters;
+* ``summary.json``: verdict (:mod:`..verdict`: ``verdict`` OK | FAULT | DEGRADED | NO ESTIMATE, ``monitored_s``,
+  ``blind_intervals``), per-mode final values, events, timings, health and parameters;
 * ``report.html`` (self-contained, :mod:`..report`) and ``modes.png``.
 
-Prints a verdict and a per-mode summary table to stdout. Bad input (params file, bag) gives one line
-on stderr and exit status 2; ``--fail-on-fault`` makes a detected fault exit with status 3.
+DIR is written all-or-nothing (:class:`.atomic.AtomicDir`): the files go to a temporary sibling folder that
+replaces DIR (an older run's folder is replaced whole) only when complete. Prints a verdict and a per-mode
+summary table to stdout. Bad input (params file, bag) gives one line on stderr and exit status 2;
+``--fail-on-fault`` makes a detected fault exit with status 3; SIGINT/SIGTERM give one line, exit status
+130/143 and DIR as it was.
 """
 
 from __future__ import annotations
@@ -26,8 +30,6 @@ import time
 from collections.abc import Sequence
 from pathlib import Path
 from typing import Any, TextIO
-
-import numpy as np
 
 PROG = "rsrivc_diagnose"
 ESTIMATES_HEADER = ("time_s", "mode", "natural_frequency_hz", "damping_ratio", "gain", "natural_frequency_hz_std",
@@ -102,6 +104,7 @@ def run_pipeline(sig: Any, cfg: Any, *, chunk_s: float = 1.0, progress: Progress
     keyed by (mode, quantity, alarm time), in order of onset.
     """
     from ..core.pipeline import MonitorPipeline
+    from .atomic import raise_if_interrupted
 
     pipe = MonitorPipeline(cfg)
     n = sig.t.size
@@ -115,6 +118,7 @@ def run_pipeline(sig: Any, cfg: Any, *, chunk_s: float = 1.0, progress: Progress
             reports.append(rep)
             for e in (*rep.events_opened, *rep.events_closed):
                 events[(e.mode, e.quantity, e.alarm_time_s)] = e
+        raise_if_interrupted()       # an interrupt that landed in a C callback (numba compilation) stops here
         if progress is not None:
             progress.update(float(sig.t[b - 1]))
     for rep in pipe.flush():       # the end of the record: samples the stream aligner held back
@@ -133,6 +137,8 @@ def _f(v: Any) -> str:
 
 def write_estimates_csv(path: Path, reports: Sequence[Any]) -> int:
     """CONTRACT estimates.csv; one row per mode per report with an estimate. Returns the row count."""
+    import numpy as np
+
     rows = 0
     with path.open("w", newline="", encoding="utf-8") as fh:
         w = csv.writer(fh, lineterminator="\n")
@@ -167,6 +173,9 @@ def write_events_csv(path: Path, events: Sequence[dict[str, Any]]) -> None:
 
 
 def _json_safe(v: Any) -> Any:
+    """Plain JSON data; non-finite floats as None (strict JSON, no NaN tokens)."""
+    import numpy as np
+
     if isinstance(v, dict):
         return {str(k): _json_safe(x) for k, x in v.items()}
     if isinstance(v, list | tuple):
@@ -209,31 +218,95 @@ def format_table(rows: Sequence[dict[str, Any]]) -> str:
 
 
 # ------------------------------------------------------------------------------------------------- main
-def diagnose(args: argparse.Namespace, stdout: TextIO, stderr: TextIO) -> int:
-    """The work behind :func:`main`; raises the tools' one-line errors."""
-    from .. import report as rp
-    from ..bagio import read_signals
-    from ..config import DEFAULT_NODE_NAME, load_config, param_table
+OUTPUT_FILES = ("estimates.csv", "events.csv", "summary.json", "report.html", "modes.png")
 
-    t_start = time.monotonic()
-    if not (math.isfinite(args.chunk_s) and args.chunk_s > 0):
-        raise ValueError(f"--chunk-s must be > 0, got {args.chunk_s}")
-    cfg = load_config(args.params_file, args.node_name or DEFAULT_NODE_NAME)
-    bag = Path(args.bag)
-    sig = read_signals(bag, cfg)
-    t_read = time.monotonic()
-    out = _out_dir(bag, args.out)
-    if out.exists() and not out.is_dir():
-        raise OSError(f"output path {out} exists and is not a directory")
-    out.mkdir(parents=True, exist_ok=True)
+
+def _warn_bad_samples(sig: Any, stderr: TextIO) -> None:
+    """One warning line per category of bad samples the reader found (the pipeline handles them)."""
+    import numpy as np
+
     if sig.nonfinite:
         by = ", ".join(f"{k}: {v}" for k, v in sig.nonfinite_by_signal.items() if v)
         print(f"{PROG}: warning: {sig.nonfinite} non-finite samples ({by}); the estimator skips them", file=stderr)
+    from ..core.screening import ABSURD_ABS, ABSURD_REL, absurd_mask
+
+    absurd = {name: absurd_mask(x) for name, x in (("reference", sig.r), ("input", sig.u), ("output", sig.y))
+              if x is not None}
+    absurd = {k: m for k, m in absurd.items() if m.any()}
+    if absurd:
+        first = min(float(sig.t[np.argmax(m)]) for m in absurd.values())
+        by = ", ".join(f"{k}: {int(m.sum())}" for k, m in absurd.items())
+        print(f"{PROG}: warning: {sum(int(m.sum()) for m in absurd.values())} sample(s) of absurd magnitude ({by}; "
+              f"|x| > {ABSURD_ABS:g} or more than {ABSURD_REL:g} robust scales from the median), first at "
+              f"{first:.6g} s; see the verdict for what they cost", file=stderr)
     lost = {k: v for k, v in sig.unmatched_by_signal.items() if v}
     if lost:
         by = ", ".join(f"{k}: {v}" for k, v in lost.items())
         print(f"{PROG}: warning: message counts differ between topics; samples matched by log time, messages "
               f"without partners left out ({by}); the estimator treats the holes as data gaps", file=stderr)
+
+
+def _frf_estimates(inp: Any, sig: Any, cfg: Any) -> None:
+    """Nonparametric FRFs of the first and last data windows for the report (None where too short)."""
+    from .. import report as rp
+
+    w0, w1 = rp.frf_windows(sig.t.size, cfg.loop_rate_hz, cfg.init_duration_s)
+    for attr, w in (("frf_start", w0), ("frf_end", w1)):
+        try:
+            est = rp.nonparametric_frf(sig.u[w], sig.y[w], cfg.loop_rate_hz,
+                                       sig.r[w] if cfg.closed_loop and sig.r is not None else None,
+                                       t_start_s=float(sig.t[w][0]))
+        except ValueError:
+            est = None
+        setattr(inp, attr, est)
+
+
+def _mode_summaries(series: Any, rows: Sequence[dict], sig: Any, K: int) -> list[dict[str, Any]]:
+    from .. import report as rp
+
+    j = series.last_estimate()
+    modes = []
+    for i in range(K):
+        mr = [r for r in rows if r["mode"] == i + 1]
+        modes.append({
+            "mode": i + 1,
+            "final": {k: (float(series.modal[j, i, q]) if j is not None else None)
+                      for q, k in enumerate(ESTIMATES_HEADER[2:8])},
+            "baseline": {k: float(series.baseline[-1, i, q]) if series.n else None
+                         for q, k in enumerate(ESTIMATES_HEADER[2:5])},
+            "truth_final": ({k: float(sig.truth_modes[-1, i, q]) for q, k in enumerate(ESTIMATES_HEADER[2:5])}
+                            if sig.truth_modes is not None and i < sig.truth_modes.shape[1] else None),
+            "fault": {q: bool(series.flags[-1, i, k]) if series.n else False for k, q in enumerate(rp.QUANTITIES)},
+            "change_percent": {r["quantity"]: r["change_pct"] for r in mr},
+        })
+    return modes
+
+
+def diagnose(args: argparse.Namespace, stdout: TextIO, stderr: TextIO, state: dict | None = None) -> int:
+    """The work behind :func:`main`; raises the tools' one-line errors.
+
+    Everything is written into a temporary sibling of the output folder, which replaces the folder only when
+    complete (:class:`.atomic.AtomicDir`); ``state['out']`` holds the :class:`AtomicDir` while it is open.
+    """
+    import numpy as np
+
+    from .. import report as rp
+    from ..bagio import read_signals
+    from ..config import DEFAULT_NODE_NAME, load_config, param_table
+    from ..verdict import assess
+    from .atomic import AtomicDir, check_replaceable
+
+    state = {} if state is None else state
+    t_start = time.monotonic()
+    if not (math.isfinite(args.chunk_s) and args.chunk_s > 0):
+        raise ValueError(f"--chunk-s must be > 0, got {args.chunk_s}")
+    cfg = load_config(args.params_file, args.node_name or DEFAULT_NODE_NAME)
+    bag = Path(args.bag)
+    out = _out_dir(bag, args.out)
+    check_replaceable(out, OUTPUT_FILES)            # fail before the long work, not after it
+    sig = read_signals(bag, cfg)
+    t_read = time.monotonic()
+    _warn_bad_samples(sig, stderr)
     n = sig.t.size
     duration = float(sig.t[-1]) + 1.0 / cfg.loop_rate_hz if n else 0.0
     show = args.progress if args.progress is not None else stderr.isatty()
@@ -242,8 +315,11 @@ def diagnose(args: argparse.Namespace, stdout: TextIO, stderr: TextIO) -> int:
     bar.close()
     t_est = time.monotonic()
     events = [event_dict(e) for e in ev_objs]
-    n_rows = write_estimates_csv(out / "estimates.csv", reports)
-    write_events_csv(out / "events.csv", events)
+    verdict = assess(reports, duration, events)
+    tmp = state["out"] = AtomicDir(out, OUTPUT_FILES)
+    tmp.open()
+    n_rows = write_estimates_csv(tmp.tmp / "estimates.csv", reports)
+    write_events_csv(tmp.tmp / "events.csv", events)
 
     series = rp.DiagnosisSeries.from_reports(reports, cfg.K)
     truth = rp.TruthData(sig.truth_t, sig.truth_modes, sig.truth_fault)
@@ -257,48 +333,25 @@ def diagnose(args: argparse.Namespace, stdout: TextIO, stderr: TextIO) -> int:
     inp = rp.ReportInput(title=_out_dir(bag, None).name, series=series, events=events, structures=cfg.structures,
                          rate_hz=cfg.loop_rate_hz, closed_loop=cfg.closed_loop,
                          input_delay_samples=cfg.input_delay_samples, duration_s=duration, params=dict(cfg.params),
-                         info=info, truth=truth, param_help={k: p.description for k, p in table.items()})
-    level, text = rp.verdict(events, series, duration)
+                         info=info, truth=truth, param_help={k: p.description for k, p in table.items()},
+                         verdict=verdict)
     rows = rp.summary_rows(inp)
     t_report = t_est
     if not args.no_report and n:
-        w0, w1 = rp.frf_windows(n, cfg.loop_rate_hz, cfg.init_duration_s)
-        for attr, w in (("frf_start", w0), ("frf_end", w1)):
-            try:
-                est = rp.nonparametric_frf(sig.u[w], sig.y[w], cfg.loop_rate_hz,
-                                           sig.r[w] if cfg.closed_loop and sig.r is not None else None,
-                                           t_start_s=float(sig.t[w][0]))
-            except ValueError:
-                est = None
-            setattr(inp, attr, est)
+        _frf_estimates(inp, sig, cfg)
         info["processing [s]"] = f"read {t_read - t_start:.2f}, estimate {t_est - t_read:.2f}"
-        rp.write_report(inp, out)
+        rp.write_report(inp, tmp.tmp)
         t_report = time.monotonic()
     timings = {"read_s": t_read - t_start, "estimate_s": t_est - t_read, "report_s": t_report - t_est,
                "total_s": time.monotonic() - t_start}
-    j = series.last_estimate()
-    modes = []
-    for i in range(cfg.K):
-        mr = [r for r in rows if r["mode"] == i + 1]
-        modes.append({
-            "mode": i + 1,
-            "final": {k: (float(series.modal[j, i, q]) if j is not None else None)
-                      for q, k in enumerate(ESTIMATES_HEADER[2:8])},
-            "baseline": {k: float(series.baseline[-1, i, q]) if series.n else None
-                         for q, k in enumerate(ESTIMATES_HEADER[2:5])},
-            "truth_final": ({k: float(sig.truth_modes[-1, i, q]) for q, k in enumerate(ESTIMATES_HEADER[2:5])}
-                            if sig.truth_modes is not None and i < sig.truth_modes.shape[1] else None),
-            "fault": {q: bool(series.flags[-1, i, k]) if series.n else False for k, q in enumerate(rp.QUANTITIES)},
-            "change_percent": {r["quantity"]: r["change_pct"] for r in mr},
-        })
     last = reports[-1] if reports else None
     summary = {
-        "bag": str(bag), "params_file": str(args.params_file), "storage": sig.storage, "verdict": level,
-        "verdict_text": text, "samples": n, "duration_s": duration, "loop_rate_hz": cfg.loop_rate_hz,
+        "bag": str(bag), "params_file": str(args.params_file), "storage": sig.storage, **verdict.to_dict(),
+        "samples": n, "duration_s": duration, "loop_rate_hz": cfg.loop_rate_hz,
         "closed_loop": cfg.closed_loop, "K": cfg.K, "reports": len(reports), "estimate_rows": n_rows,
         "first_estimate_time_s": float(series.time_s[series.first_estimate()]) if series.first_estimate() is not None
         else None,
-        "modes": modes, "events": events, "nonfinite_samples": sig.nonfinite,
+        "modes": _mode_summaries(series, rows, sig, cfg.K), "events": events, "nonfinite_samples": sig.nonfinite,
         "unmatched_messages": dict(sig.unmatched_by_signal),
         "health": {"final": last.health if last is not None else None,
                    "level_counts": {rp.LEVEL_NAMES[k]: int(np.sum(series.health_level == k)) for k in range(4)}},
@@ -306,12 +359,13 @@ def diagnose(args: argparse.Namespace, stdout: TextIO, stderr: TextIO) -> int:
         "timings_s": timings,
         "realtime_factor": duration / timings["estimate_s"] if timings["estimate_s"] > 0 else None,
         "truth_fault": sig.truth_fault, "bag_metadata": sig.metadata, "parameters": dict(cfg.params),
-        "files": {k: str(out / k) for k in ("estimates.csv", "events.csv", "summary.json", "report.html", "modes.png")
+        "files": {k: str(out / k) for k in OUTPUT_FILES
                   if k in ("estimates.csv", "events.csv", "summary.json") or not args.no_report},
     }
-    (out / "summary.json").write_text(json.dumps(_json_safe(summary), indent=2, allow_nan=False) + "\n",
-                                      encoding="utf-8")
-    print(f"{level}: {text}", file=stdout)
+    (tmp.tmp / "summary.json").write_text(json.dumps(_json_safe(summary), indent=2, allow_nan=False) + "\n",
+                                          encoding="utf-8")
+    tmp.commit()
+    print(verdict.line, file=stdout)
     if not args.quiet:
         print(f"\n{bag}: {duration:.4g} s, {n} samples at {cfg.loop_rate_hz:g} Hz, "
               f"{'closed' if cfg.closed_loop else 'open'} loop, K = {cfg.K}\n", file=stdout)
@@ -325,26 +379,65 @@ def diagnose(args: argparse.Namespace, stdout: TextIO, stderr: TextIO) -> int:
 
 
 def main(argv: list[str] | None = None) -> int:
-    """Console entry point: 0 on success, 2 on bad input (one line on stderr), 3 with --fail-on-fault."""
-    args = _parser().parse_args(argv)
-    from ..bagio import BagError
-    from ..config import ParamError
+    """Console entry point: 0 on success, 2 on bad input (one line on stderr), 3 with --fail-on-fault,
+    130/143 when interrupted by SIGINT/SIGTERM (one line on stderr; the output folder is left as it was)."""
+    from .atomic import exit_code, interrupts
+
+    state: dict[str, Any] = {}
+    with interrupts():
+        try:
+            return _run(argv, state)
+        except KeyboardInterrupt as exc:
+            return _interrupted(exc, state, exit_code(exc))
+        finally:
+            if state.get("out") is not None:
+                state["out"].discard()
+
+
+def _interrupted(exc: BaseException, state: dict[str, Any], code: int) -> int:
+    out = state.get("out")
+    name = getattr(exc, "name", "SIGINT")
+    if out is not None and out.committed:
+        where = f"after {out.target} was written completely"
+    elif out is not None:
+        where = f"before the output was complete; {out.target} left as it was"
+    else:
+        where = "before any output was written"
+    try:
+        print(f"{PROG}: interrupted ({name}) {where}", file=sys.stderr)
+    except (OSError, ValueError):   # stderr gone (closed pipe): the exit status still tells
+        pass
+    return code
+
+
+def _run(argv: list[str] | None, state: dict[str, Any]) -> int:
+    return _diagnose_or_error(_parser().parse_args(argv), state)
+
+
+def _diagnose_or_interrupt(args: argparse.Namespace, state: dict[str, Any]) -> int:
+    from .atomic import Interrupted, received
 
     try:
-        from ..core.pipeline import PipelineError
-    except ImportError:  # pragma: no cover - the pipeline module is part of the package
-        PipelineError = ValueError  # noqa: N806
+        return diagnose(args, sys.stdout, sys.stderr, state)
+    except Exception:
+        if received() is not None:   # a library turned the interrupt into its own exception
+            raise Interrupted(received()) from None
+        raise
+
+
+def _diagnose_or_error(args: argparse.Namespace, state: dict[str, Any]) -> int:
+    from ..bagio import BagError
+    from ..config import ParamError
+    from ..core.pipeline import PipelineError
+
     try:
-        return diagnose(args, sys.stdout, sys.stderr)
+        return _diagnose_or_interrupt(args, state)
     except (BagError, ParamError, PipelineError) as exc:
         print(f"{PROG}: error: {_line(exc)}", file=sys.stderr)
         return 2
     except (OSError, ValueError) as exc:
         print(f"{PROG}: error: {_line(exc)}", file=sys.stderr)
         return 2
-    except KeyboardInterrupt:
-        print(f"{PROG}: interrupted", file=sys.stderr)
-        return 130
     except Exception as exc:  # noqa: BLE001 - never a traceback for users; RSRIVC_DEBUG=1 shows it
         if os.environ.get("RSRIVC_DEBUG"):
             raise

@@ -12,17 +12,26 @@ from __future__ import annotations
 
 import argparse
 import json
+import math
+import os
 import sys
+from collections.abc import Callable
 from pathlib import Path
+from typing import TYPE_CHECKING, Any
 
-import numpy as np
+from .atomic import Interrupted, atomic_write_text, exit_code, interrupts, raise_if_interrupted, received
 
-from ..config import ParamError, load_config
-from ..core.faults import FaultSettings
-from ..core.filters import ClosedLoopUnstableError
-from ..core.offline import METHODS, identify
+if TYPE_CHECKING:   # the numerical modules are imported inside the functions: SIGINT/SIGTERM handling comes first
+    import numpy as np
 
-CLI_METHODS = tuple(m for m in METHODS if not m.endswith("-monic"))
+    from ..core.faults import FaultSettings
+    from ..core.screening import Screening
+
+
+def _cli_methods() -> tuple[str, ...]:
+    from ..core.offline import METHODS
+
+    return tuple(m for m in METHODS if not m.endswith("-monic"))
 
 
 def _parser() -> argparse.ArgumentParser:
@@ -30,7 +39,7 @@ def _parser() -> argparse.ArgumentParser:
     ap.add_argument("bag", help="rosbag2 directory (mcap or sqlite3)")
     ap.add_argument("--params-file", required=True, help="params YAML of the monitor node")
     ap.add_argument("--out", required=True, help="output JSON file")
-    ap.add_argument("--method", default="auto", choices=CLI_METHODS,
+    ap.add_argument("--method", default="auto", choices=_cli_methods(),
                     help="estimator (auto: additive-clsrivc in closed loop, additive-srivc in open loop)")
     ap.add_argument("--max-iterations", type=int, default=None,
                     help="iteration limit (default: estimator.init_max_iterations of the params file, at least 50)")
@@ -42,6 +51,8 @@ def _parser() -> argparse.ArgumentParser:
 def longest_gap_free(t: np.ndarray, rate_hz: float, tolerance: float) -> tuple[slice, int]:
     """Longest run of samples spaced by at most ``(1 + tolerance)/rate_hz`` and the number of gaps in ``t`` (the
     gap rule of the pipeline, ``faults.health.gap_tolerance``)."""
+    import numpy as np
+
     if t.size < 2:
         return slice(0, t.size), 0
     breaks = np.flatnonzero(np.diff(t) > (1.0 + tolerance) / rate_hz) + 1
@@ -50,57 +61,144 @@ def longest_gap_free(t: np.ndarray, rate_hz: float, tolerance: float) -> tuple[s
     return slice(int(edges[k]), int(edges[k + 1])), int(breaks.size)
 
 
-def run(bag: str, params_file: str, out: str, method: str = "auto", max_iterations: int | None = None,
-        tol: float = 1e-7, node_name: str | None = None) -> dict:
-    """Identify the bag and write the JSON; returns the JSON object. Raises ``ValueError`` on bad input."""
-    from ..bagio import read_signals
+def _by(counts: dict[str, int]) -> str:
+    return ", ".join(f"{k}: {v}" for k, v in counts.items() if v)
 
+
+def screen_record(sig: Any, cfg: Any, settings: FaultSettings, warn: Callable[[str], None]) -> Screening:
+    """Screen the bag's samples (:func:`..core.screening.screen`), one warning line per category of bad samples;
+    raise ``ValueError`` (one line) when no clean stretch long enough for a fit is left."""
+    import numpy as np
+
+    from ..core.screening import ABSURD_ABS, ABSURD_REL, screen
+
+    signals = {"reference": sig.r if cfg.closed_loop else None, "input": sig.u, "output": sig.y}
+    sc = screen(sig.t, signals, cfg.loop_rate_hz, settings.health_gap_tolerance,
+                held_is_missing=settings.health_repeated_output_is_missing)
+    if sc.duplicates:
+        warn(f"{sc.duplicates} duplicate time stamp(s): the later sample of each pair dropped")
+    if sc.out_of_order:
+        warn(f"{sc.out_of_order} out-of-order time stamp(s) dropped")
+    if sc.nonfinite:
+        warn(f"{sum(sc.nonfinite.values())} non-finite sample(s) ({_by(sc.nonfinite)}) excluded")
+    if sc.absurd:
+        warn(f"{sum(sc.absurd.values())} sample(s) of absurd magnitude ({_by(sc.absurd)}; |x| > {ABSURD_ABS:g} or "
+             f"more than {ABSURD_REL:g} robust scales from the median) excluded")
+    if sc.held:
+        warn(f"{sc.held} held output sample(s) (output exactly equal to the previous one: a lost sample repeated by "
+             "the receiver; faults.health.repeated_output_is_missing) excluded")
+    n_min = max(int(np.ceil(cfg.init_duration_s * cfg.loop_rate_hz)), 50)
+    if sc.held > settings.health_max_repeated_fraction * max(sig.n, 1) and sc.used < n_min:
+        raise ValueError(f"the output repeats its previous value in {sc.held} of {sig.n} samples (a quantized or "
+                         "held sensor?); set faults.health.repeated_output_is_missing: false to use them as data")
+    if sc.used < n_min:
+        raise ValueError(f"no clean stretch long enough to fit: the longest run of valid, evenly spaced samples has "
+                         f"{sc.used} samples, at least {n_min} (init_duration_s) needed")
+    if sc.used < sc.n - sc.duplicates - sc.out_of_order:
+        t_a, t_b = float(sig.t[sc.index[0]]), float(sig.t[sc.index[-1]])
+        n_bad = sc.held + sum(sc.nonfinite.values()) + sum(sc.absurd.values())
+        why = " and ".join(w for w, c in ((f"{sc.gaps} data gap(s)", sc.gaps), (f"{n_bad} bad sample(s)", n_bad)) if c)
+        warn(f"the record splits into {sc.pieces} clean segment(s) at {why}; the filters need evenly spaced valid "
+             f"samples, so only the longest gap-free segment without bad samples [{t_a:.6g}, {t_b:.6g}] s "
+             f"({sc.used} of {sig.n} samples) is used")
+    return sc
+
+
+def run(bag: str, params_file: str, out: str, method: str = "auto", max_iterations: int | None = None,
+        tol: float = 1e-7, node_name: str | None = None, warn: Callable[[str], None] | None = None) -> dict:
+    """Identify the bag and write the JSON (strict: non-finite numbers as null, written all-or-nothing); returns
+    the JSON object. Raises ``ValueError`` on bad input. Bad samples are excluded, each category with one
+    warning line (``warn``, default stderr), never fitted over."""
+    from ..bagio import read_signals
+    from ..config import load_config
+    from ..core.faults import FaultSettings
+    from ..core.offline import identify
+
+    warn = warn or (lambda m: print(f"rsrivc_identify: warning: {m}", file=sys.stderr))
     cfg = load_config(params_file) if node_name is None else load_config(params_file, node_name)
-    sig = read_signals(bag, cfg)
-    bad = [name for name, s in (("reference", sig.r), ("input", sig.u), ("output", sig.y))
-           if s is not None and not np.all(np.isfinite(s))]
-    if bad:
-        raise ValueError(f"bag {bag}: non-finite samples in {', '.join(bad)}")
+    out_path = Path(out)
+    if out_path.parent and not out_path.parent.exists():
+        raise ValueError(f"output directory {out_path.parent} does not exist")
     closed = cfg.closed_loop
     if method in ("additive-clsrivc", "clsrivc", "clsrivc-uns") and not closed:
         raise ValueError(f"method {method} needs closed-loop data (closed_loop: true and a controller)")
     iters = max_iterations if max_iterations is not None else max(50, cfg.estimator.init_max_iterations)
     if iters < 1:
         raise ValueError("--max-iterations must be >= 1")
-    seg, n_gaps = longest_gap_free(sig.t, cfg.loop_rate_hz, FaultSettings.from_params(cfg.params).health_gap_tolerance)
-    r_seg = sig.r[seg] if closed else None
-    res = identify(sig.u[seg], sig.y[seg], cfg.loop_rate_hz, cfg.structures, [m.theta0() for m in cfg.modes],
-                   r=r_seg, controller=cfg.controller if closed else None,
+    sig = read_signals(bag, cfg)
+    sc = screen_record(sig, cfg, FaultSettings.from_params(cfg.params), warn)
+    k = sc.index
+    res = identify(sig.u[k], sig.y[k], cfg.loop_rate_hz, cfg.structures, [m.theta0() for m in cfg.modes],
+                   r=sig.r[k] if closed else None, controller=cfg.controller if closed else None,
                    input_delay=cfg.input_delay_samples, method=method, max_iterations=iters, tol=tol,
                    projection=cfg.estimator.stability_projection)
-    doc = res.to_dict()
-    doc["data_gaps"] = n_gaps
-    if n_gaps:
-        t_a, t_b = float(sig.t[seg.start]), float(sig.t[seg.stop - 1])
-        doc["message"] += (f"; the bag has {n_gaps} data gap(s): identified on its longest gap-free segment "
-                           f"[{t_a:.6g}, {t_b:.6g}] s ({seg.stop - seg.start} of {sig.n} samples)")
-        print(f"rsrivc_identify: warning: {n_gaps} data gap(s) in the bag; the filters need evenly spaced samples, so "
-              f"only the longest gap-free segment [{t_a:.6g}, {t_b:.6g}] s is used", file=sys.stderr)
-    out_path = Path(out)
-    if out_path.parent and not out_path.parent.exists():
-        raise ValueError(f"output directory {out_path.parent} does not exist")
-    tmp = out_path.with_name(f".{out_path.name}.tmp")
-    tmp.write_text(json.dumps(doc, indent=2) + "\n")
-    tmp.replace(out_path)
+    raise_if_interrupted()
+    doc = json_safe(res.to_dict())
+    doc["data_gaps"] = sc.gaps
+    doc["screening"] = {**sc.to_dict(), "segment_s": [float(sig.t[k[0]]), float(sig.t[k[-1]])]}
+    if sc.used < sc.n:
+        doc["message"] = (f"{doc.get('message') or ''}; identified on its longest gap-free segment without bad "
+                          f"samples [{float(sig.t[k[0]]):.6g}, {float(sig.t[k[-1]]):.6g}] s ({sc.used} of {sig.n} "
+                          "samples)").lstrip("; ")
+    atomic_write_text(out_path, json.dumps(doc, indent=2, allow_nan=False) + "\n")
     return doc
 
 
-def main(argv: list[str] | None = None) -> int:
-    args = _parser().parse_args(argv)
-    try:
-        doc = run(args.bag, args.params_file, args.out, args.method, args.max_iterations, args.tol, args.node_name)
-    except (ParamError, ClosedLoopUnstableError, ValueError, OSError) as exc:
-        msg = " ".join(str(exc).split())
+def json_safe(v: Any) -> Any:
+    """Plain, strict-JSON data: numpy scalars/arrays to Python, non-finite floats to None."""
+    import numpy as np
+
+    if isinstance(v, dict):
+        return {str(k): json_safe(x) for k, x in v.items()}
+    if isinstance(v, list | tuple | np.ndarray):
+        return [json_safe(x) for x in (v.tolist() if isinstance(v, np.ndarray) else v)]
+    if isinstance(v, np.generic):
+        return json_safe(v.item())
+    if isinstance(v, float) and not math.isfinite(v):
+        return None
+    return v
+
+
+def _num(v: Any) -> str:
+    return "n/a" if not isinstance(v, int | float) else f"{v:.4g}"
+
+
+def _error(exc: Exception) -> int:
+    """One line on stderr: 2 for bad input (ParamError, BagError, ClosedLoopUnstableError are ValueErrors), 1 for an
+    internal error (RSRIVC_DEBUG=1 re-raises it with its traceback)."""
+    msg = " ".join(str(exc).split()) or type(exc).__name__
+    if isinstance(exc, ValueError | OSError):
         print(f"rsrivc_identify: error: {msg}", file=sys.stderr)
         return 2
-    status = "converged" if doc["converged"] else f"NOT converged ({doc['message']})"
+    if os.environ.get("RSRIVC_DEBUG"):
+        raise exc
+    print(f"rsrivc_identify: internal error: {type(exc).__name__}: {msg} (set RSRIVC_DEBUG=1 for a traceback)",
+          file=sys.stderr)
+    return 1
+
+
+def main(argv: list[str] | None = None) -> int:
+    """0 on success, 2 with a one-line reason on bad input, 1 on an internal error, 130/143 on SIGINT/SIGTERM
+    (one line; the output file is then left as it was)."""
+    with interrupts():
+        try:
+            args = _parser().parse_args(argv)
+            doc = run(args.bag, args.params_file, args.out, args.method, args.max_iterations, args.tol,
+                      args.node_name)
+        except Exception as exc:
+            if received() is None:
+                return _error(exc)
+            exc = Interrupted(received())   # a library turned the interrupt into its own exception
+            print(f"rsrivc_identify: interrupted ({exc.name}); the output file left as it was", file=sys.stderr)
+            return exc.exit_code
+        except KeyboardInterrupt as exc:
+            print(f"rsrivc_identify: interrupted ({getattr(exc, 'name', 'SIGINT')}); the output file left as it was",
+                  file=sys.stderr)
+            return exit_code(exc)
+
+    status = "converged" if doc["converged"] else f"NOT converged ({doc.get('message')})"
     print(f"rsrivc_identify: {doc['method']} {status} after {doc['iterations']} iterations; "
-          f"residual variance {doc['residual_variance']:.4g}; wrote {args.out}")
+          f"residual variance {_num(doc.get('residual_variance'))}; wrote {args.out}")
     for i, m in enumerate(doc["modes"], 1):
         f, z, g = m["natural_frequency_hz"], m["damping_ratio"], m["gain"]
         print(f"  mode {i}: f = {f} Hz, zeta = {z}, gain = {g}")

@@ -1,0 +1,262 @@
+"""The offline verdict: did the structural fault tests actually run, and where were they blind?
+
+ROS-free and matplotlib-free, so the node can reuse it. :func:`assess` reads the stream of
+:class:`.core.pipeline.Report` objects (any objects with ``time_s``, ``phase``, ``estimating`` and a
+``health`` dict with ``hold``, ``reasons`` and optionally ``issues``) and returns a :class:`Verdict`:
+
+* ``monitored_s``: seconds during which the fault tests ran against a trusted baseline, i.e. covered by
+  reports in phase ``monitoring`` without a health hold;
+* ``blind_intervals``: where and why they did not run (``initializing``, ``settling``, ``learning``,
+  ``hold``, ``no_data``, ``no_estimate``);
+* ``level`` (../shared/CONTRACT.md "Offline verdict"): ``NO ESTIMATE`` when no report ever carried an
+  accepted model; ``FAULT`` when a structural event was opened; ``DEGRADED`` when the tests never ran, or
+  were blind after the normal start-up (initialization, settling, learning the baseline, in this order,
+  undisturbed), or health held them back for a reason other than the start-up; ``OK`` otherwise.
+
+Time coverage: a report at ``t_j`` stands for ``[t_j, t_j + P)`` with ``P`` the median report spacing
+(the publish period); a longer silence between reports (a data gap: the pipeline reports nothing while no
+samples arrive) is a ``no_data`` interval. Times are seconds since the first sample; the record ends at
+``duration_s``.
+"""
+
+from __future__ import annotations
+
+import math
+import re
+from collections.abc import Iterable, Mapping, Sequence
+from dataclasses import dataclass, field
+from typing import Any
+
+LEVELS = ("OK", "FAULT", "DEGRADED", "NO ESTIMATE")
+STARTUP_ISSUES = ("initializing",)       # health issue kinds of a normal start (not a disruption)
+ADVISORY_ISSUES = ("residual_jump", "projection_storm")   # = core.faults.HealthMonitor.ADVISORY_KINDS: never hold
+ADVISORY_REASONS = ("residual variance jumped", "projection storm")   # their reason texts (when no 'issues')
+_SUFFIX = re.compile(r"\s*\((recovering|hold-off)[^)]*\)\s*$")
+
+
+@dataclass
+class BlindInterval:
+    """``[start_s, end_s)`` during which the structural tests did not run, with the reason in words."""
+
+    start_s: float
+    end_s: float
+    kind: str          # initializing | settling | learning | hold | no_data | no_estimate
+    reason: str
+    startup: bool = False   # part of the normal start-up before the first monitoring
+
+    def to_dict(self) -> dict[str, Any]:
+        return {"start_s": round(self.start_s, 6), "end_s": round(self.end_s, 6), "reason": self.reason,
+                "kind": self.kind, "startup": self.startup}
+
+
+@dataclass
+class Verdict:
+    level: str
+    text: str
+    duration_s: float
+    monitored_s: float
+    monitoring_start_s: float | None
+    blind_intervals: list[BlindInterval] = field(default_factory=list)
+
+    def to_dict(self) -> dict[str, Any]:
+        """The summary.json keys: ``verdict``, ``verdict_text``, ``monitored_s``, ``blind_intervals`` ..."""
+        return {"verdict": self.level, "verdict_text": self.text, "monitored_s": round(self.monitored_s, 6),
+                "monitoring_start_s": self.monitoring_start_s, "monitored_fraction":
+                self.monitored_s / self.duration_s if self.duration_s > 0 else 0.0,
+                "blind_intervals": [b.to_dict() for b in self.blind_intervals]}
+
+    @property
+    def line(self) -> str:
+        return f"{self.level}: {self.text}"
+
+
+def _clean(reason: str) -> str:
+    """A health reason without its '(recovering, hold-off until ...)' suffix."""
+    return _SUFFIX.sub("", str(reason)).strip()
+
+
+def _disruption(health: Mapping[str, Any]) -> list[str]:
+    """The health reasons that held the tests back for something other than the normal start-up.
+
+    Advisory issues (a residual jump, a projection storm: also the signature of a genuine structural change) never
+    hold the tests back (:class:`.core.faults.HealthMonitor`), so they are no disruption even during a hold."""
+    if not health.get("hold"):
+        return []
+    issues = health.get("issues")
+    holding = None if issues is None else [str(k) for k in issues if str(k) not in STARTUP_ISSUES + ADVISORY_ISSUES]
+    if holding is not None and not holding:
+        return []
+    reasons = [_clean(r) for r in health.get("reasons", [])]
+    reasons = [r for r in reasons if not r.startswith(STARTUP_ISSUES + ADVISORY_REASONS)]
+    return reasons or [", ".join(holding or ["health hold"])]
+
+
+def _state(rep: Any, seen: dict[str, bool]) -> tuple[str, str]:
+    """(kind, reason) of one report; ``kind == 'monitored'`` when the tests ran. Updates ``seen``."""
+    health = rep.health or {}
+    bad = _disruption(health)
+    why = "; ".join(bad[:2])
+    if not rep.estimating:
+        kind = "no_estimate" if seen["estimate"] else "initializing"
+        reason = (f"no estimate ({why or 'estimator re-initializing'})" if seen["estimate"] else
+                  "initializing: collecting data for the first model" + (f" ({why})" if why else ""))
+        return kind, reason
+    seen["estimate"] = True
+    phase = str(rep.phase)
+    if phase in ("settling", "waiting", "initializing"):
+        if seen["baseline_window"] or bad:
+            # the cause: what held the tests, else what the health reports (e.g. a residual jump restarted it)
+            cause = bad or [r for r in map(_clean, health.get("reasons", [])) if not r.startswith(STARTUP_ISSUES)]
+            return "settling", f"baseline window restarted after: {cause[0]}" if cause else "baseline window restarted"
+        return "settling", "settling: estimator converging before the baseline is learned"
+    if phase == "learning":
+        seen["baseline_window"] = True
+        return "learning", "learning the baseline"
+    seen["baseline_window"] = True
+    if health.get("hold"):
+        return "hold", f"health hold: {why or '; '.join(_clean(r) for r in health.get('reasons', [])[:2])}"
+    return "monitored", ""
+
+
+def _period(times: Sequence[float]) -> float:
+    d = sorted(b - a for a, b in zip(times[:-1], times[1:], strict=True) if b > a)
+    return d[len(d) // 2] if d else math.inf
+
+
+def coverage(reports: Sequence[Any], duration_s: float) -> tuple[float, float | None, list[BlindInterval]]:
+    """``(monitored_s, first monitoring time, blind intervals)`` over ``[0, duration_s]``."""
+    times = [float(r.time_s) for r in reports]
+    period = _period(times)
+    seen = {"estimate": False, "baseline_window": False}
+    segs: list[tuple[float, float, str, str]] = []     # (start, end, kind, reason)
+    if not reports:
+        return 0.0, None, ([BlindInterval(0.0, duration_s, "no_estimate", "no report: no valid data")]
+                           if duration_s > 0 else [])
+    if times[0] > 0:
+        segs.append((0.0, times[0], "initializing", "initializing: collecting data for the first model"))
+    for j, rep in enumerate(reports):
+        t0 = times[j]
+        t_next = times[j + 1] if j + 1 < len(reports) else max(duration_s, t0)
+        kind, reason = _state(rep, seen)
+        end = min(t_next, t0 + period) if t_next - t0 > 1.5 * period else t_next
+        segs.append((t0, end, kind, reason))
+        if end < t_next:
+            segs.append((end, t_next, "no_data", f"no samples for {t_next - end:.3g} s (data gap)"))
+    monitored = sum(b - a for a, b, k, _ in segs if k == "monitored")
+    first_mon = next((a for a, _, k, _ in segs if k == "monitored"), None)
+    blind: list[BlindInterval] = []
+    for a, b, kind, reason in segs:
+        if kind == "monitored" or b <= a:
+            continue
+        if blind and blind[-1].kind == kind and math.isclose(blind[-1].end_s, a, abs_tol=1e-9) and \
+                (kind != "settling" or blind[-1].reason == reason or reason.startswith("baseline window restarted")
+                 and blind[-1].reason.startswith("baseline window restarted")):
+            blind[-1].end_s = b
+            continue
+        blind.append(BlindInterval(a, b, kind, reason))
+    _mark_startup(blind, first_mon)
+    return monitored, first_mon, blind
+
+
+def _mark_startup(blind: list[BlindInterval], first_mon: float | None) -> None:
+    """Flag the leading initializing -> settling -> learning run (undisturbed, in order) as start-up."""
+    order = {"initializing": 0, "settling": 1, "learning": 2}
+    last = -1
+    for b in blind:
+        if first_mon is not None and b.start_s >= first_mon:
+            break
+        rank = order.get(b.kind)
+        if rank is None or rank < last or b.reason.startswith("baseline window restarted"):
+            break
+        b.startup, last = True, rank
+
+
+def _span_text(blind: Sequence[BlindInterval], limit: int = 3) -> str:
+    """'12.2–30.0 s (reason); ...' for contiguous runs of blind intervals that are not start-up."""
+    runs: list[list[BlindInterval]] = []
+    for b in blind:
+        if b.startup:
+            continue
+        if runs and math.isclose(runs[-1][-1].end_s, b.start_s, abs_tol=1e-6):
+            runs[-1].append(b)
+        else:
+            runs.append([b])
+    parts = []
+    for run in runs[:limit]:
+        reasons: list[str] = []
+        for b in run:
+            if b.kind in ("learning", "initializing"):
+                continue
+            txt = b.reason
+            if txt not in reasons:
+                reasons.append(txt)
+        if not reasons:
+            reasons = [run[0].reason]
+        parts.append(f"{run[0].start_s:.1f}–{run[-1].end_s:.1f} s ({'; '.join(reasons[:3])})")
+    more = f"; and {len(runs) - limit} more blind interval(s)" if len(runs) > limit else ""
+    return "; ".join(parts) + more
+
+
+def _event_text(events: Sequence[Mapping[str, Any]], limit: int = 4) -> str:
+    parts = []
+    for e in events[:limit]:
+        rel = _rel_change(e.get("value"), e.get("baseline"))
+        clear = e.get("clear_time_s")
+        state = "still open at the end" if clear in (None, "") else f"cleared at {float(clear):.2f} s"
+        parts.append(f"mode {e['mode']} {str(e['quantity']).replace('_', ' ')} {e['direction']}"
+                     f"{f' {rel:+.1f} %' if rel is not None else ''} since {float(e['onset_time_s']):.2f} s ({state})")
+    more = f" and {len(events) - limit} more" if len(events) > limit else ""
+    return f"{len(events)} structural fault event(s): " + "; ".join(parts) + more
+
+
+def _rel_change(value: Any, base: Any) -> float | None:
+    try:
+        v, b = float(value), float(base)
+    except (TypeError, ValueError):
+        return None
+    if not (math.isfinite(v) and math.isfinite(b)) or b == 0:
+        return None
+    return 100.0 * (v - b) / abs(b)
+
+
+def _events_from_reports(reports: Iterable[Any]) -> list[dict[str, Any]]:
+    seen: dict[tuple, dict[str, Any]] = {}
+    for rep in reports:
+        for e in (*getattr(rep, "events_opened", ()), *getattr(rep, "events_closed", ())):
+            seen[(e.mode, e.quantity, e.alarm_time_s)] = {
+                "onset_time_s": e.onset_time_s, "clear_time_s": e.clear_time_s, "mode": e.mode,
+                "quantity": e.quantity, "direction": e.direction, "baseline": e.baseline, "value": e.value}
+    return sorted(seen.values(), key=lambda d: (d["onset_time_s"], d["mode"], d["quantity"]))
+
+
+def assess(reports: Sequence[Any], duration_s: float,
+           events: Sequence[Mapping[str, Any]] | None = None) -> Verdict:
+    """The verdict of a record from its reports (see the module docstring). ``events``: the structural events
+    as dicts (events.csv columns); default: collected from the reports' ``events_opened``/``events_closed``."""
+    reports = list(reports)
+    events = _events_from_reports(reports) if events is None else list(events)
+    duration_s = max(float(duration_s), float(reports[-1].time_s) if reports else 0.0)
+    monitored, first_mon, blind = coverage(reports, duration_s)
+    cov = f"fault tests ran for {monitored:.1f} s of {duration_s:.1f} s"
+    if first_mon is not None:
+        cov += f" (first from {first_mon:.1f} s)"
+    disrupted = [b for b in blind if not b.startup]
+    spans = _span_text(blind)
+    if not any(r.estimating for r in reports):
+        why = blind[-1].reason if blind else "no data"
+        return Verdict("NO ESTIMATE", f"the estimator never had an accepted model in {duration_s:.1f} s of data "
+                       f"({why}); fault tests did not run.", duration_s, 0.0, None, blind)
+    if events:
+        text = f"{_event_text(events)}; {cov}" + (f"; blind {spans}" if disrupted else "") + "."
+        return Verdict("FAULT", text, duration_s, monitored, first_mon, blind)
+    if monitored <= 0.0:
+        end = blind[-1].reason if blind else ""
+        text = (f"fault tests never ran: no trusted baseline in {duration_s:.1f} s of data (at the end: {end})"
+                + (f"; blind {spans}" if disrupted else "") + "; structural faults could not be tested.")
+        return Verdict("DEGRADED", text, duration_s, 0.0, None, blind)
+    if disrupted:
+        text = f"{cov}; blind {spans}; no structural fault detected while they ran."
+        return Verdict("DEGRADED", text, duration_s, monitored, first_mon, blind)
+    return Verdict("OK", f"no structural fault detected in the {monitored:.1f} s the fault tests ran (from "
+                   f"{first_mon:.1f} s to the end of the {duration_s:.1f} s record; before that the start-up: "
+                   "initialization, settling, learning the baseline).", duration_s, monitored, first_mon, blind)
