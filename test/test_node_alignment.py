@@ -5,8 +5,8 @@ shifts u against y for the rest of the run. The pipeline's controller-invariant 
 refill the lost sample from u = C_d(q)(r - y) and say so on /diagnostics; the node's estimates must then equal
 the offline pipeline's on the complete data (up to the rounding of the refilled sample).
 """
+import subprocess
 import sys
-import time
 from pathlib import Path
 
 import numpy as np
@@ -23,44 +23,40 @@ REPO = Path(__file__).resolve().parents[1]
 PAPER = str(REPO / "config" / "paper_example.yaml")
 
 
-def test_one_lost_input_message_is_realigned_live(ros_env):
+def test_one_lost_input_message_is_realigned_live(ros_env, tmp_path):
+    from test_alignment import _write_topics
+
+    from additive_rsrivc_ros.bagio import DEFAULT_T0_NS
     dom = int(ros_env["ROS_DOMAIN_ID"])
     sc = scenarios.build("paper_example", duration_s=160.0, seed=5, drift1_start_s=1e4, drift1_end_s=1.1e4,
                          drift2_start_s=1.2e4, drift2_end_s=1.3e4)
-    n = sc.t.size
     k_lost = 2500                                   # after the initialization, while everything streams
-    rate_pub = 400.0                                # 20x the loop rate: the sample grid is the arrival order
-    proc = start_node(ros_env, PAPER, "qos_depth:=20000", "stale_timeout_s:=5.0")
+    t_ns = DEFAULT_T0_NS + np.rint(sc.t * 1e9).astype(np.int64)
+    bag = _write_topics(tmp_path / "lost", {"/reference": (t_ns, sc.r), "/plant_output": (t_ns, sc.y),
+                                            "/plant_input": (np.delete(t_ns, k_lost), np.delete(sc.u, k_lost))})
+    proc = start_node(ros_env, PAPER, "use_sim_time:=true", "qos_depth:=5000")
     cli = Client(dom, Float64)
     try:
         cli.wait_matched()
-        t0 = time.monotonic()
-        for k in range(n):
-            for s, x in (("reference", sc.r), ("input", sc.u), ("output", sc.y)):
-                if not (s == "input" and k == k_lost):
-                    cli.pubs[s].publish(Float64(data=float(x[k])))
-            lag = t0 + (k + 1) / rate_pub - time.monotonic()
-            if lag > 0:
-                time.sleep(lag)
+        rep = subprocess.run(["rsrivc_replay", str(bag), "--rate", "10", "--clock", "--topics", "/reference",
+                              "/plant_input", "/plant_output", "--wait-for-subscribers", "30"], env=ros_env,
+                             capture_output=True, text=True, timeout=180)
+        assert rep.returncode == 0, rep.stderr
         pipe = MonitorPipeline(MonitorConfig.from_params(load_params_file(PAPER)))
-        h = 1.0 / 20.0
-        ref = pipe.push(np.arange(n) * h, sc.r, sc.u, sc.y)
-        # the node holds back the aligner's lag and one sample for the lost message: compare at its last report
-        last_ref = {round(r.time_s, 6): r for r in ref}
+        ref = pipe.push(sc.t, sc.r, sc.u, sc.y)[-20:]      # the complete data, offline
 
         def matched() -> bool:
             if not cli.modes:
                 return False
             got = np.asarray(cli.modes[-1].data)
-            return any(np.allclose(got, r.modal.ravel(), rtol=1e-6, atol=0.0) for r in list(last_ref.values())[-20:])
+            return any(np.allclose(got, r.modal.ravel(), rtol=1e-6, atol=0.0) for r in ref)
 
         cli.wait_for(matched, 60, "~/modes equal to the offline pipeline on the complete data")
-        reasons = [st.message + " " + " ".join(kv.value for kv in st.values)
-                   for arr in cli.diags for st in arr.status if st.name.endswith(": estimator")]
-        assert any("re-aligned" in x for x in reasons), "the re-alignment was not reported on /diagnostics"
         vals = cli.status("estimator")["values"]
-        assert vals["alignment"] == "verified" and int(vals["alignment_realignments"]) >= 1
-        assert int(vals["alignment_refilled"]) >= 1        # the lost input sample, recomputed from C_d
+        assert vals["alignment"] == "verified" and int(vals["alignment_realignments"]) >= 1, vals
+        assert int(vals["alignment_refilled"]) >= 1, vals     # the lost input sample, recomputed from C_d
+        reasons = [st.message for arr in cli.diags for st in arr.status if st.name.endswith(": estimator")]
+        assert any("re-aligned" in x for x in reasons), "the re-alignment was not reported on /diagnostics"
     finally:
         cli.close()
         rc, out = stop_node(proc, "INT")

@@ -255,6 +255,7 @@ class MonitorPipeline:
         self._align_notes: list[str] = []     # re-alignments since the last report
         self._align_late = 0
         self._align_prev = (0, 0)             # (samples_out, undecided) at the last report
+        self._align_shown: tuple[str, float] | None = None   # last re-alignment note and its report time
         self.magnitude = {name: MagnitudeGuard() for name in ("reference", "input", "output")}
         self.no_model: str | None = None      # why there is no valid model (None: valid, or not tried yet)
         self.model_max_pole = math.nan        # closed-loop spectral radius of the current model with C_d
@@ -679,7 +680,7 @@ class MonitorPipeline:
                                      "later deviations wait until the estimates return to the baseline (or rebaseline)")
             health["level"] = max(int(health["level"]), int(Level.WARN))
             health["ok"] = False
-        self._alignment_health(health)
+        self._alignment_health(health, t_rep)
         health["anomaly_since"] = self.faults.anomaly_since
         self._health_extras(health, status.hold, t_rep)
         health.update(self.counters.to_dict())
@@ -697,7 +698,7 @@ class MonitorPipeline:
         if self.initialized and "divergence" in status.values.get("new_issues", []):
             self._reinitialize(t_rep)
 
-    def _alignment_health(self, health: dict[str, Any]) -> None:
+    def _alignment_health(self, health: dict[str, Any], t_rep: float) -> None:
         """What the stream aligner found since the last report (non-holding: corrected data are valid data)."""
         if self.aligner is None:
             health["alignment"] = {"mode": "off"}
@@ -709,11 +710,14 @@ class MonitorPipeline:
         rel = st.relative_residual
         health["alignment"] = {"mode": "invariant", "verified": self.aligner.verified, **st.to_dict()}
         notes = []
-        if self._align_notes:
-            notes.append("; ".join(self._align_notes) + " (corrected before estimation)"
-                         if len(self._align_notes) < 4 else
-                         f"{len(self._align_notes)} re-alignments since the last report (lost or repeated messages)")
+        if self._align_notes:      # shown for ALIGN_NOTE_HOLD_S: a 1 Hz /diagnostics must not miss it
+            self._align_shown = ("; ".join(self._align_notes) + " (corrected before estimation)"
+                                 if len(self._align_notes) < 4 else f"{len(self._align_notes)} re-alignments "
+                                 f"since t={t_rep:.1f} s (lost or repeated messages, corrected before estimation)",
+                                 t_rep)
             self._align_notes = []
+        if self._align_shown is not None and t_rep - self._align_shown[1] < ALIGN_NOTE_HOLD_S:
+            notes.append(self._align_shown[0])
         if n_out and n_und > ALIGN_UNDECIDED_FRACTION * n_out:
             notes.append(f"alignment not verifiable for {n_und} of {n_out} samples: the controller invariant "
                          "u = C_d(q)(r - y) does not separate the shifts (feedforward, saturation or a different "
@@ -854,6 +858,7 @@ class MonitorPipeline:
 
 
 ALIGN_APPROXIMATE_RELATIVE = 1e-6    # above this the invariant is reported as approximate (float32 control ~1e-7)
+ALIGN_NOTE_HOLD_S = 5.0             # a re-alignment stays in the health reasons this long (report time)
 ALIGN_UNDECIDED_FRACTION = 0.5       # report when more than this fraction of a report period is undecidable
 
 
