@@ -3,6 +3,7 @@ import os
 from glob import glob
 
 from setuptools import find_packages, setup
+from setuptools.command.build_py import build_py
 
 package_name = "additive_rsrivc_ros"
 
@@ -17,6 +18,19 @@ def _tree(src: str, dst: str) -> list[tuple[str, list[str]]]:
     return sorted(out.items())
 
 
+class BuildPyWithConfig(build_py):
+    """build_py that also copies ``config/*.yaml`` (the one hand-kept copy) into the built package as
+    ``additive_rsrivc_ros/data/config``, so the scenarios find their params files after a plain
+    ``pip install .`` or ``colcon build`` (``core.scenarios.config_dir``)."""
+
+    def run(self) -> None:
+        super().run()
+        dst = os.path.join(self.build_lib, package_name, "data", "config")
+        self.mkpath(dst)
+        for path in sorted(glob("config/*.yaml")):
+            self.copy_file(path, os.path.join(dst, os.path.basename(path)))
+
+
 share = os.path.join("share", package_name)
 setup(
     name=package_name,
@@ -26,12 +40,16 @@ setup(
         ("share/ament_index/resource_index/packages", ["resource/" + package_name]),
         (share, ["package.xml"]),
         (os.path.join(share, "config"), sorted(glob("config/*.yaml"))),
+        (os.path.join(share, "launch"), sorted(glob("launch/*.launch.py"))),
         *_tree("bags", os.path.join(share, "bags")),
     ],
     install_requires=[
         # third-party Python modules imported by the package (ROS interfaces: see package.xml)
-        "setuptools", "numpy", "scipy", "numba", "pyyaml", "matplotlib", "rosbags", "mcap", "mcap-ros2-support",
+        "setuptools", "numpy", "scipy", "numba", "pyyaml", "matplotlib", "rosbags",
     ],
+    # optional MCAP bulk reader (mcap_fast.py); without it bags are read by rosbags (bagio._read_fast)
+    extras_require={"mcap": ["mcap"], "test": ["pytest", "ruff", "mcap", "mcap-ros2-support"]},
+    cmdclass={"build_py": BuildPyWithConfig},
     zip_safe=True,
     maintainer="additive_rsrivc_ros developers",
     maintainer_email="dev@additive-rsrivc.invalid",

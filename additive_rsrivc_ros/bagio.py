@@ -303,9 +303,11 @@ def _read_fast(path: Path, sigcfg: dict, topic_to_sig: dict, extra: list, by_top
     if len(files) != 1 or any(path.glob("*.db3")):
         return None
     extra_topics = {c.topic for c in extra if {k.msgtype for k in by_topic[c.topic]} == {c.msgtype}}
-    try:
+    try:  # optional (setup.py extra `mcap`; rosdep has no key for it): without it, rosbags reads every bag
+        import mcap  # noqa: F401  (mcap_fast imports it only inside its readers)
+
         from .mcap_fast import FastPathUnsupported, read_topics
-    except ImportError:  # pragma: no cover - mcap is a declared dependency
+    except ImportError:
         return None
     try:
         return read_topics(files[0], set(topic_to_sig) | extra_topics)

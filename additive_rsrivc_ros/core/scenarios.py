@@ -17,6 +17,7 @@ from __future__ import annotations
 import math
 from collections.abc import Callable
 from dataclasses import dataclass, field
+from importlib import resources
 from pathlib import Path
 from typing import Any
 
@@ -56,16 +57,13 @@ BEAM_NOISE_STD = 3.0e-4  # ~3 % of the std of mode 2's output contribution (0.01
 
 
 def config_dir() -> Path:
-    """``config/`` of the source tree, or the installed ``share/additive_rsrivc_ros/config``."""
-    src = Path(__file__).resolve().parents[2] / "config"
-    if src.is_dir():
-        return src
-    try:
-        from ament_index_python.packages import get_package_share_directory
-
-        return Path(get_package_share_directory("additive_rsrivc_ros")) / "config"
-    except Exception:  # noqa: BLE001
-        return src
+    """The params files: ``config/`` of a source tree (checkout, editable install, colcon --symlink-install), else
+    the copy that setup.py's build step puts into the package (``additive_rsrivc_ros/data/config``: pip install,
+    wheel, colcon build). ``share/additive_rsrivc_ros/config`` holds the same files for ``--params-file``."""
+    root = Path(__file__).resolve().parents[2]
+    if (root / "package.xml").is_file() and (root / "config").is_dir():
+        return root / "config"
+    return Path(str(resources.files("additive_rsrivc_ros") / "data" / "config"))
 
 
 @dataclass
