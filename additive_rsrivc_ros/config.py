@@ -521,3 +521,65 @@ def _auto_mode_settings(p: Mapping[str, Any], k: int) -> tuple[int, int, tuple[f
 def load_config(path: str | Path, node_name: str = DEFAULT_NODE_NAME) -> MonitorConfig:
     """:func:`load_params_file` followed by :meth:`MonitorConfig.from_params`."""
     return MonitorConfig.from_params(load_params_file(path, node_name))
+
+
+def _yaml_scalar(v: Any) -> str:
+    if isinstance(v, bool):
+        return "true" if v else "false"
+    if isinstance(v, int | np.integer):
+        return str(int(v))
+    if isinstance(v, float | np.floating):
+        text = repr(float(v))
+        return text if ("." in text or "e" in text or "inf" in text or "nan" in text) else text + ".0"
+    return '"' + str(v).replace("\\", "\\\\").replace('"', '\\"') + '"'
+
+
+def _yaml_value(p: Param, v: Any) -> str:
+    if p.type.endswith("[]"):
+        cast = float if p.type == "double[]" else (lambda x: x)
+        return "[" + ", ".join(_yaml_scalar(cast(x)) for x in v) + "]"
+    return _yaml_scalar(float(v) if p.type == "double" else v)
+
+
+def _comment_lines(text: str, indent: str, width: int = 112) -> list[str]:
+    import textwrap
+
+    return [f"{indent}# {line}" for line in textwrap.wrap(text, max(40, width - len(indent) - 2))]
+
+
+def render_params_yaml(params: Mapping[str, Any], node_name: str = DEFAULT_NODE_NAME, header: str = "") -> str:
+    """A complete, commented ROS 2 params YAML of ``params`` (every parameter of the table, in table order; an
+    empty list, which a ROS 2 params file cannot hold, is written commented out). Reads back with
+    :func:`load_params_file` to the same values."""
+    table = param_table()
+    values = validate_params({k: v for k, v in params.items() if k in table})
+    tree: dict[str, Any] = {}
+    for p in all_params():
+        node = tree
+        *parents, leaf = p.name.split(".")
+        for key in parents:
+            node = node.setdefault(key, {})
+        node[leaf] = p
+
+    def has_value(node: dict[str, Any]) -> bool:
+        return any(has_value(c) if isinstance(c, dict) else bool(values[c.name]) or not c.type.endswith("[]")
+                   for c in node.values())
+
+    lines = [f"# {line}" if line else "#" for line in header.splitlines()]
+    lines += [f"{node_name}:", "  ros__parameters:"]
+
+    def emit(node: dict[str, Any], depth: int, commented: bool) -> None:
+        indent = "  " * depth
+        for key, child in node.items():
+            if isinstance(child, dict):
+                off = commented or not has_value(child)
+                lines.append(f"{indent}{'# ' if off else ''}{key}:")
+                emit(child, depth + 1, off)
+                continue
+            v = values[child.name]
+            lines.extend(_comment_lines(child.description, indent))
+            off = commented or (child.type.endswith("[]") and not v)
+            lines.append(f"{indent}{'# ' if off else ''}{key}: {_yaml_value(child, v)}")
+
+    emit(tree, 2, False)
+    return "\n".join(lines) + "\n"
