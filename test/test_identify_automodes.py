@@ -88,3 +88,47 @@ def test_bad_modes_argument_and_baseline_without_out_params(bag, tmp_path, capsy
     assert identify.main([bag_path, "--params-file", params, "--out", str(tmp_path / "a.json"), "--baseline"]) == 2
     err = capsys.readouterr().err.strip().splitlines()[-1]
     assert err.startswith("rsrivc_identify: error:") and "out-params" in err
+
+
+def test_diagnose_without_guesses_starts_from_the_data(bag, tmp_path, capsys):
+    """rsrivc_diagnose with no guesses: modes found on the first init_duration_s, then tracked."""
+    bag_path, params = bag
+    ddir = tmp_path / "diag"
+    assert diagnose.main([bag_path, "--params-file", params, "--out", str(ddir), "--no-report", "--quiet"]) == 0
+    assert "no mode guesses: found 2 mode(s)" in capsys.readouterr().err
+    rows = list(csv.DictReader((ddir / "estimates.csv").open()))
+    last = {int(row["mode"]): row for row in rows}
+    assert sorted(last) == [1, 2]
+    for i, truth in enumerate(MODES, 1):
+        assert abs(float(last[i]["natural_frequency_hz"]) / truth.natural_frequency_hz - 1.0) < 0.01
+        assert abs(float(last[i]["damping_ratio"]) / truth.damping_ratio - 1.0) < 0.15
+    summary = json.loads((ddir / "summary.json").read_text())
+    assert summary["verdict"] != "FAULT" and summary["K"] == 2
+
+
+def test_pipeline_with_empty_guesses_tracks_the_right_modes(bag):
+    """The core path the node and rsrivc_diagnose share: autostart_config on the init data, then the pipeline."""
+    from additive_rsrivc_ros.bagio import read_signals
+    from additive_rsrivc_ros.core.modefind import autostart_config
+    from additive_rsrivc_ros.core.pipeline import MonitorPipeline
+
+    cfg = load_config(bag[1])
+    sig = read_signals(bag[0], cfg)
+    n0 = int(cfg.init_duration_s * cfg.loop_rate_hz)
+    full, found = autostart_config(cfg, sig.r[:n0], sig.u[:n0], sig.y[:n0])
+    assert found.K == 2 and full.K == 2 and [m.memory_s for m in full.modes] == [5.0, 5.0]
+    pipe = MonitorPipeline(full)
+    step = int(cfg.loop_rate_hz)
+    for a in range(0, sig.t.size, step):
+        pipe.push(sig.t[a:a + step], sig.r[a:a + step], sig.u[a:a + step], sig.y[a:a + step])
+    modal = pipe.modal()
+    for m, truth in zip(modal, MODES, strict=True):
+        assert abs(m[0] / truth.natural_frequency_hz - 1.0) < 0.01
+        assert abs(m[1] / truth.damping_ratio - 1.0) < 0.15
+
+
+def test_estimator_without_guesses_is_a_clear_error(bag):
+    from additive_rsrivc_ros.core.recursive import RecursiveAdditiveSRIVC
+
+    with pytest.raises(ValueError, match="no mode guesses"):
+        RecursiveAdditiveSRIVC.from_config(load_config(bag[1]))

@@ -76,21 +76,6 @@ def longest_gap_free(t: np.ndarray, rate_hz: float, tolerance: float) -> tuple[s
     return slice(int(edges[k]), int(edges[k + 1])), int(breaks.size)
 
 
-def find_modes_from_data(cfg, r, u, y, count: int | None):
-    """Modes (and with ``count`` 0 their number) from the data (core/modefind.py); returns the configuration with
-    the found modes as guesses and the :class:`ModeFindResult`. ``count`` None: ``modes.count`` of the params."""
-    from ..core.modefind import find_modes
-
-    closed = cfg.closed_loop
-    k = cfg.mode_count if count is None else count
-    res = find_modes(u, y, cfg.loop_rate_hz, r=r if closed else None, controller=cfg.controller if closed else None,
-                     input_delay=cfg.input_delay_samples, count=k, max_count=max(cfg.max_mode_count, k),
-                     frequency_range_hz=cfg.frequency_range_hz,
-                     max_iterations=max(30, cfg.estimator.init_max_iterations))
-    modal = np.array([m if s.n == 2 else (0.0, 0.0, m[2]) for m, s in zip(res.modal, res.structures, strict=True)])
-    return cfg.with_modes(modal, [s.integrators for s in res.structures]), res
-
-
 def write_params_file(cfg, doc: dict, path: str, node_name: str | None, baseline: bool, source: str) -> None:
     """The input params with the identified ``modes.*`` (and ``faults.baseline.*`` when ``baseline``) as a complete,
     commented params YAML for the node, written atomically."""
@@ -146,7 +131,9 @@ def run(bag: str, params_file: str, out: str, method: str = "auto", max_iteratio
     r_seg = sig.r[seg] if closed else None
     found = None
     if cfg.auto_modes or modes is not None:
-        cfg, found = find_modes_from_data(cfg, r_seg, sig.u[seg], sig.y[seg], modes)
+        from ..core.modefind import autostart_config
+
+        cfg, found = autostart_config(cfg, r_seg, sig.u[seg], sig.y[seg], modes)
     res = identify(sig.u[seg], sig.y[seg], cfg.loop_rate_hz, cfg.structures, [m.theta0() for m in cfg.modes],
                    r=r_seg, controller=cfg.controller if closed else None,
                    input_delay=cfg.input_delay_samples, method=method, max_iterations=iters, tol=tol,

@@ -211,11 +211,55 @@ def _start(candidates: list[Candidate], K: int) -> list[Candidate] | None:
     return rigid + sorted(peaks[:n_peaks], key=lambda c: c.natural_frequency_hz)
 
 
+def _stabilized(start: list[Candidate], rate_hz: float, controller, input_delay: int) -> list[Candidate]:
+    """A start the controller stabilizes (the closed-loop instrument, 001 eq. 20, needs one): peak-picked damping is
+    resolution-limited and the gain follows from it, so a start may destabilize a loop with a small margin; the
+    damping of every resonant candidate is doubled (at most 0.7) until it is stable, then the gains are halved."""
+    if controller is None:
+        return start
+    from .filters import closed_loop_radius
+
+    def stable(cands: list[Candidate]) -> bool:
+        try:
+            return closed_loop_radius([c.theta() for c in cands], [c.structure for c in cands], 1.0 / rate_hz,
+                                      controller, input_delay) < 1.0
+        except ValueError:
+            return False
+
+    cands = list(start)
+    for step in range(8):
+        if stable(cands):
+            return cands
+        if step < 4:
+            cands = [c if c.natural_frequency_hz == 0 else Candidate(
+                c.natural_frequency_hz, min(2.0 * c.damping_ratio, 0.7), c.gain, c.prominence_decades, c.integrators)
+                for c in cands]
+        else:
+            cands = [Candidate(c.natural_frequency_hz, c.damping_ratio, 0.5 * c.gain, c.prominence_decades,
+                               c.integrators) for c in cands]
+    return cands  # still unstable: identify reports it
+
+
 def _fit(u, y, rate_hz, r, controller, input_delay, start: list[Candidate], max_iterations: int):
+    """Offline additive (CL)SRIVC from the candidates. In closed loop, a start the controller does not stabilize
+    even after :func:`_stabilized` is first refined by the open-loop additive SRIVC (u -> y; biased by the feedback
+    but needs no stable closed loop), whose result then starts the CLSRIVC."""
+    from .filters import ClosedLoopUnstableError
     from .offline import identify
 
-    return identify(u, y, rate_hz, [c.structure for c in start], [c.theta() for c in start], r=r,
-                    controller=controller, input_delay=input_delay, max_iterations=max_iterations)
+    start = _stabilized(start, rate_hz, controller, input_delay)
+    structures = [c.structure for c in start]
+    thetas = [c.theta() for c in start]
+    try:
+        return identify(u, y, rate_hz, structures, thetas, r=r, controller=controller, input_delay=input_delay,
+                        max_iterations=max_iterations)
+    except ClosedLoopUnstableError:
+        if controller is None:
+            raise
+    pre = identify(u, y, rate_hz, structures, thetas, input_delay=input_delay, max_iterations=max_iterations,
+                   method="additive-srivc")
+    return identify(u, y, rate_hz, structures, pre.thetas, r=r, controller=controller, input_delay=input_delay,
+                    max_iterations=max_iterations)
 
 
 def _usable(res: Any) -> bool:
@@ -310,3 +354,33 @@ def find_modes(u, y, rate_hz: float, *, r=None, controller=None, input_delay: in
             f"{m[0]:.4g} Hz" for m, ok in zip(modal, ident, strict=True) if not ok)
     return ModeFindResult(chosen.K, structures, [np.asarray(t, float) for t in res.thetas], modal, ident, table,
                           frf, candidates, res, message)
+
+
+def _longest_finite(*signals: np.ndarray | None) -> slice:
+    ok = np.ones(signals[1].size, dtype=bool)
+    for s in signals:
+        if s is not None:
+            ok &= np.isfinite(s)
+    edges = np.flatnonzero(np.diff(np.concatenate(([0], ok.astype(int), [0]))))
+    if edges.size == 0:
+        return slice(0, 0)
+    starts, ends = edges[::2], edges[1::2]
+    j = int(np.argmax(ends - starts))
+    return slice(int(starts[j]), int(ends[j]))
+
+
+def autostart_config(cfg: Any, r, u, y, count: int | None = None) -> tuple[Any, ModeFindResult]:
+    """The automatic start of a :class:`config.MonitorConfig` without guesses (issue 12): modes found on the given
+    data (the longest finite stretch; ``count`` None: ``modes.count``), returned as the configuration with those
+    modes as guesses, and the evidence. Raises ``ValueError`` (one line) when no mode can be found."""
+    closed = bool(cfg.closed_loop)
+    r = np.asarray(r, dtype=float) if closed and r is not None else None
+    u, y = np.asarray(u, dtype=float), np.asarray(y, dtype=float)
+    seg = _longest_finite(r, u, y)
+    k = cfg.mode_count if count is None else int(count)
+    res = find_modes(u[seg], y[seg], cfg.loop_rate_hz, r=None if r is None else r[seg],
+                     controller=cfg.controller if closed else None, input_delay=cfg.input_delay_samples, count=k,
+                     max_count=max(cfg.max_mode_count, k), frequency_range_hz=cfg.frequency_range_hz,
+                     max_iterations=max(30, cfg.estimator.init_max_iterations))
+    modal = np.array([m if s.n == 2 else (0.0, 0.0, m[2]) for m, s in zip(res.modal, res.structures, strict=True)])
+    return cfg.with_modes(modal, [s.integrators for s in res.structures]), res
