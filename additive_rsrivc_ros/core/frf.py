@@ -26,7 +26,8 @@ number of averages is ``n_d / (1 + 2 c^2)`` with ``c = 0.167`` the correlation o
 Validity: a frequency is *valid* when the excitation reaches it (the power of ``r``, or of ``u`` in open loop, is
 above ``excitation_floor`` times its maximum over the band), both ``u`` and ``y`` are significantly coherent with
 the excitation (coherence above the level that ``n_d`` averages of *uncorrelated* signals exceed with probability
-``alpha = 0.01``, ``1 - alpha^(1/(n_d - 1))``; where the fed-back noise dominates ``S_ur`` the ratio tends to
+``alpha``, ``1 - alpha^(1/(n_d - 1))``, with ``alpha = min(0.01, 1/n_bins)`` so that less than one bin of the
+whole record passes by chance; where the fed-back noise dominates ``S_ur`` the ratio tends to
 ``-1/C`` and the first-order variance collapses with it, so this test, not the variance, rejects such bins), and the
 estimate carries information (relative std
 below ``max_relative_std``; 0.3, not 1: the test uses the noisy ``|G_hat|``, and a loose bound would keep the bins
@@ -122,7 +123,7 @@ def coherence_threshold(n_segments: int, alpha: float = 0.01) -> float:
 
 def estimate_frf(u: Sequence[float], y: Sequence[float], rate_hz: float, r: Sequence[float] | None = None, *,
                  nperseg: int | None = None, excitation_floor: float = 1e-8, max_relative_std: float = 0.3,
-                 min_averages: int = 8, alpha: float = 0.01) -> FRFEstimate:
+                 min_averages: int = 16, alpha: float | None = None) -> FRFEstimate:
     """FRF of the plant from ``u`` to ``y`` (indirect through ``r`` when given). See the module docstring."""
     u = np.asarray(u, dtype=float)
     y = np.asarray(y, dtype=float)
@@ -133,7 +134,9 @@ def estimate_frf(u: Sequence[float], y: Sequence[float], rate_hz: float, r: Sequ
         raise ValueError("r must have the length of u and y")
     if not (np.all(np.isfinite(u)) and np.all(np.isfinite(y)) and np.all(np.isfinite(x))):
         raise ValueError("r, u and y must be finite for the FRF")
-    nperseg = default_nperseg(u.size, min_averages) if nperseg is None else int(nperseg)
+    if nperseg is None:  # min_averages, unless that makes the resolution coarser than 0.5 Hz: then down to 8
+        nperseg = max(default_nperseg(u.size, min_averages),
+                      min(default_nperseg(u.size, min(8, min_averages)), int(2 * rate_hz)))
     if nperseg < 16 or u.size < 2 * nperseg:
         raise ValueError(f"record of {u.size} samples too short for FRF segments of {nperseg} (need 2 segments)")
     X, U, Y = _segments(x, nperseg), _segments(u, nperseg), _segments(y, nperseg)
@@ -160,6 +163,7 @@ def estimate_frf(u: Sequence[float], y: Sequence[float], rate_hz: float, r: Sequ
     floor = excitation_floor * np.max(S_xx[inner]) if np.any(inner) else np.inf
     rel = np.sqrt(np.where(finite, var, np.inf)) / np.maximum(np.abs(np.where(finite, G, 0.0)), tiny)
     n_eff_int = max(int(np.floor(n_eff)), 2)
+    alpha = min(0.01, 1.0 / freqs.size) if alpha is None else alpha  # Bonferroni: < 1 spurious bin per record
     coherent = (coh > coherence_threshold(n_eff_int, alpha)) & (coh_u > coherence_threshold(n_eff_int, alpha))
     valid = inner & finite & (S_xx > floor) & coherent & (rel < max_relative_std)
     G = np.where(finite, G, 0.0)

@@ -3,8 +3,10 @@
 1. :func:`find_candidates`: on the valid part of the nonparametric FRF (:mod:`core.frf`), with the input delay and
    the zero-order hold's half sample removed from the phase,
 
-   * resonance peaks of ``|G|`` (``scipy.signal.find_peaks`` on ``log10 |G|`` with a prominence above
-     ``MIN_PROMINENCE_DECADES`` and above three relative noise standard deviations of the estimate): frequency by a
+   * resonance peaks of ``|G|`` (``scipy.signal.find_peaks`` on ``log10 |G|`` averaged over 5 bins, the Hann main
+     lobe, with a prominence above ``MIN_PROMINENCE_DECADES`` and above three relative noise standard deviations of
+     the averaged estimate, and at least 3 valid bins in the average), located at the raw maximum within two bins:
+     frequency by a
      parabola through the three log-magnitudes around the peak, damping by the half-power width
      ``zeta = (f2 - f1) / (2 f_peak)`` (one side doubled when the other leaves the valid band; never below the
      window's resolution ``Delta f / (2 f_peak)``), modal gain of ``b0/(a2 p^2 + a1 p + 1)`` from the peak value
@@ -18,8 +20,9 @@
    *output error on the rest* (held-out data): in closed loop the model's noise-free closed-loop output ``T_o r``
    (001 eq. 20), in open loop ``G u``. **Order rule:** starting from the smallest K that fitted, a larger K replaces
    the current choice only if its held-out error is below ``(1 - margin)`` times the current one (``margin`` =
-   2 %). The chosen model is then refitted on the whole record. Modes whose frequency lies outside the band where
-   the FRF is valid are reported as not identifiable.
+   2 %); the scan stops after two orders in a row without such a gain. The chosen model is then refitted on the
+   whole record. Modes whose frequency lies outside the band where the FRF is valid are reported as not
+   identifiable.
 """
 
 from __future__ import annotations
@@ -35,6 +38,8 @@ from .model import TWO_PI, SubmodelStructure, modal_from_theta, theta_from_modal
 MIN_PROMINENCE_DECADES = 0.1  # 2 dB
 DEFAULT_MARGIN = 0.02
 RIGID_SLOPE_TOLERANCE = 0.25
+SMOOTH_BINS = 5
+STOP_AFTER_MISSES = 2  # order scan stops after this many consecutive orders without a significant gain
 
 
 @dataclass(frozen=True)
@@ -151,6 +156,21 @@ def _half_power_damping(f: np.ndarray, mag: np.ndarray, k: int, fp: float, resol
     return float(max(width, resolution_hz) / (2.0 * fp))
 
 
+def _smoothed(logm: np.ndarray, f: np.ndarray, resolution_hz: float) -> tuple[np.ndarray, np.ndarray]:
+    """Mean of ``log10 |G|`` over ``SMOOTH_BINS`` neighbouring valid bins (the Hann window's main lobe), so that a
+    noise spike or the leakage step next to a reference line is not a peak; a real peak, already as wide as the
+    main lobe, keeps its place. Also returns how many valid bins each mean used."""
+    half = SMOOTH_BINS // 2
+    out = logm.copy()
+    count = np.ones(logm.size, dtype=int)
+    for k in range(logm.size):
+        near = slice(max(0, k - half), min(logm.size, k + half + 1))
+        sel = np.abs(f[near] - f[k]) <= (half + 0.5) * resolution_hz
+        out[k] = float(np.mean(logm[near][sel]))
+        count[k] = int(sel.sum())
+    return out, count
+
+
 def find_candidates(frf: FRFEstimate, input_delay: int = 0,
                     frequency_range_hz: tuple[float, float] | None = None) -> list[Candidate]:
     """Candidate submodels from the valid FRF: rigid body first (if any), then peaks by decreasing prominence."""
@@ -166,11 +186,16 @@ def find_candidates(frf: FRFEstimate, input_delay: int = 0,
     mag = np.abs(g)
     logm = np.log10(np.maximum(mag, np.finfo(float).tiny))
     rel_std = frf.std[sel] / np.maximum(mag, np.finfo(float).tiny)  # noise only: leakage steps are signal
-    idx, props = find_peaks(logm, prominence=MIN_PROMINENCE_DECADES)
+    smooth, count = _smoothed(logm, f, frf.resolution_hz)
+    idx, props = find_peaks(smooth, prominence=MIN_PROMINENCE_DECADES)
     peaks = []
     for k, prom in zip(idx, props["prominences"], strict=True):
-        if prom < 3.0 * rel_std[k] / np.log(10.0):
+        # a resonance in an informed region has valid neighbours; an isolated valid bin in a noisy region is
+        # a chance coherence, not a peak
+        if count[k] < 3 or prom < 3.0 * rel_std[k] / np.log(10.0) / np.sqrt(count[k]):
             continue
+        near = np.flatnonzero(np.abs(f - f[k]) <= 2.5 * frf.resolution_hz)
+        k = int(near[np.argmax(logm[near])])  # the raw maximum next to the smoothed peak
         fp = f[k]
         if 0 < k < f.size - 1 and f[k + 1] - f[k - 1] < 2.5 * frf.resolution_hz:
             den = logm[k - 1] - 2.0 * logm[k] + logm[k + 1]
@@ -275,7 +300,17 @@ def order_table(u, y, rate_hz: float, r, controller, input_delay: int, candidate
     split = int(round(n * (1.0 - validation_fraction)))
     table: list[OrderRow] = []
     fits: dict[int, Any] = {}
+    best, misses = np.inf, 0
     for K in orders:
+        if table:  # the order rule, applied as the scan goes: count the orders without a significant gain
+            last = table[-1].validation_error
+            if np.isfinite(last) and (not np.isfinite(best) or last < (1.0 - margin) * best):
+                best, misses = last, 0
+            elif np.isfinite(best):
+                misses += 1
+        if misses >= STOP_AFTER_MISSES:  # larger K are not tried
+            table.append(OrderRow(K, np.inf, np.inf, message=f"not tried ({misses} orders in a row without gain)"))
+            continue
         start = _start(candidates, K)
         if start is None:
             table.append(OrderRow(K, np.inf, np.inf, message="fewer candidates than K"))
