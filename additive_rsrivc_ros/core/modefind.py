@@ -15,7 +15,8 @@
      within 0.25 of -l decades/decade over at least five bins), ``b0`` from ``G = b0/(j omega)^l``.
 
 2. :func:`find_modes`: for ``K = 1 .. K_max`` (the rigid body, if any, counts as one submodel and is always kept;
-   the K - 1 or K most prominent peaks are added) the offline additive CLSRIVC (closed loop, 001 eq. 20/29) or
+   the first order starts from the most prominent peaks, each larger one from the best smaller model plus the
+   most prominent peak not near one of its modes) the offline additive CLSRIVC (closed loop, 001 eq. 20/29) or
    SRIVC (open loop) is fitted on the first ``1 - validation_fraction`` of the record and judged by the mean squared
    *output error on the rest* (held-out data): in closed loop the model's noise-free closed-loop output ``T_o r``
    (001 eq. 20), in open loop ``G u``. **Order rule:** starting from the smallest K that fitted, a larger K replaces
@@ -265,6 +266,25 @@ def _stabilized(start: list[Candidate], rate_hz: float, controller, input_delay:
     return cands  # still unstable: identify reports it
 
 
+def _nested_start(best_fit: Any, candidates: list[Candidate], K: int) -> list[Candidate] | None:
+    """Start for order K from the best smaller model: its fitted submodels plus the most prominent candidates not
+    within 15 % of one of its modes (a fit may have moved a start to a mode the peak list ranked low, e.g. a
+    well-damped low mode that dominates the output error)."""
+    fitted = [Candidate(*(modal_from_theta(t, s) if s.n == 2 else (0.0, 0.0, t[0])), 0.0, s.integrators)
+              for t, s in zip(best_fit.thetas, best_fit.structures, strict=True)]
+    need = K - len(fitted)
+    if need < 1:
+        return None
+    has_rigid = any(c.natural_frequency_hz == 0.0 for c in fitted)
+    fresh = [c for c in candidates
+             if (c.natural_frequency_hz == 0.0 and not has_rigid)
+             or (c.natural_frequency_hz > 0.0 and all(abs(c.natural_frequency_hz / m.natural_frequency_hz - 1.0) > 0.15
+                                                      for m in fitted if m.natural_frequency_hz > 0.0))]
+    if len(fresh) < need:
+        return None
+    return sorted(fitted + fresh[:need], key=lambda c: c.natural_frequency_hz)
+
+
 def _fit(u, y, rate_hz, r, controller, input_delay, start: list[Candidate], max_iterations: int):
     """Offline additive (CL)SRIVC from the candidates. In closed loop, a start the controller does not stabilize
     even after :func:`_stabilized` is first refined by the open-loop additive SRIVC (u -> y; biased by the feedback
@@ -301,17 +321,18 @@ def order_table(u, y, rate_hz: float, r, controller, input_delay: int, candidate
     table: list[OrderRow] = []
     fits: dict[int, Any] = {}
     best, misses = np.inf, 0
+    best_fit = None
     for K in orders:
         if table:  # the order rule, applied as the scan goes: count the orders without a significant gain
             last = table[-1].validation_error
             if np.isfinite(last) and (not np.isfinite(best) or last < (1.0 - margin) * best):
-                best, misses = last, 0
+                best, misses, best_fit = last, 0, fits[table[-1].K]
             elif np.isfinite(best):
                 misses += 1
         if misses >= STOP_AFTER_MISSES:  # larger K are not tried
             table.append(OrderRow(K, np.inf, np.inf, message=f"not tried ({misses} orders in a row without gain)"))
             continue
-        start = _start(candidates, K)
+        start = _start(candidates, K) if best_fit is None else _nested_start(best_fit, candidates, K)
         if start is None:
             table.append(OrderRow(K, np.inf, np.inf, message="fewer candidates than K"))
             continue
