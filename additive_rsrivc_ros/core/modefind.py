@@ -16,14 +16,14 @@
 
 2. :func:`find_modes`: for ``K = 1 .. K_max`` (the rigid body, if any, counts as one submodel and is always kept;
    the first order starts from the most prominent peaks, each larger one from the best smaller model plus the
-   most prominent peak not near one of its modes) the offline additive CLSRIVC (closed loop, 001 eq. 20/29) or
-   SRIVC (open loop) is fitted on the first ``1 - validation_fraction`` of the record and judged by the mean squared
-   *output error on the rest* (held-out data): in closed loop the model's noise-free closed-loop output ``T_o r``
-   (001 eq. 20), in open loop ``G u``. **Order rule:** starting from the smallest K that fitted, a larger K replaces
-   the current choice only if its held-out error is below ``(1 - margin)`` times the current one (``margin`` =
-   2 %); the scan stops after two orders in a row without such a gain. The chosen model is then refitted on the
-   whole record. Modes whose frequency lies outside the band where the FRF is valid are reported as not
-   identifiable.
+   most prominent peak not near one of its modes, or the next ones, up to three) the offline additive CLSRIVC
+   (closed loop, 001 eq. 20/29) or SRIVC (open loop) is fitted on the first ``1 - validation_fraction`` of the
+   record and judged by the mean squared *output error on the rest* (held-out data): in closed loop the model's
+   noise-free closed-loop output ``T_o r`` (001 eq. 20), in open loop ``G u``. **Order rule:** starting from the
+   smallest K that fitted, a larger K replaces the current choice only if its held-out error is below
+   ``(1 - margin)`` times the current one (``margin`` = 2 %); the scan stops after two orders in a row without
+   such a gain. The chosen model is then refitted on the whole record. Modes whose frequency lies outside the band
+   where the FRF is valid are reported as not identifiable.
 """
 
 from __future__ import annotations
@@ -40,6 +40,7 @@ MIN_PROMINENCE_DECADES = 0.1  # 2 dB
 DEFAULT_MARGIN = 0.02
 RIGID_SLOPE_TOLERANCE = 0.25
 SMOOTH_BINS = 5
+ALTERNATIVES = 3  # new peaks tried for each larger order
 STOP_AFTER_MISSES = 2  # order scan stops after this many consecutive orders without a significant gain
 
 
@@ -266,10 +267,10 @@ def _stabilized(start: list[Candidate], rate_hz: float, controller, input_delay:
     return cands  # still unstable: identify reports it
 
 
-def _nested_start(best_fit: Any, candidates: list[Candidate], K: int) -> list[Candidate] | None:
+def _nested_start(best_fit: Any, candidates: list[Candidate], K: int, skip: int = 0) -> list[Candidate] | None:
     """Start for order K from the best smaller model: its fitted submodels plus the most prominent candidates not
-    within 15 % of one of its modes (a fit may have moved a start to a mode the peak list ranked low, e.g. a
-    well-damped low mode that dominates the output error)."""
+    within 15 % of one of its modes (the last one replaced by the ``skip``-th next: alternatives). A fit may have
+    moved a start to a mode the peak list ranked low, e.g. a well-damped low mode that dominates the output error."""
     fitted = [Candidate(*(modal_from_theta(t, s) if s.n == 2 else (0.0, 0.0, t[0])), 0.0, s.integrators)
               for t, s in zip(best_fit.thetas, best_fit.structures, strict=True)]
     need = K - len(fitted)
@@ -280,9 +281,9 @@ def _nested_start(best_fit: Any, candidates: list[Candidate], K: int) -> list[Ca
              if (c.natural_frequency_hz == 0.0 and not has_rigid)
              or (c.natural_frequency_hz > 0.0 and all(abs(c.natural_frequency_hz / m.natural_frequency_hz - 1.0) > 0.15
                                                       for m in fitted if m.natural_frequency_hz > 0.0))]
-    if len(fresh) < need:
+    if len(fresh) < need + skip:
         return None
-    return sorted(fitted + fresh[:need], key=lambda c: c.natural_frequency_hz)
+    return sorted(fitted + fresh[:need - 1] + [fresh[need - 1 + skip]], key=lambda c: c.natural_frequency_hz)
 
 
 def _fit(u, y, rate_hz, r, controller, input_delay, start: list[Candidate], max_iterations: int):
@@ -312,10 +313,28 @@ def _usable(res: Any) -> bool:
         t[0] > 0 and t[1] > 0 for t, s in zip(res.thetas, res.structures, strict=True) if s.n == 2)
 
 
+def _evaluate(K: int, start: list[Candidate], u, y, rate_hz, r, controller, input_delay, split: int,
+              max_iterations: int) -> tuple[OrderRow, Any]:
+    """Fit one start on ``[:split]`` and measure its output error on both parts (a failure is a row, not a crash)."""
+    try:
+        res = _fit(u[:split], y[:split], rate_hz, None if r is None else r[:split], controller, input_delay,
+                   start, max_iterations)
+    except Exception as exc:  # noqa: BLE001 - a failed order is a row of the table, not a crash
+        return OrderRow(K, np.inf, np.inf, message=f"{type(exc).__name__}: {exc}"), None
+    if not _usable(res):
+        return OrderRow(K, np.inf, np.inf, converged=bool(res.converged), message="unstable or non-finite"), None
+    try:
+        e_fit, e_val = _held_out_error(res.thetas, res.structures, rate_hz, u, y, r, controller, input_delay, split)
+    except Exception as exc:  # noqa: BLE001 - e.g. the controller does not stabilize the fitted model
+        return OrderRow(K, np.inf, np.inf, converged=bool(res.converged), message=f"{type(exc).__name__}: {exc}"), None
+    return OrderRow(K, e_fit, e_val, converged=bool(res.converged), message=res.message), res
+
+
 def order_table(u, y, rate_hz: float, r, controller, input_delay: int, candidates: list[Candidate],
                 orders: list[int], validation_fraction: float, max_iterations: int,
                 margin: float) -> tuple[list[OrderRow], dict[int, Any]]:
-    """Fit each order on the first part, held-out error on the rest; mark the accepted order (module rule)."""
+    """Fit each order on the first part, held-out error on the rest; mark the accepted order (module rule). A larger
+    order built on the best smaller model tries up to ``ALTERNATIVES`` new peaks and keeps the best."""
     n = u.size
     split = int(round(n * (1.0 - validation_fraction)))
     table: list[OrderRow] = []
@@ -332,35 +351,29 @@ def order_table(u, y, rate_hz: float, r, controller, input_delay: int, candidate
         if misses >= STOP_AFTER_MISSES:  # larger K are not tried
             table.append(OrderRow(K, np.inf, np.inf, message=f"not tried ({misses} orders in a row without gain)"))
             continue
-        start = _start(candidates, K) if best_fit is None else _nested_start(best_fit, candidates, K)
-        if start is None:
+        starts = ([_start(candidates, K)] if best_fit is None else
+                  [_nested_start(best_fit, candidates, K, skip) for skip in range(ALTERNATIVES)])
+        starts = [st for st in starts if st is not None]
+        if not starts:
             table.append(OrderRow(K, np.inf, np.inf, message="fewer candidates than K"))
             continue
-        try:
-            res = _fit(u[:split], y[:split], rate_hz, None if r is None else r[:split], controller, input_delay,
-                       start, max_iterations)
-        except Exception as exc:  # noqa: BLE001 - a failed order is a row of the table, not a crash
-            table.append(OrderRow(K, np.inf, np.inf, message=f"{type(exc).__name__}: {exc}"))
-            continue
-        if not _usable(res):
-            table.append(OrderRow(K, np.inf, np.inf, converged=bool(res.converged), message="unstable or non-finite"))
-            continue
-        try:
-            e_fit, e_val = _held_out_error(res.thetas, res.structures, rate_hz, u, y, r, controller, input_delay,
-                                           split)
-        except Exception as exc:  # noqa: BLE001 - e.g. the controller does not stabilize the fitted model
-            table.append(OrderRow(K, np.inf, np.inf, converged=bool(res.converged),
-                                  message=f"{type(exc).__name__}: {exc}"))
-            continue
-        fits[K] = res
-        table.append(OrderRow(K, e_fit, e_val, converged=bool(res.converged), message=res.message))
-    best: OrderRow | None = None
+        row, res = None, None
+        for st in starts:
+            cand_row, cand_res = _evaluate(K, st, u, y, rate_hz, r, controller, input_delay, split, max_iterations)
+            if row is None or cand_row.validation_error < row.validation_error:
+                row, res = cand_row, cand_res
+            if np.isfinite(best) and row.validation_error < (1.0 - margin) * best:
+                break  # a significant gain: no need to try the other peaks
+        if res is not None:
+            fits[K] = res
+        table.append(row)
+    chosen: OrderRow | None = None
     for row in table:
-        if np.isfinite(row.validation_error) and (best is None or row.validation_error < (1.0 - margin)
-                                                  * best.validation_error):
-            best = row
-    if best is not None:
-        best.accepted = True
+        if np.isfinite(row.validation_error) and (chosen is None or row.validation_error < (1.0 - margin)
+                                                  * chosen.validation_error):
+            chosen = row
+    if chosen is not None:
+        chosen.accepted = True
     return table, fits
 
 
