@@ -59,13 +59,20 @@ CORE_PARAMS: list[Param] = [
           read_only=True),
     Param("input_delay_samples", "int", 0, "Known input delay in samples.", 0, 10000, True),
     Param("modes.natural_frequency_hz", "double[]", [], "Initial guess of each mode's natural frequency (Hz); "
-          "its length defines K. 0 for a pure rigid-body mode b0/p^l.", 0.0, None, True),
+          "its length defines K. 0 for a pure rigid-body mode b0/p^l. Empty (with empty damping_ratio and gain): "
+          "the modes are found from the data (core/modefind.py; modes.count).", 0.0, None, True),
     Param("modes.damping_ratio", "double[]", [], "Initial guess of each mode's damping ratio.", 0.0, 10.0, True),
     Param("modes.gain", "double[]", [], "Initial guess of each mode's DC gain b0.", None, None, True),
-    Param("modes.integrators", "int[]", [], "Poles at the origin per mode (rigid body: 2); default 0.", 0, 2,
-          True),
+    Param("modes.integrators", "int[]", [], "Poles at the origin per mode (rigid body: 2); default 0. Ignored "
+          "when the modes are found from the data (a rigid body is detected there).", 0, 2, True),
     Param("modes.memory_s", "double[]", [], "Forgetting memory per mode in s: "
-          "lambda = 1 - 1/(memory_s * loop_rate_hz).", 1e-3, 1e7),
+          "lambda = 1 - 1/(memory_s * loop_rate_hz). One value applies to every mode; empty: 10 s.", 1e-3, 1e7),
+    Param("modes.count", "int", 0, "Number of modes to find from the data when no guesses are given (a detected "
+          "rigid body counts as one); 0: choose it by held-out output error (at most modes.max_count). With "
+          "guesses it must be 0 or their number.", 0, 32, True),
+    Param("modes.max_count", "int", 6, "Largest number of modes tried when modes.count is 0.", 1, 32, True),
+    Param("modes.frequency_range_hz", "double[]", [], "Search band [low, high] (Hz) for finding modes from the "
+          "data; empty: the whole band the data excite.", 0.0, None, True),
     Param("init_duration_s", "double", 5.0, "Data used for the offline initialization before the recursion "
           "starts (000 Algorithm 2 step 1).", 0.0, 1e5, True),
     Param("publish_rate_hz", "double", 10.0, "Output rate of estimates and diagnostics. At most 100 Hz: a report "
@@ -397,6 +404,9 @@ class MonitorConfig:
     estimator: EstimatorOptions
     signals: dict[str, SignalConfig]
     params: dict[str, Any] = field(repr=False)
+    mode_count: int = 0
+    max_mode_count: int = 6
+    frequency_range_hz: tuple[float, float] | None = None
 
     @property
     def K(self) -> int:
@@ -418,32 +428,8 @@ class MonitorConfig:
         rate = p["loop_rate_hz"]
         if not rate > 0.0:
             raise ParamError("parameter 'loop_rate_hz' is required and must be > 0")
-        f = p["modes.natural_frequency_hz"]
-        k = len(f)
-        if k == 0:
-            raise ParamError("parameter 'modes.natural_frequency_hz' must list at least one mode")
-        lists = {
-            "modes.damping_ratio": p["modes.damping_ratio"],
-            "modes.gain": p["modes.gain"],
-            "modes.integrators": p["modes.integrators"] or [0] * k,
-            "modes.memory_s": p["modes.memory_s"] or [10.0] * k,
-        }
-        for name, vals in lists.items():
-            if len(vals) != k:
-                raise ParamError(f"parameter '{name}' has {len(vals)} entries, 'modes.natural_frequency_hz' has {k}")
-        modes = []
-        for i in range(k):
-            fi, zi, gi = f[i], lists["modes.damping_ratio"][i], lists["modes.gain"][i]
-            li, mi = lists["modes.integrators"][i], lists["modes.memory_s"][i]
-            if fi == 0.0 and li == 0:
-                raise ParamError(f"mode {i + 1}: natural frequency 0 needs modes.integrators > 0 (rigid body)")
-            if fi >= rate / 2.0:
-                raise ParamError(f"mode {i + 1}: natural frequency {fi} Hz is not below Nyquist ({rate / 2} Hz)")
-            if gi == 0.0:
-                raise ParamError(f"mode {i + 1}: gain guess must be non-zero")
-            if mi * rate < 2.0:
-                raise ParamError(f"mode {i + 1}: memory_s {mi} s is shorter than two samples")
-            modes.append(ModeConfig(fi, zi, gi, li, mi))
+        modes = _modes_from_params(p, rate)
+        auto = _auto_mode_settings(p, len(modes))
         if sum(m.integrators > 0 for m in modes) > 1:
             raise ParamError("at most one mode may have integrators (000 §4.6)")
         controller = None
@@ -471,10 +457,153 @@ class MonitorConfig:
             loop_rate_hz=rate, closed_loop=p["closed_loop"], controller=controller,
             input_delay_samples=p["input_delay_samples"], modes=tuple(modes),
             init_duration_s=p["init_duration_s"], publish_rate_hz=p["publish_rate_hz"], estimator=est,
-            signals=signals, params=dict(p),
+            signals=signals, params=dict(p), mode_count=auto[0], max_mode_count=auto[1],
+            frequency_range_hz=auto[2],
         )
+
+    @property
+    def auto_modes(self) -> bool:
+        """No guesses: the modes are to be found from the data (core/modefind.py)."""
+        return self.K == 0
+
+    def with_modes(self, modal: np.ndarray, integrators: list[int] | None = None) -> MonitorConfig:
+        """This configuration with the modes ``modal`` (rows ``f_hz, zeta, gain``; frequency 0 = rigid body with
+        ``integrators``) as guesses; ``modes.memory_s`` is kept if it lists one value per mode, else broadcast
+        (one value) or 10 s."""
+        modal = np.asarray(modal, dtype=float).reshape(-1, 3)
+        k = modal.shape[0]
+        ints = [int(v) for v in (integrators if integrators is not None else [0] * k)]
+        mem = list(self.params["modes.memory_s"])
+        mem = mem if len(mem) == k else [mem[0] if mem else 10.0] * k
+        p = dict(self.params)
+        p.update({"modes.natural_frequency_hz": [float(v) for v in modal[:, 0]],
+                  "modes.damping_ratio": [float(v) for v in modal[:, 1]],
+                  "modes.gain": [float(v) for v in modal[:, 2]], "modes.integrators": ints, "modes.memory_s": mem,
+                  "modes.count": 0})
+        return MonitorConfig.from_params(p)
+
+
+def _per_mode(p: Mapping[str, Any], name: str, k: int, default: Any) -> list[Any]:
+    """A per-mode list: K entries, one entry for all modes, or empty for the default."""
+    vals = list(p[name])
+    if not vals:
+        return [default] * k
+    if len(vals) == 1 and k > 1:
+        return vals * k
+    if len(vals) != k:
+        raise ParamError(f"parameter '{name}' has {len(vals)} entries, 'modes.natural_frequency_hz' has {k}")
+    return vals
+
+
+def _modes_from_params(p: Mapping[str, Any], rate: float) -> list[ModeConfig]:
+    """The guessed modes (empty list: find them from the data)."""
+    f = p["modes.natural_frequency_hz"]
+    k = len(f)
+    if k == 0:
+        given = [n for n in ("modes.damping_ratio", "modes.gain") if p[n]]
+        if given:
+            raise ParamError(f"parameter '{given[0]}' is given but 'modes.natural_frequency_hz' is empty (give all "
+                             "guesses, or none to find the modes from the data)")
+        return []
+    lists = {"modes.damping_ratio": p["modes.damping_ratio"], "modes.gain": p["modes.gain"]}
+    for name, vals in lists.items():
+        if len(vals) != k:
+            raise ParamError(f"parameter '{name}' has {len(vals)} entries, 'modes.natural_frequency_hz' has {k}")
+    ints = _per_mode(p, "modes.integrators", k, 0)
+    mems = _per_mode(p, "modes.memory_s", k, 10.0)
+    modes = []
+    for i in range(k):
+        fi, zi, gi = f[i], lists["modes.damping_ratio"][i], lists["modes.gain"][i]
+        li, mi = ints[i], mems[i]
+        if fi == 0.0 and li == 0:
+            raise ParamError(f"mode {i + 1}: natural frequency 0 needs modes.integrators > 0 (rigid body)")
+        if fi >= rate / 2.0:
+            raise ParamError(f"mode {i + 1}: natural frequency {fi} Hz is not below Nyquist ({rate / 2} Hz)")
+        if gi == 0.0:
+            raise ParamError(f"mode {i + 1}: gain guess must be non-zero")
+        if mi * rate < 2.0:
+            raise ParamError(f"mode {i + 1}: memory_s {mi} s is shorter than two samples")
+        modes.append(ModeConfig(fi, zi, gi, li, mi))
+    return modes
+
+
+def _auto_mode_settings(p: Mapping[str, Any], k: int) -> tuple[int, int, tuple[float, float] | None]:
+    """``(modes.count, modes.max_count, modes.frequency_range_hz)`` checked against the guesses."""
+    count, max_count = int(p["modes.count"]), int(p["modes.max_count"])
+    if k and count not in (0, k):
+        raise ParamError(f"parameter 'modes.count' = {count} but {k} mode guesses are given (use 0 or {k})")
+    if count > max_count:
+        raise ParamError(f"parameter 'modes.count' = {count} exceeds 'modes.max_count' = {max_count}")
+    band = list(p["modes.frequency_range_hz"])
+    if band and (len(band) != 2 or not band[0] < band[1]):
+        raise ParamError(f"parameter 'modes.frequency_range_hz' must be [low, high] with low < high, got {band}")
+    if band and band[0] >= p["loop_rate_hz"] / 2.0:
+        raise ParamError("parameter 'modes.frequency_range_hz' starts above Nyquist")
+    return count, max_count, (float(band[0]), float(band[1])) if band else None
 
 
 def load_config(path: str | Path, node_name: str = DEFAULT_NODE_NAME) -> MonitorConfig:
     """:func:`load_params_file` followed by :meth:`MonitorConfig.from_params`."""
     return MonitorConfig.from_params(load_params_file(path, node_name))
+
+
+def _yaml_scalar(v: Any) -> str:
+    if isinstance(v, bool):
+        return "true" if v else "false"
+    if isinstance(v, int | np.integer):
+        return str(int(v))
+    if isinstance(v, float | np.floating):
+        text = repr(float(v))
+        return text if ("." in text or "e" in text or "inf" in text or "nan" in text) else text + ".0"
+    return '"' + str(v).replace("\\", "\\\\").replace('"', '\\"') + '"'
+
+
+def _yaml_value(p: Param, v: Any) -> str:
+    if p.type.endswith("[]"):
+        cast = float if p.type == "double[]" else (lambda x: x)
+        return "[" + ", ".join(_yaml_scalar(cast(x)) for x in v) + "]"
+    return _yaml_scalar(float(v) if p.type == "double" else v)
+
+
+def _comment_lines(text: str, indent: str, width: int = 112) -> list[str]:
+    import textwrap
+
+    return [f"{indent}# {line}" for line in textwrap.wrap(text, max(40, width - len(indent) - 2))]
+
+
+def render_params_yaml(params: Mapping[str, Any], node_name: str = DEFAULT_NODE_NAME, header: str = "") -> str:
+    """A complete, commented ROS 2 params YAML of ``params`` (every parameter of the table, in table order; an
+    empty list, which a ROS 2 params file cannot hold, is written commented out). Reads back with
+    :func:`load_params_file` to the same values."""
+    table = param_table()
+    values = validate_params({k: v for k, v in params.items() if k in table})
+    tree: dict[str, Any] = {}
+    for p in all_params():
+        node = tree
+        *parents, leaf = p.name.split(".")
+        for key in parents:
+            node = node.setdefault(key, {})
+        node[leaf] = p
+
+    def has_value(node: dict[str, Any]) -> bool:
+        return any(has_value(c) if isinstance(c, dict) else bool(values[c.name]) or not c.type.endswith("[]")
+                   for c in node.values())
+
+    lines = [f"# {line}" if line else "#" for line in header.splitlines()]
+    lines += [f"{node_name}:", "  ros__parameters:"]
+
+    def emit(node: dict[str, Any], depth: int, commented: bool) -> None:
+        indent = "  " * depth
+        for key, child in node.items():
+            if isinstance(child, dict):
+                off = commented or not has_value(child)
+                lines.append(f"{indent}{'# ' if off else ''}{key}:")
+                emit(child, depth + 1, off)
+                continue
+            v = values[child.name]
+            lines.extend(_comment_lines(child.description, indent))
+            off = commented or (child.type.endswith("[]") and not v)
+            lines.append(f"{indent}{'# ' if off else ''}{key}: {_yaml_value(child, v)}")
+
+    emit(tree, 2, False)
+    return "\n".join(lines) + "\n"

@@ -96,6 +96,20 @@ class Progress:
 
 
 # ------------------------------------------------------------------------------------------------- running
+def _automatic_start(cfg: Any, sig: Any, stderr: Any) -> Any:
+    """Modes found on the first ``init_duration_s`` (at least 2 s) of the bag when the params give no guesses."""
+    from ..core.modefind import autostart_config
+
+    n = max(int(round(max(cfg.init_duration_s, 2.0) * cfg.loop_rate_hz)), 1)
+    r = sig.r[:n] if cfg.closed_loop and sig.r is not None else None
+    new, found = autostart_config(cfg, r, sig.u[:n], sig.y[:n])
+    modes = ", ".join(f"{m[0]:.5g} Hz" if m[0] > 0 else f"rigid body b0/p^{s.integrators}"
+                      for m, s in zip(found.modal, found.structures, strict=True))
+    print(f"{PROG}: no mode guesses: found {found.K} mode(s) on the first {n / cfg.loop_rate_hz:.4g} s ({modes}; "
+          f"{found.message})", file=stderr)
+    return new
+
+
 def run_pipeline(sig: Any, cfg: Any, *, chunk_s: float = 1.0, progress: Progress | None = None,
                  ) -> tuple[list[Any], list[Any]]:
     """Feed the bag's samples through a fresh :class:`MonitorPipeline`; return ``(reports, events)``.
@@ -308,6 +322,8 @@ def diagnose(args: argparse.Namespace, stdout: TextIO, stderr: TextIO, state: di
     t_read = time.monotonic()
     _warn_bad_samples(sig, stderr)
     n = sig.t.size
+    if cfg.auto_modes:  # no guesses: the automatic start on the first init_duration_s (core/modefind.py)
+        cfg = _automatic_start(cfg, sig, stderr)
     duration = float(sig.t[-1]) + 1.0 / cfg.loop_rate_hz if n else 0.0
     show = args.progress if args.progress is not None else stderr.isatty()
     bar = Progress(float(sig.t[-1]) if n else 0.0, stderr, bool(show))

@@ -6,6 +6,16 @@ Offline (non-recursive) identification of the whole bag with the node's params f
 ``natural_frequency_hz``, ``damping_ratio``, ``gain`` and their ``_std``), ``residual_variance`` (plus
 ``cost``, ``cond``, ``projections``, ``message``, ``n_samples``). Exit status 0 on success (also when the
 estimator did not converge: see ``converged``/``message``), 2 with a one-line reason on bad input.
+
+``--modes K|auto`` (or a params file without guesses): the modes are first found from the data
+(``core/modefind.py``: FRF peaks refined by the offline additive (CL)SRIVC, K chosen by held-out output error for
+``auto``); the JSON gains ``frf`` (FRF summary: method, resolution, valid band, peaks), ``order_selection`` (K, fit
+error, validation error, accepted) and ``mode_finding``. ``--out-params FILE.yaml`` writes a complete, commented
+params file for the node (input params + identified ``modes.*``; ``--baseline`` adds ``faults.baseline.*``).
+
+In closed loop the record first goes through the pipeline's stream aligner (``core/alignment.py``): a message lost
+or repeated on one topic is re-aligned by the controller invariant ``u = C_d(q)(r - y)`` (and reported) before the
+screening and the fit.
 """
 
 from __future__ import annotations
@@ -45,7 +55,27 @@ def _parser() -> argparse.ArgumentParser:
                     help="iteration limit (default: estimator.init_max_iterations of the params file, at least 50)")
     ap.add_argument("--tol", type=float, default=1e-7, help="relative-change tolerance (default 1e-7)")
     ap.add_argument("--node-name", default=None, help="node name of the params file section")
+    ap.add_argument("--modes", default=None, type=_modes_arg, metavar="K|auto",
+                    help="find the modes from the data (K of them, or their number by held-out output error) instead "
+                         "of starting from the guesses; default: only when the params file has no guesses")
+    ap.add_argument("--out-params", default=None, metavar="FILE.yaml",
+                    help="write a complete params file for the node with the identified modes.*")
+    ap.add_argument("--baseline", action="store_true",
+                    help="with --out-params: also write the identified values as faults.baseline.*")
     return ap
+
+
+def _modes_arg(text: str) -> int:
+    """``auto`` -> 0, else a positive integer."""
+    if text.strip().lower() == "auto":
+        return 0
+    try:
+        k = int(text)
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"--modes must be a positive integer or 'auto', got {text!r}") from None
+    if k < 1:
+        raise argparse.ArgumentTypeError(f"--modes must be a positive integer or 'auto', got {text!r}")
+    return k
 
 
 def longest_gap_free(t: np.ndarray, rate_hz: float, tolerance: float) -> tuple[slice, int]:
@@ -104,8 +134,39 @@ def screen_record(sig: Any, cfg: Any, settings: FaultSettings, warn: Callable[[s
     return sc
 
 
+def write_params_file(cfg, doc: dict, path: str, node_name: str | None, baseline: bool, source: str) -> None:
+    """The input params with the identified ``modes.*`` (and ``faults.baseline.*`` when ``baseline``) as a complete,
+    commented params YAML for the node, written atomically."""
+    import numpy as np
+
+    from ..config import DEFAULT_NODE_NAME, render_params_yaml
+
+    p = dict(cfg.params)
+    modes = doc["modes"]
+    for key in ("natural_frequency_hz", "damping_ratio", "gain"):
+        vals = [m[key] for m in modes]
+        if any(v is None or not np.isfinite(v) for v in vals):
+            raise ValueError(f"identified {key} is not finite: no params file written")
+        p[f"modes.{key}"] = [float(v) for v in vals]
+        if baseline:
+            p[f"faults.baseline.{key}"] = [float(v) for v in vals]
+            stds = [m.get(f"{key}_std") for m in modes]
+            p[f"faults.baseline.{key}_std"] = ([float(v) for v in stds]
+                                               if all(v is not None and np.isfinite(v) for v in stds) else [])
+    p["modes.integrators"] = [int(s.integrators) for s in cfg.structures]
+    p["modes.count"] = 0
+    header = (f"Written by rsrivc_identify from {source}: the input params with the identified modes.*"
+              + (" and faults.baseline.*" if baseline else "") + f".\nmethod {doc['method']}, converged "
+              f"{doc['converged']}, residual variance {doc['residual_variance']}.")
+    text = render_params_yaml(p, node_name or DEFAULT_NODE_NAME, header)
+    out_path = Path(path)
+    if out_path.parent and not out_path.parent.exists():
+        raise ValueError(f"output directory {out_path.parent} does not exist")
+    atomic_write_text(out_path, text)
+
 def run(bag: str, params_file: str, out: str, method: str = "auto", max_iterations: int | None = None,
-        tol: float = 1e-7, node_name: str | None = None, warn: Callable[[str], None] | None = None) -> dict:
+        tol: float = 1e-7, node_name: str | None = None, warn: Callable[[str], None] | None = None,
+        modes: int | None = None, out_params: str | None = None, baseline: bool = False) -> dict:
     """Identify the bag and write the JSON (strict: non-finite numbers as null, written all-or-nothing); returns
     the JSON object. Raises ``ValueError`` on bad input. Bad samples are excluded, each category with one
     warning line (``warn``, default stderr), never fitted over."""
@@ -120,14 +181,21 @@ def run(bag: str, params_file: str, out: str, method: str = "auto", max_iteratio
     if out_path.parent and not out_path.parent.exists():
         raise ValueError(f"output directory {out_path.parent} does not exist")
     closed = cfg.closed_loop
+    if baseline and not out_params:
+        raise ValueError("--baseline needs --out-params")
     if method in ("additive-clsrivc", "clsrivc", "clsrivc-uns") and not closed:
         raise ValueError(f"method {method} needs closed-loop data (closed_loop: true and a controller)")
     iters = max_iterations if max_iterations is not None else max(50, cfg.estimator.init_max_iterations)
     if iters < 1:
         raise ValueError("--max-iterations must be >= 1")
-    sig = read_signals(bag, cfg)
+    sig = align_record_signals(read_signals(bag, cfg), cfg, warn)
     sc = screen_record(sig, cfg, FaultSettings.from_params(cfg.params), warn)
     k = sc.index
+    found = None
+    if cfg.auto_modes or modes is not None:
+        from ..core.modefind import autostart_config
+
+        cfg, found = autostart_config(cfg, sig.r[k] if closed else None, sig.u[k], sig.y[k], modes)
     res = identify(sig.u[k], sig.y[k], cfg.loop_rate_hz, cfg.structures, [m.theta0() for m in cfg.modes],
                    r=sig.r[k] if closed else None, controller=cfg.controller if closed else None,
                    input_delay=cfg.input_delay_samples, method=method, max_iterations=iters, tol=tol,
@@ -140,8 +208,56 @@ def run(bag: str, params_file: str, out: str, method: str = "auto", max_iteratio
         doc["message"] = (f"{doc.get('message') or ''}; identified on its longest gap-free segment without bad "
                           f"samples [{float(sig.t[k[0]]):.6g}, {float(sig.t[k[-1]]):.6g}] s ({sc.used} of {sig.n} "
                           "samples)").lstrip("; ")
+    _add_mode_finding(doc, found, cfg, sig.r[k] if closed else None, sig.u[k], sig.y[k])
+    doc = json_safe(doc)
     atomic_write_text(out_path, json.dumps(doc, indent=2, allow_nan=False) + "\n")
+    if out_params:
+        write_params_file(cfg, doc, out_params, node_name, baseline, f"{bag} with {params_file}")
     return doc
+
+
+def align_record_signals(sig: Any, cfg: Any, warn: Callable[[str], None]) -> Any:
+    """Closed loop: the record through the pipeline's stream aligner (``core/alignment.py``), one warning line
+    when it re-aligned or refilled anything; the pairing is then what the live pipeline would have used."""
+    import dataclasses
+
+    from ..core.alignment import align_record
+    from ..core.pipeline import _make_aligner
+
+    if _make_aligner(cfg) is None or sig.n < 2:
+        return sig
+    p = cfg.params
+    blk, st = align_record(cfg.controller, cfg.loop_rate_hz, sig.t, sig.r, sig.u, sig.y,
+                           max_shift=int(p.get("alignment.max_shift", 3)),
+                           switch_nats=float(p.get("alignment.switch_nats", 40.0)))
+    if st.realignments:
+        warn(f"{st.realignments} re-alignment(s) of the signals by the controller invariant u = C_d(q)(r - y) (lost "
+             f"or repeated messages): {st.reconstructed} lost sample(s) refilled, {st.surplus} surplus dropped, "
+             f"{st.invalidated + st.missing - st.reconstructed} set aside")
+    return dataclasses.replace(sig, t=blk.t, r=blk.r, u=blk.u, y=blk.y)
+
+
+def _add_mode_finding(doc: dict, found, cfg, r, u, y) -> None:
+    """JSON keys ``frf`` (summary of the nonparametric FRF: band, peaks) and ``order_selection`` (the table; empty
+    when the guesses were used), plus ``mode_finding`` (message, candidates, identifiable flags)."""
+    if found is not None:
+        doc["frf"] = found.frf_summary()
+        doc["order_selection"] = [row.to_dict() for row in found.table]
+        doc["mode_finding"] = {"K": found.K, "message": found.message, "identifiable": found.identifiable,
+                               "candidates": [c.to_dict() for c in found.candidates]}
+        return
+    from ..core.frf import estimate_frf
+    from ..core.modefind import find_candidates
+
+    try:
+        frf = estimate_frf(u, y, cfg.loop_rate_hz, r if cfg.closed_loop else None)
+    except ValueError as exc:
+        doc["frf"] = {"error": str(exc)}
+    else:
+        doc["frf"] = frf.summary()
+        doc["frf"]["peaks_hz"] = [c.natural_frequency_hz for c in find_candidates(frf, cfg.input_delay_samples)
+                                  if c.natural_frequency_hz > 0]
+    doc["order_selection"] = []
 
 
 def json_safe(v: Any) -> Any:
@@ -184,7 +300,7 @@ def main(argv: list[str] | None = None) -> int:
         try:
             args = _parser().parse_args(argv)
             doc = run(args.bag, args.params_file, args.out, args.method, args.max_iterations, args.tol,
-                      args.node_name)
+                      args.node_name, modes=args.modes, out_params=args.out_params, baseline=args.baseline)
         except Exception as exc:
             if received() is None:
                 return _error(exc)
@@ -202,6 +318,10 @@ def main(argv: list[str] | None = None) -> int:
     for i, m in enumerate(doc["modes"], 1):
         f, z, g = m["natural_frequency_hz"], m["damping_ratio"], m["gain"]
         print(f"  mode {i}: f = {f} Hz, zeta = {z}, gain = {g}")
+    if "mode_finding" in doc:
+        print(f"  modes found from the data: {doc['mode_finding']['message']}")
+    if args.out_params:
+        print(f"  wrote params file {args.out_params}")
     return 0
 
 

@@ -310,6 +310,9 @@ class RecursiveAdditiveSRIVC:
     @classmethod
     def from_config(cls, cfg: Any) -> RecursiveAdditiveSRIVC:
         """Build from a :class:`config.MonitorConfig` (modes, memories, controller, estimator options)."""
+        if not cfg.modes:  # issue 12: without guesses the modes come from core.modefind.autostart_config first
+            raise ValueError("no mode guesses (modes.natural_frequency_hz empty): find them first (core.modefind."
+                             "autostart_config, rsrivc_diagnose, or rsrivc_identify --modes auto --out-params)")
         est = cfg.estimator
         sub = int(est.output_subsampling)
         lam = np.array([1.0 - sub / (m.memory_s * cfg.loop_rate_hz) for m in cfg.modes])

@@ -1,0 +1,197 @@
+"""Nonparametric plant frequency response (FRF) from recorded r, u, y with its uncertainty (issue 12 item 1).
+
+Welch-type averaging: the record is cut into ``n_d`` Hann-windowed segments with 50 % overlap (mean removed per
+segment); auto- and cross-spectra are averaged over the segments.
+
+* Closed loop (reference ``r`` given): the *indirect* estimate ``G = S_yr / S_ur`` (cross-spectra with the
+  reference). ``y`` and ``u`` both carry the noise fed back by the controller, so the direct ``S_yu / S_uu``
+  is biased towards ``-1/C`` wherever the noise dominates; ``r`` is uncorrelated with the noise, so the ratio
+  of the two cross-spectra is consistent (Pintelon & Schoukens, *System Identification*, 2nd ed., §2.6, §8.3).
+* Open loop (no reference): the H1 estimate ``G = S_yu / S_uu``.
+
+Uncertainty. With ``w = y - G u`` (in both loops ``w`` is the output disturbance ``v``: in closed loop
+``y = S v + T r`` and ``u = -C S v + S_u r`` give ``y - G u = S (1 + G C) v = v``), the first-order error of the
+indirect estimate is ``dG = S_wr / (S_rr H_ur)`` with ``H_ur = S_ur / S_rr``, whose variance over ``n_d``
+independent averages is
+
+    var(G) = S_ww S_rr / (n_d |S_ur|^2),
+
+which in open loop (``r = u``) is the standard H1 formula ``var(G) = (1 - gamma^2) / (n_d gamma^2) |G|^2`` with the
+coherence ``gamma^2 = |S_yu|^2 / (S_uu S_yy)`` (Bendat & Piersol, *Random Data*, 4th ed., eq. 9.90; the variance of
+the complex estimate, i.e. ``E|G_hat - G|^2``). ``S_ww`` is estimated from the averaged spectra and corrected for
+the fitted degree of freedom (``n_d / (n_d - 1)``). Overlapping Hann segments are not independent: the effective
+number of averages is ``n_d / (1 + 2 c^2)`` with ``c = 0.167`` the correlation of 50 %-overlapping Hann windows
+(Welch 1967).
+
+Validity: a frequency is *valid* when the excitation reaches it (the power of ``r``, or of ``u`` in open loop, is
+above ``excitation_floor`` times its maximum over the band), both ``u`` and ``y`` are significantly coherent with
+the excitation (coherence above the level that ``n_d`` averages of *uncorrelated* signals exceed with probability
+``alpha``, ``1 - alpha^(1/(n_d - 1))``, with ``alpha = min(0.01, 1/n_bins)`` so that less than one bin of the
+whole record passes by chance; where the fed-back noise dominates ``S_ur`` the ratio tends to
+``-1/C`` and the first-order variance collapses with it, so this test, not the variance, rejects such bins), and the
+estimate carries information (relative std
+below ``max_relative_std``; 0.3, not 1: the test uses the noisy ``|G_hat|``, and a loose bound would keep the bins
+where the noise happened to inflate ``G_hat``, whose errors then exceed their reported std). Elsewhere the FRF is
+reported but must not be used.
+
+The estimate is the frequency response of the *sampled* plant with the zero-order hold and the input delay
+(``G_d(e^{j w h})``); :func:`discrete_model_frf` gives the same quantity for a parametric model.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Sequence
+from dataclasses import dataclass
+from typing import Any
+
+import numpy as np
+
+from .model import SubmodelStructure
+
+HANN_OVERLAP_CORRELATION = 0.167  # correlation of two 50 %-overlapping Hann windows (Welch 1967)
+
+
+@dataclass
+class FRFEstimate:
+    """FRF estimate: frequencies, complex ``G``, coherence, variance of ``G`` and validity per frequency."""
+
+    freqs_hz: np.ndarray
+    G: np.ndarray
+    coherence: np.ndarray  # |S_yr|^2/(S_rr S_yy) in closed loop (with r), |S_yu|^2/(S_uu S_yy) in open loop
+    variance: np.ndarray  # E|G_hat - G|^2 (complex variance) from the noise (H1 formula)
+    resolution_error: np.ndarray  # bound of the leakage/resolution bias: largest change of G to a neighbour bin
+    valid: np.ndarray
+    excitation: np.ndarray  # auto-spectrum of the excitation (r or u)
+    n_averages: float  # effective number of independent averages
+    rate_hz: float
+    closed_loop: bool
+    nperseg: int
+
+    @property
+    def std(self) -> np.ndarray:
+        """Noise standard deviation of ``G`` (complex)."""
+        return np.sqrt(self.variance)
+
+    @property
+    def uncertainty(self) -> np.ndarray:
+        """``sqrt(variance + resolution_error^2)``: the noise and the leakage bias of a Hann window, which averages
+        ``G`` over about two bins either side (a periodic reference line between two bins is seen at its own
+        frequency, not the bin's)."""
+        return np.sqrt(self.variance + self.resolution_error**2)
+
+    @property
+    def resolution_hz(self) -> float:
+        return self.rate_hz / self.nperseg
+
+    @property
+    def band_hz(self) -> tuple[float, float] | None:
+        """Lowest and highest valid frequency (``None`` when nothing is valid)."""
+        if not np.any(self.valid):
+            return None
+        f = self.freqs_hz[self.valid]
+        return float(f[0]), float(f[-1])
+
+    def summary(self) -> dict[str, Any]:
+        band = self.band_hz
+        return {"method": "indirect S_yr/S_ur" if self.closed_loop else "H1 S_yu/S_uu",
+                "window": "hann", "overlap": 0.5, "nperseg": self.nperseg, "resolution_hz": self.resolution_hz,
+                "n_averages": self.n_averages, "band_hz": list(band) if band else None,
+                "n_valid": int(np.sum(self.valid))}
+
+
+def _segments(x: np.ndarray, nperseg: int) -> np.ndarray:
+    """Hann-windowed, mean-removed segments with 50 % overlap, as rows of their FFT (one-sided)."""
+    step = nperseg // 2
+    n_seg = 1 + (x.size - nperseg) // step
+    idx = np.arange(nperseg)[None, :] + step * np.arange(n_seg)[:, None]
+    seg = x[idx]
+    seg = seg - seg.mean(axis=1, keepdims=True)
+    win = np.hanning(nperseg + 1)[:-1]  # periodic Hann
+    return np.fft.rfft(seg * win, axis=1)
+
+
+def default_nperseg(n: int, min_averages: int = 8) -> int:
+    """Largest power of two giving at least ``min_averages`` 50 %-overlapping segments (at least 16)."""
+    target = max(16, int(2 * n / (min_averages + 1)))
+    return max(16, 1 << int(np.floor(np.log2(target))))
+
+
+def coherence_threshold(n_segments: int, alpha: float = 0.01) -> float:
+    """Coherence exceeded with probability ``alpha`` by ``n_segments`` averages of uncorrelated signals."""
+    return 1.0 - alpha ** (1.0 / max(n_segments - 1, 1))
+
+
+def estimate_frf(u: Sequence[float], y: Sequence[float], rate_hz: float, r: Sequence[float] | None = None, *,
+                 nperseg: int | None = None, excitation_floor: float = 1e-8, max_relative_std: float = 0.3,
+                 min_averages: int = 16, alpha: float | None = None) -> FRFEstimate:
+    """FRF of the plant from ``u`` to ``y`` (indirect through ``r`` when given). See the module docstring."""
+    u = np.asarray(u, dtype=float)
+    y = np.asarray(y, dtype=float)
+    if u.shape != y.shape or u.ndim != 1:
+        raise ValueError("u and y must be one-dimensional and of equal length")
+    x = u if r is None else np.asarray(r, dtype=float)
+    if x.shape != u.shape:
+        raise ValueError("r must have the length of u and y")
+    if not (np.all(np.isfinite(u)) and np.all(np.isfinite(y)) and np.all(np.isfinite(x))):
+        raise ValueError("r, u and y must be finite for the FRF")
+    if nperseg is None:  # min_averages, unless that makes the resolution coarser than 0.5 Hz: then down to 8
+        nperseg = max(default_nperseg(u.size, min_averages),
+                      min(default_nperseg(u.size, min(8, min_averages)), int(2 * rate_hz)))
+    if nperseg < 16 or u.size < 2 * nperseg:
+        raise ValueError(f"record of {u.size} samples too short for FRF segments of {nperseg} (need 2 segments)")
+    X, U, Y = _segments(x, nperseg), _segments(u, nperseg), _segments(y, nperseg)
+    n_seg = X.shape[0]
+    S_xx = np.mean(np.abs(X) ** 2, axis=0)
+    S_yy = np.mean(np.abs(Y) ** 2, axis=0)
+    S_uu = np.mean(np.abs(U) ** 2, axis=0)
+    S_yx = np.mean(Y * np.conj(X), axis=0)
+    S_ux = np.mean(U * np.conj(X), axis=0)
+    S_yu = np.mean(Y * np.conj(U), axis=0)
+    tiny = np.finfo(float).tiny
+    with np.errstate(divide="ignore", invalid="ignore"):
+        G = S_yx / S_ux
+        # S_ww of w = y - G u, with the fitted G removing one degree of freedom per frequency
+        S_ww = S_yy - 2.0 * np.real(np.conj(G) * S_yu) + np.abs(G) ** 2 * S_uu
+        S_ww = np.maximum(S_ww, 0.0) * n_seg / max(n_seg - 1, 1)
+        n_eff = n_seg / (1.0 + 2.0 * HANN_OVERLAP_CORRELATION**2)
+        var = S_ww * S_xx / (n_eff * np.maximum(np.abs(S_ux) ** 2, tiny))
+        coh = np.abs(S_yx) ** 2 / np.maximum(S_xx * S_yy, tiny)
+        coh_u = np.abs(S_ux) ** 2 / np.maximum(S_xx * S_uu, tiny)
+    freqs = np.fft.rfftfreq(nperseg, 1.0 / rate_hz)
+    finite = np.isfinite(G) & np.isfinite(var)
+    inner = (freqs > 0) & (freqs < rate_hz / 2.0)
+    floor = excitation_floor * np.max(S_xx[inner]) if np.any(inner) else np.inf
+    rel = np.sqrt(np.where(finite, var, np.inf)) / np.maximum(np.abs(np.where(finite, G, 0.0)), tiny)
+    n_eff_int = max(int(np.floor(n_eff)), 2)
+    alpha = min(0.01, 1.0 / freqs.size) if alpha is None else alpha  # Bonferroni: < 1 spurious bin per record
+    coherent = (coh > coherence_threshold(n_eff_int, alpha)) & (coh_u > coherence_threshold(n_eff_int, alpha))
+    valid = inner & finite & (S_xx > floor) & coherent & (rel < max_relative_std)
+    G = np.where(finite, G, 0.0)
+    var = np.where(finite, var, np.inf)
+    return FRFEstimate(freqs, G, np.clip(coh, 0.0, 1.0), var, _resolution_error(G, valid), valid, S_xx,
+                       float(n_eff), float(rate_hz), r is not None, nperseg)
+
+
+def _resolution_error(G: np.ndarray, valid: np.ndarray, reach: int = 2) -> np.ndarray:
+    """Largest ``|G(k + j) - G(k)|``, ``0 < |j| <= reach``, over valid neighbours of bin ``k``: the bias bound of a
+    Hann window, whose main lobe spans two bins either side (a periodic reference line up to two bins away is seen
+    at its own frequency)."""
+    err = np.zeros(G.size)
+    for j in range(1, reach + 1):
+        d = np.abs(G[j:] - G[:-j])
+        d = np.where(valid[j:] & valid[:-j], d, 0.0)
+        err[j:] = np.maximum(err[j:], d)
+        err[:-j] = np.maximum(err[:-j], d)
+    return err
+
+
+def discrete_model_frf(thetas: Sequence[np.ndarray], structures: Sequence[SubmodelStructure], rate_hz: float,
+                       freqs_hz: np.ndarray, input_delay: int = 0) -> np.ndarray:
+    """``G_d(e^{j w h})`` of the exact ZOH discretization of the additive model with the input delay (the quantity
+    :func:`estimate_frf` estimates)."""
+    from .simulate import discrete_plant
+
+    phi, gam, c = discrete_plant(list(thetas), list(structures), rate_hz, input_delay)
+    zs = np.exp(2j * np.pi * np.asarray(freqs_hz, dtype=float) / rate_hz)
+    eye = np.eye(phi.shape[0])
+    return np.array([c @ np.linalg.solve(z * eye - phi, gam) for z in zs])

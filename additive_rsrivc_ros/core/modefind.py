@@ -1,0 +1,455 @@
+"""Modes and model order from the data (issue 12 item 2): FRF peaks refined by the offline additive (CL)SRIVC.
+
+1. :func:`find_candidates`: on the valid part of the nonparametric FRF (:mod:`core.frf`), with the input delay and
+   the zero-order hold's half sample removed from the phase,
+
+   * resonance peaks of ``|G|`` (``scipy.signal.find_peaks`` on ``log10 |G|`` averaged over 5 bins, the Hann main
+     lobe, with a prominence above ``MIN_PROMINENCE_DECADES`` and above three relative noise standard deviations of
+     the averaged estimate, and at least 3 valid bins in the average), located at the raw maximum within two bins:
+     frequency by a
+     parabola through the three log-magnitudes around the peak, damping by the half-power width
+     ``zeta = (f2 - f1) / (2 f_peak)`` (one side doubled when the other leaves the valid band; never below the
+     window's resolution ``Delta f / (2 f_peak)``), modal gain of ``b0/(a2 p^2 + a1 p + 1)`` from the peak value
+     ``G(j omega_n) = -j b0 / (2 zeta)``, i.e. ``b0 = -2 zeta Im G`` (its sign is the mode's);
+   * a rigid body ``b0/p^l`` when the lowest valid decade falls with slope ``-20 l`` dB/decade (l = 1, 2; slope
+     within 0.25 of -l decades/decade over at least five bins), ``b0`` from ``G = b0/(j omega)^l``.
+
+2. :func:`find_modes`: for ``K = 1 .. K_max`` (the rigid body, if any, counts as one submodel and is always kept;
+   the first order starts from the most prominent peaks, each larger one from the best smaller model plus the
+   most prominent peak not near one of its modes, or the next ones, up to three) the offline additive CLSRIVC
+   (closed loop, 001 eq. 20/29) or SRIVC (open loop) is fitted on the first ``1 - validation_fraction`` of the
+   record and judged by the mean squared *output error on the rest* (held-out data): in closed loop the model's
+   noise-free closed-loop output ``T_o r`` (001 eq. 20), in open loop ``G u``. **Order rule:** starting from the
+   smallest K that fitted, a larger K replaces the current choice only if its held-out error is below
+   ``(1 - margin)`` times the current one (``margin`` = 2 %); the scan stops after two orders in a row without
+   such a gain. The chosen model is then refitted on the whole record. Modes whose frequency lies outside the band
+   where the FRF is valid are reported as not identifiable.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+from typing import Any
+
+import numpy as np
+
+from .frf import FRFEstimate, estimate_frf
+from .model import TWO_PI, SubmodelStructure, modal_from_theta, theta_from_modal
+
+MIN_PROMINENCE_DECADES = 0.1  # 2 dB
+DEFAULT_MARGIN = 0.02
+RIGID_SLOPE_TOLERANCE = 0.25
+SMOOTH_BINS = 5
+ALTERNATIVES = 3  # new peaks tried for each larger order
+STOP_AFTER_MISSES = 2  # order scan stops after this many consecutive orders without a significant gain
+
+
+@dataclass(frozen=True)
+class Candidate:
+    """One candidate submodel read off the FRF."""
+
+    natural_frequency_hz: float
+    damping_ratio: float
+    gain: float
+    prominence_decades: float = 0.0
+    integrators: int = 0
+
+    @property
+    def structure(self) -> SubmodelStructure:
+        if self.natural_frequency_hz == 0.0:
+            return SubmodelStructure(0, 0, self.integrators)
+        return SubmodelStructure(2, 0, self.integrators)
+
+    def theta(self) -> np.ndarray:
+        if self.natural_frequency_hz == 0.0:
+            return np.array([self.gain])
+        return theta_from_modal(self.natural_frequency_hz, self.damping_ratio, self.gain)
+
+    def to_dict(self) -> dict[str, Any]:
+        return {"natural_frequency_hz": self.natural_frequency_hz, "damping_ratio": self.damping_ratio,
+                "gain": self.gain, "integrators": self.integrators, "prominence_db": 20 * self.prominence_decades}
+
+
+@dataclass
+class OrderRow:
+    """One line of the order-selection table."""
+
+    K: int
+    fit_error: float
+    validation_error: float
+    accepted: bool = False
+    converged: bool = False
+    message: str = ""
+
+    def to_dict(self) -> dict[str, Any]:
+        def num(v: float) -> float | None:
+            return float(v) if np.isfinite(v) else None
+        return {"K": self.K, "fit_error": num(self.fit_error), "validation_error": num(self.validation_error),
+                "accepted": self.accepted, "converged": self.converged, "message": self.message}
+
+
+@dataclass
+class ModeFindResult:
+    """Chosen order, modes and the evidence (order-selection table, FRF summary, candidates)."""
+
+    K: int
+    structures: list[SubmodelStructure]
+    thetas: list[np.ndarray]
+    modal: np.ndarray  # (K, 3): f_hz, zeta, gain
+    identifiable: list[bool]
+    table: list[OrderRow]
+    frf: FRFEstimate
+    candidates: list[Candidate]
+    identification: Any = None
+    message: str = ""
+    peaks_hz: list[float] = field(default_factory=list)
+
+    def frf_summary(self) -> dict[str, Any]:
+        out = self.frf.summary()
+        out["peaks_hz"] = [c.natural_frequency_hz for c in self.candidates if c.natural_frequency_hz > 0]
+        out["rigid_body"] = next((c.integrators for c in self.candidates if c.natural_frequency_hz == 0), 0)
+        return out
+
+    def to_dict(self) -> dict[str, Any]:
+        return {"K": self.K, "message": self.message,
+                "modes": [{"natural_frequency_hz": float(m[0]), "damping_ratio": float(m[1]), "gain": float(m[2]),
+                           "integrators": s.integrators, "identifiable": ok}
+                          for m, s, ok in zip(self.modal, self.structures, self.identifiable, strict=True)],
+                "order_selection": [row.to_dict() for row in self.table], "frf": self.frf_summary(),
+                "candidates": [c.to_dict() for c in self.candidates]}
+
+
+def _compensated(frf: FRFEstimate, input_delay: int) -> np.ndarray:
+    """``G`` with the input delay and the hold's half sample removed from the phase."""
+    w = TWO_PI * frf.freqs_hz
+    return frf.G * np.exp(1j * w * (input_delay + 0.5) / frf.rate_hz)
+
+
+def _rigid_body(f: np.ndarray, g: np.ndarray, first_peak_hz: float) -> Candidate | None:
+    """``b0/p^l`` when the lowest valid decade (below a third of the first peak) falls with slope ``-l``."""
+    sel = (f <= min(f[0] * 10.0, first_peak_hz / 3.0))
+    if sel.sum() < 5:
+        return None
+    slope = np.polyfit(np.log10(f[sel]), np.log10(np.abs(g[sel])), 1)[0]
+    for ell in (2, 1):
+        if abs(slope + ell) < RIGID_SLOPE_TOLERANCE:
+            b0 = float(np.median(np.real(g[sel] * (1j * TWO_PI * f[sel]) ** ell)))
+            if b0 != 0.0:
+                return Candidate(0.0, 0.0, b0, 0.0, ell)
+    return None
+
+
+def _half_power_damping(f: np.ndarray, mag: np.ndarray, k: int, fp: float, resolution_hz: float) -> float:
+    """``(f2 - f1)/(2 fp)`` from the half-power points around index ``k`` of a contiguous valid run."""
+    level = mag[k] / np.sqrt(2.0)
+    edges = []
+    for step in (-1, 1):
+        j = k
+        while 0 <= j + step < f.size and mag[j + step] > level and abs(f[j + step] - f[j]) <= 1.5 * resolution_hz:
+            j += step
+        nxt = j + step
+        if 0 <= nxt < f.size and abs(f[nxt] - f[j]) <= 1.5 * resolution_hz:
+            x = (level - mag[j]) / (mag[nxt] - mag[j])  # linear interpolation to the half-power level
+            edges.append(abs(f[j] + x * (f[nxt] - f[j]) - fp))
+    if not edges:
+        width = 2.0 * resolution_hz
+    else:
+        width = 2.0 * max(edges) if len(edges) == 1 else sum(edges)
+    return float(max(width, resolution_hz) / (2.0 * fp))
+
+
+def _smoothed(logm: np.ndarray, f: np.ndarray, resolution_hz: float) -> tuple[np.ndarray, np.ndarray]:
+    """Mean of ``log10 |G|`` over ``SMOOTH_BINS`` neighbouring valid bins (the Hann window's main lobe), so that a
+    noise spike or the leakage step next to a reference line is not a peak; a real peak, already as wide as the
+    main lobe, keeps its place. Also returns how many valid bins each mean used."""
+    half = SMOOTH_BINS // 2
+    out = logm.copy()
+    count = np.ones(logm.size, dtype=int)
+    for k in range(logm.size):
+        near = slice(max(0, k - half), min(logm.size, k + half + 1))
+        sel = np.abs(f[near] - f[k]) <= (half + 0.5) * resolution_hz
+        out[k] = float(np.mean(logm[near][sel]))
+        count[k] = int(sel.sum())
+    return out, count
+
+
+def find_candidates(frf: FRFEstimate, input_delay: int = 0,
+                    frequency_range_hz: tuple[float, float] | None = None) -> list[Candidate]:
+    """Candidate submodels from the valid FRF: rigid body first (if any), then peaks by decreasing prominence."""
+    from scipy.signal import find_peaks
+
+    sel = frf.valid.copy()
+    if frequency_range_hz is not None:
+        sel &= (frf.freqs_hz >= frequency_range_hz[0]) & (frf.freqs_hz <= frequency_range_hz[1])
+    if sel.sum() < 3:
+        return []
+    f = frf.freqs_hz[sel]
+    g = _compensated(frf, input_delay)[sel]
+    mag = np.abs(g)
+    logm = np.log10(np.maximum(mag, np.finfo(float).tiny))
+    rel_std = frf.std[sel] / np.maximum(mag, np.finfo(float).tiny)  # noise only: leakage steps are signal
+    smooth, count = _smoothed(logm, f, frf.resolution_hz)
+    idx, props = find_peaks(smooth, prominence=MIN_PROMINENCE_DECADES)
+    peaks = []
+    for k, prom in zip(idx, props["prominences"], strict=True):
+        # a resonance in an informed region has valid neighbours; an isolated valid bin in a noisy region is
+        # a chance coherence, not a peak
+        if count[k] < 3 or prom < 3.0 * rel_std[k] / np.log(10.0) / np.sqrt(count[k]):
+            continue
+        near = np.flatnonzero(np.abs(f - f[k]) <= 2.5 * frf.resolution_hz)
+        k = int(near[np.argmax(logm[near])])  # the raw maximum next to the smoothed peak
+        fp = f[k]
+        if 0 < k < f.size - 1 and f[k + 1] - f[k - 1] < 2.5 * frf.resolution_hz:
+            den = logm[k - 1] - 2.0 * logm[k] + logm[k + 1]
+            if den < 0:
+                fp = f[k] + 0.5 * (logm[k - 1] - logm[k + 1]) / den * frf.resolution_hz
+        zeta = min(_half_power_damping(f, mag, k, fp, frf.resolution_hz), 0.7)
+        b0 = -2.0 * zeta * float(np.imag(g[k]))
+        if abs(b0) < 0.2 * 2.0 * zeta * mag[k]:  # phase not near -90 degrees: keep the magnitude, sign of Im
+            b0 = 2.0 * zeta * mag[k] * (1.0 if np.imag(g[k]) <= 0 else -1.0)
+        peaks.append(Candidate(float(fp), zeta, b0, float(prom)))
+    peaks.sort(key=lambda c: -c.prominence_decades)
+    rigid = _rigid_body(f, g, min((c.natural_frequency_hz for c in peaks), default=f[-1]))
+    return ([rigid] if rigid is not None else []) + peaks
+
+
+def _held_out_error(thetas, structures, rate_hz: float, u, y, r, controller, input_delay: int,
+                    split: int) -> tuple[float, float]:
+    """Mean squared output error of the model on ``[:split]`` (fit) and ``[split:]`` (held out)."""
+    if controller is not None:
+        from .filters import closed_loop_response
+        _, y_hat = closed_loop_response(list(thetas), list(structures), 1.0 / rate_hz, controller, r, input_delay)
+    else:
+        from .simulate import simulate
+        y_hat = simulate(list(thetas), list(structures), rate_hz, u=u, input_delay=input_delay).y
+    e = y - y_hat
+    if not np.all(np.isfinite(e)):
+        return np.inf, np.inf
+    return float(np.mean(e[:split] ** 2)), float(np.mean(e[split:] ** 2))
+
+
+def _start(candidates: list[Candidate], K: int) -> list[Candidate] | None:
+    """The rigid body (if any) plus the most prominent peaks, K submodels in all, rigid first then by frequency."""
+    rigid = [c for c in candidates if c.natural_frequency_hz == 0.0]
+    peaks = [c for c in candidates if c.natural_frequency_hz > 0.0]
+    n_peaks = K - len(rigid)
+    if n_peaks < 0 or n_peaks > len(peaks) or K < 1:
+        return None
+    return rigid + sorted(peaks[:n_peaks], key=lambda c: c.natural_frequency_hz)
+
+
+def _stabilized(start: list[Candidate], rate_hz: float, controller, input_delay: int) -> list[Candidate]:
+    """A start the controller stabilizes (the closed-loop instrument, 001 eq. 20, needs one): peak-picked damping is
+    resolution-limited and the gain follows from it, so a start may destabilize a loop with a small margin; the
+    damping of every resonant candidate is doubled (at most 0.7) until it is stable, then the gains are halved."""
+    if controller is None:
+        return start
+    from .filters import closed_loop_radius
+
+    def stable(cands: list[Candidate]) -> bool:
+        try:
+            return closed_loop_radius([c.theta() for c in cands], [c.structure for c in cands], 1.0 / rate_hz,
+                                      controller, input_delay) < 1.0
+        except ValueError:
+            return False
+
+    cands = list(start)
+    for step in range(8):
+        if stable(cands):
+            return cands
+        if step < 4:
+            cands = [c if c.natural_frequency_hz == 0 else Candidate(
+                c.natural_frequency_hz, min(2.0 * c.damping_ratio, 0.7), c.gain, c.prominence_decades, c.integrators)
+                for c in cands]
+        else:
+            cands = [Candidate(c.natural_frequency_hz, c.damping_ratio, 0.5 * c.gain, c.prominence_decades,
+                               c.integrators) for c in cands]
+    return cands  # still unstable: identify reports it
+
+
+def _nested_start(best_fit: Any, candidates: list[Candidate], K: int, skip: int = 0) -> list[Candidate] | None:
+    """Start for order K from the best smaller model: its fitted submodels plus the most prominent candidates not
+    within 15 % of one of its modes (the last one replaced by the ``skip``-th next: alternatives). A fit may have
+    moved a start to a mode the peak list ranked low, e.g. a well-damped low mode that dominates the output error."""
+    fitted = [Candidate(*(modal_from_theta(t, s) if s.n == 2 else (0.0, 0.0, t[0])), 0.0, s.integrators)
+              for t, s in zip(best_fit.thetas, best_fit.structures, strict=True)]
+    need = K - len(fitted)
+    if need < 1:
+        return None
+    has_rigid = any(c.natural_frequency_hz == 0.0 for c in fitted)
+    fresh = [c for c in candidates
+             if (c.natural_frequency_hz == 0.0 and not has_rigid)
+             or (c.natural_frequency_hz > 0.0 and all(abs(c.natural_frequency_hz / m.natural_frequency_hz - 1.0) > 0.15
+                                                      for m in fitted if m.natural_frequency_hz > 0.0))]
+    if len(fresh) < need + skip:
+        return None
+    return sorted(fitted + fresh[:need - 1] + [fresh[need - 1 + skip]], key=lambda c: c.natural_frequency_hz)
+
+
+def _fit(u, y, rate_hz, r, controller, input_delay, start: list[Candidate], max_iterations: int):
+    """Offline additive (CL)SRIVC from the candidates. In closed loop, a start the controller does not stabilize
+    even after :func:`_stabilized` is first refined by the open-loop additive SRIVC (u -> y; biased by the feedback
+    but needs no stable closed loop), whose result then starts the CLSRIVC."""
+    from .filters import ClosedLoopUnstableError
+    from .offline import identify
+
+    start = _stabilized(start, rate_hz, controller, input_delay)
+    structures = [c.structure for c in start]
+    thetas = [c.theta() for c in start]
+    try:
+        return identify(u, y, rate_hz, structures, thetas, r=r, controller=controller, input_delay=input_delay,
+                        max_iterations=max_iterations)
+    except ClosedLoopUnstableError:
+        if controller is None:
+            raise
+    pre = identify(u, y, rate_hz, structures, thetas, input_delay=input_delay, max_iterations=max_iterations,
+                   method="additive-srivc")
+    return identify(u, y, rate_hz, structures, pre.thetas, r=r, controller=controller, input_delay=input_delay,
+                    max_iterations=max_iterations)
+
+
+def _usable(res: Any) -> bool:
+    return all(np.all(np.isfinite(t)) for t in res.thetas) and all(
+        t[0] > 0 and t[1] > 0 for t, s in zip(res.thetas, res.structures, strict=True) if s.n == 2)
+
+
+def _evaluate(K: int, start: list[Candidate], u, y, rate_hz, r, controller, input_delay, split: int,
+              max_iterations: int) -> tuple[OrderRow, Any]:
+    """Fit one start on ``[:split]`` and measure its output error on both parts (a failure is a row, not a crash)."""
+    try:
+        res = _fit(u[:split], y[:split], rate_hz, None if r is None else r[:split], controller, input_delay,
+                   start, max_iterations)
+    except Exception as exc:  # noqa: BLE001 - a failed order is a row of the table, not a crash
+        return OrderRow(K, np.inf, np.inf, message=f"{type(exc).__name__}: {exc}"), None
+    if not _usable(res):
+        return OrderRow(K, np.inf, np.inf, converged=bool(res.converged), message="unstable or non-finite"), None
+    try:
+        e_fit, e_val = _held_out_error(res.thetas, res.structures, rate_hz, u, y, r, controller, input_delay, split)
+    except Exception as exc:  # noqa: BLE001 - e.g. the controller does not stabilize the fitted model
+        return OrderRow(K, np.inf, np.inf, converged=bool(res.converged), message=f"{type(exc).__name__}: {exc}"), None
+    return OrderRow(K, e_fit, e_val, converged=bool(res.converged), message=res.message), res
+
+
+def order_table(u, y, rate_hz: float, r, controller, input_delay: int, candidates: list[Candidate],
+                orders: list[int], validation_fraction: float, max_iterations: int,
+                margin: float) -> tuple[list[OrderRow], dict[int, Any]]:
+    """Fit each order on the first part, held-out error on the rest; mark the accepted order (module rule). A larger
+    order built on the best smaller model tries up to ``ALTERNATIVES`` new peaks and keeps the best."""
+    n = u.size
+    split = int(round(n * (1.0 - validation_fraction)))
+    table: list[OrderRow] = []
+    fits: dict[int, Any] = {}
+    best, misses = np.inf, 0
+    best_fit = None
+    for K in orders:
+        if table:  # the order rule, applied as the scan goes: count the orders without a significant gain
+            last = table[-1].validation_error
+            if np.isfinite(last) and (not np.isfinite(best) or last < (1.0 - margin) * best):
+                best, misses, best_fit = last, 0, fits[table[-1].K]
+            elif np.isfinite(best):
+                misses += 1
+        if misses >= STOP_AFTER_MISSES:  # larger K are not tried
+            table.append(OrderRow(K, np.inf, np.inf, message=f"not tried ({misses} orders in a row without gain)"))
+            continue
+        starts = ([_start(candidates, K)] if best_fit is None else
+                  [_nested_start(best_fit, candidates, K, skip) for skip in range(ALTERNATIVES)])
+        starts = [st for st in starts if st is not None]
+        if not starts:
+            table.append(OrderRow(K, np.inf, np.inf, message="fewer candidates than K"))
+            continue
+        row, res = None, None
+        for st in starts:
+            cand_row, cand_res = _evaluate(K, st, u, y, rate_hz, r, controller, input_delay, split, max_iterations)
+            if row is None or cand_row.validation_error < row.validation_error:
+                row, res = cand_row, cand_res
+            if np.isfinite(best) and row.validation_error < (1.0 - margin) * best:
+                break  # a significant gain: no need to try the other peaks
+        if res is not None:
+            fits[K] = res
+        table.append(row)
+    chosen: OrderRow | None = None
+    for row in table:
+        if np.isfinite(row.validation_error) and (chosen is None or row.validation_error < (1.0 - margin)
+                                                  * chosen.validation_error):
+            chosen = row
+    if chosen is not None:
+        chosen.accepted = True
+    return table, fits
+
+
+def find_modes(u, y, rate_hz: float, *, r=None, controller=None, input_delay: int = 0, count: int = 0,
+               max_count: int = 6, frequency_range_hz: tuple[float, float] | None = None,
+               validation_fraction: float = 0.3, margin: float = DEFAULT_MARGIN,
+               max_iterations: int = 30, frf: FRFEstimate | None = None) -> ModeFindResult:
+    """Find the modes (``count`` of them, or the order by held-out error when ``count`` is 0). Raises
+    ``ValueError`` when the data contain no usable candidate or no order could be fitted."""
+    u = np.asarray(u, dtype=float)
+    y = np.asarray(y, dtype=float)
+    r = None if r is None or controller is None else np.asarray(r, dtype=float)
+    if not 0.05 <= validation_fraction <= 0.8:
+        raise ValueError(f"validation_fraction must be in [0.05, 0.8], got {validation_fraction}")
+    if count < 0 or max_count < 1:
+        raise ValueError("need count >= 0 and max_count >= 1")
+    frf = estimate_frf(u, y, rate_hz, r) if frf is None else frf
+    candidates = find_candidates(frf, input_delay, frequency_range_hz)
+    if not candidates:
+        raise ValueError("no resonance or rigid-body behaviour found in the valid FRF band "
+                         f"({frf.band_hz}): the data do not excite the plant enough to find modes")
+    orders = [count] if count > 0 else list(range(1, min(max_count, len(candidates)) + 1))
+    table, fits = order_table(u, y, rate_hz, r, controller, input_delay, candidates, orders, validation_fraction,
+                              max_iterations, margin)
+    chosen = next((row for row in table if row.accepted), None)
+    if chosen is None:
+        raise ValueError("no model order could be fitted: " + "; ".join(f"K={t.K}: {t.message}" for t in table))
+    res = fits[chosen.K]
+    start = [Candidate(*(modal_from_theta(t, s) if s.n == 2 else (0.0, 0.0, t[0])), 0.0, s.integrators)
+             for t, s in zip(res.thetas, res.structures, strict=True)]
+    message = f"K = {chosen.K} by held-out output error (margin {margin:.0%})"
+    try:
+        full = _fit(u, y, rate_hz, r, controller, input_delay, start, max_iterations)
+        if _usable(full):
+            res = full
+        else:
+            message += "; refit on the whole record unstable: kept the fit on the first part"
+    except Exception as exc:  # noqa: BLE001
+        message += f"; refit on the whole record failed ({type(exc).__name__}): kept the fit on the first part"
+    structures = list(res.structures)
+    modal = np.array([modal_from_theta(t, s) for t, s in zip(res.thetas, structures, strict=True)])
+    band = frf.band_hz
+    ident = [bool(s.n == 0 or (band is not None and band[0] <= m[0] <= band[1]))
+             for m, s in zip(modal, structures, strict=True)]
+    if not all(ident):
+        message += "; mode(s) outside the excited band are not identifiable: " + ", ".join(
+            f"{m[0]:.4g} Hz" for m, ok in zip(modal, ident, strict=True) if not ok)
+    return ModeFindResult(chosen.K, structures, [np.asarray(t, float) for t in res.thetas], modal, ident, table,
+                          frf, candidates, res, message)
+
+
+def _longest_finite(*signals: np.ndarray | None) -> slice:
+    ok = np.ones(signals[1].size, dtype=bool)
+    for s in signals:
+        if s is not None:
+            ok &= np.isfinite(s)
+    edges = np.flatnonzero(np.diff(np.concatenate(([0], ok.astype(int), [0]))))
+    if edges.size == 0:
+        return slice(0, 0)
+    starts, ends = edges[::2], edges[1::2]
+    j = int(np.argmax(ends - starts))
+    return slice(int(starts[j]), int(ends[j]))
+
+
+def autostart_config(cfg: Any, r, u, y, count: int | None = None) -> tuple[Any, ModeFindResult]:
+    """The automatic start of a :class:`config.MonitorConfig` without guesses (issue 12): modes found on the given
+    data (the longest finite stretch; ``count`` None: ``modes.count``), returned as the configuration with those
+    modes as guesses, and the evidence. Raises ``ValueError`` (one line) when no mode can be found."""
+    closed = bool(cfg.closed_loop)
+    r = np.asarray(r, dtype=float) if closed and r is not None else None
+    u, y = np.asarray(u, dtype=float), np.asarray(y, dtype=float)
+    seg = _longest_finite(r, u, y)
+    k = cfg.mode_count if count is None else int(count)
+    res = find_modes(u[seg], y[seg], cfg.loop_rate_hz, r=None if r is None else r[seg],
+                     controller=cfg.controller if closed else None, input_delay=cfg.input_delay_samples, count=k,
+                     max_count=max(cfg.max_mode_count, k), frequency_range_hz=cfg.frequency_range_hz,
+                     max_iterations=max(30, cfg.estimator.init_max_iterations))
+    modal = np.array([m if s.n == 2 else (0.0, 0.0, m[2]) for m, s in zip(res.modal, res.structures, strict=True)])
+    return cfg.with_modes(modal, [s.integrators for s in res.structures]), res

@@ -1,0 +1,139 @@
+#!/usr/bin/env python3
+"""Automatic start over random closed-loop plants (issue 12 verification): no guesses, ``modes.count: 0``.
+
+Each plant: 1-4 modes log-uniform in 1 Hz - 1 kHz (below a fifth of the loop rate, neighbours at least 1.3x apart),
+damping 0.005-0.3 log-uniform, DC gain 0.2-1 log-uniform; loop 1-8 kHz; input delay 0-2 samples; a PI controller
+designed here (gain scaled down until max |closed-loop pole| < 1 and modulus margin >= 0.5); setpoint a square wave
+at a fifth of the lowest mode (at most 2 Hz) plus white dither of 5 % of its amplitude; white output noise of 1 % of
+the output's standard deviation; record length 20 s or 40 periods of the lowest mode (at most 60 s).
+
+Criterion: K right, every mode within 1 % in frequency and 15 % in damping (matched by order of frequency).
+Prints one row per plant, the failures with the reason (order table, candidates), and the totals.
+
+    python scripts/validate_autostart.py [--plants 40] [--seed 0]
+"""
+
+from __future__ import annotations
+
+import argparse
+import math
+import os
+import sys
+import time
+
+os.environ.setdefault("OPENBLAS_NUM_THREADS", "1")
+os.environ.setdefault("OMP_NUM_THREADS", "1")
+
+import numpy as np  # noqa: E402
+
+from additive_rsrivc_ros.core.controller import DiscreteController  # noqa: E402
+from additive_rsrivc_ros.core.frf import discrete_model_frf  # noqa: E402
+from additive_rsrivc_ros.core.modefind import find_modes  # noqa: E402
+from additive_rsrivc_ros.core.simulate import (  # noqa: E402
+    PlantMode,
+    loop_margins,
+    simulate_modes,
+    square_wave,
+    white_noise,
+)
+
+
+def random_plant(rng: np.random.Generator) -> tuple[list[PlantMode], float, int]:
+    rate = float(rng.choice([1000.0, 2000.0, 4096.0, 8000.0]))
+    k = int(rng.integers(1, 5))
+    f_hi = min(1000.0, rate / 5.0)
+    for _ in range(1000):
+        f = np.sort(np.exp(rng.uniform(np.log(1.0), np.log(f_hi), k)))
+        if k == 1 or np.all(f[1:] / f[:-1] >= 1.3):
+            break
+    modes = [PlantMode(float(fi), float(np.exp(rng.uniform(np.log(0.005), np.log(0.3)))),
+                       float(np.exp(rng.uniform(np.log(0.2), np.log(1.0))))) for fi in f]
+    return modes, rate, int(rng.integers(0, 3))
+
+
+def _thetas(modes: list[PlantMode]) -> list[np.ndarray]:
+    return [np.array([2 * m.damping_ratio / (2 * math.pi * m.natural_frequency_hz),
+                      1 / (2 * math.pi * m.natural_frequency_hz) ** 2, m.gain]) for m in modes]
+
+
+def design_controller(modes: list[PlantMode], rate: float, delay: int) -> DiscreteController:
+    """PI ``kp + ki h/(1 - q^-1)`` with ``|kp G| <= 0.3`` at the largest resonance and the integral corner a decade
+    below the lowest mode; halved until the loop is stable with a modulus margin >= 0.5."""
+    th, st = _thetas(modes), [m.structure for m in modes]
+    f = np.geomspace(0.01, rate / 2 * 0.999, 4000)
+    gmax = float(np.max(np.abs(discrete_model_frf(th, st, rate, f, delay))))
+    kp = 0.3 / gmax
+    ki = kp * 2 * math.pi * modes[0].natural_frequency_hz / 10.0
+    h = 1.0 / rate
+    for _ in range(30):
+        c = DiscreteController((kp + ki * h, -kp), (1.0, -1.0))
+        m = loop_margins(th, st, c, rate, delay, n_freq=3000)
+        if m["max_pole"] < 1.0 and m["modulus_margin"] >= 0.5:
+            return c
+        kp, ki = kp / 2, ki / 2
+    raise RuntimeError("no stabilizing PI found")
+
+
+def run_plant(seed: int) -> dict:
+    rng = np.random.default_rng(seed)
+    modes, rate, delay = random_plant(rng)
+    ctrl = design_controller(modes, rate, delay)
+    f1 = modes[0].natural_frequency_hz
+    duration = float(min(60.0, max(20.0, 40.0 / f1)))
+    t = np.arange(int(duration * rate)) / rate
+    f_sq = min(2.0, f1 / 5.0)
+    r = square_wave(t, f_sq, 1.0) + white_noise(t.size, 0.05, rng)
+    clean = simulate_modes(modes, rate, r=r, controller=ctrl, input_delay=delay)
+    noise_std = 0.01 * float(np.std(clean.y))
+    sim = simulate_modes(modes, rate, r=r, controller=ctrl, input_delay=delay,
+                         noise=white_noise(t.size, noise_std, rng), rng=rng)
+    t0 = time.perf_counter()
+    try:
+        res = find_modes(sim.u, sim.y, rate, r=sim.r, controller=ctrl, input_delay=delay)
+    except ValueError as exc:
+        return {"seed": seed, "modes": modes, "rate": rate, "delay": delay, "duration": duration, "ok": False,
+                "K": 0, "why": f"error: {exc}", "s": time.perf_counter() - t0}
+    elapsed = time.perf_counter() - t0
+    why = []
+    if res.K != len(modes):
+        why.append(f"K = {res.K}, true {len(modes)}; table " + ", ".join(
+            f"K={row.K}: val {row.validation_error:.3g}{'*' if row.accepted else ''}"
+            + ("" if np.isfinite(row.validation_error) else f" ({row.message[:60]})") for row in res.table)
+            + "; candidates " + ", ".join(f"{c.natural_frequency_hz:.4g}" for c in res.candidates))
+    else:
+        for m, truth in zip(res.modal, modes, strict=True):
+            ef = m[0] / truth.natural_frequency_hz - 1.0
+            ez = m[1] / truth.damping_ratio - 1.0
+            if abs(ef) >= 0.01 or abs(ez) >= 0.15:
+                why.append(f"mode {truth.natural_frequency_hz:.4g} Hz zeta {truth.damping_ratio:.3g}: "
+                           f"found {m[0]:.4g} Hz ({ef:+.1%}) zeta {m[1]:.3g} ({ez:+.0%})")
+    return {"seed": seed, "modes": modes, "rate": rate, "delay": delay, "duration": duration, "ok": not why,
+            "K": res.K, "why": "; ".join(why), "s": elapsed, "band": res.frf.band_hz}
+
+
+def main(argv: list[str] | None = None) -> int:
+    ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
+    ap.add_argument("--plants", type=int, default=40)
+    ap.add_argument("--seed", type=int, default=0)
+    args = ap.parse_args(argv)
+    rows = []
+    print(f"{'plant':>5} {'rate':>6} {'d':>1} {'T[s]':>5} {'K':>3} {'found':>5} {'ok':>3} {'time[s]':>7}  "
+          "modes (f Hz / zeta)")
+    for i in range(args.plants):
+        row = run_plant(args.seed * 100000 + i)
+        rows.append(row)
+        desc = " ".join(f"{m.natural_frequency_hz:.4g}/{m.damping_ratio:.3g}" for m in row["modes"])
+        print(f"{i:>5} {row['rate']:>6.0f} {row['delay']:>1} {row['duration']:>5.0f} {len(row['modes']):>3} "
+              f"{row['K']:>5} {'yes' if row['ok'] else 'NO':>3} {row['s']:>7.2f}  {desc}", flush=True)
+    fails = [r for r in rows if not r["ok"]]
+    print(f"\n{len(rows) - len(fails)} of {len(rows)} plants right (K and every mode within 1 % frequency, 15 % "
+          f"damping); K right in {sum(r['K'] == len(r['modes']) for r in rows)} of {len(rows)}")
+    if fails:
+        print("failures:")
+        for r in fails:
+            print(f"  plant seed {r['seed']}: {r['why']}")
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())
