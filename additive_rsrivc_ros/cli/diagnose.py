@@ -256,8 +256,8 @@ def _warn_bad_samples(sig: Any, stderr: TextIO) -> None:
     lost = {k: v for k, v in sig.unmatched_by_signal.items() if v}
     if lost:
         by = ", ".join(f"{k}: {v}" for k, v in lost.items())
-        print(f"{PROG}: warning: message counts differ between topics; samples matched by log time, messages "
-              f"without partners left out ({by}); the estimator treats the holes as data gaps", file=stderr)
+        print(f"{PROG}: warning: message counts differ between topics; samples paired by log time, a lost message "
+              f"is a skipped sample on a kept grid, a surplus one is left out ({by})", file=stderr)
 
 
 def _frf_estimates(inp: Any, sig: Any, cfg: Any) -> None:
@@ -378,9 +378,15 @@ def diagnose(args: argparse.Namespace, stdout: TextIO, stderr: TextIO, state: di
         "files": {k: str(out / k) for k in OUTPUT_FILES
                   if k in ("estimates.csv", "events.csv", "summary.json") or not args.no_report},
     }
+    summary["alignment"] = _alignment_summary(last)
     (tmp.tmp / "summary.json").write_text(json.dumps(_json_safe(summary), indent=2, allow_nan=False) + "\n",
                                           encoding="utf-8")
     tmp.commit()
+    al = summary["alignment"]
+    if al.get("realignments"):
+        print(f"{PROG}: warning: {al['realignments']} re-alignment(s) of r, u, y by the controller invariant (lost "
+              f"or repeated messages): {al['refilled']} lost sample(s) refilled from u = C_d(q)(r - y), "
+              f"{al['surplus']} surplus dropped, {al['set_aside']} set aside", file=stderr)
     print(verdict.line, file=stdout)
     if not args.quiet:
         print(f"\n{bag}: {duration:.4g} s, {n} samples at {cfg.loop_rate_hz:g} Hz, "
@@ -392,6 +398,18 @@ def diagnose(args: argparse.Namespace, stdout: TextIO, stderr: TextIO, state: di
         print(f"wrote {out}/: estimates.csv ({n_rows} rows), events.csv ({len(events)} events), summary.json"
               f"{'' if args.no_report else ', report.html, modes.png'}", file=stdout)
     return 3 if (args.fail_on_fault and events) else 0
+
+
+def _alignment_summary(last: Any) -> dict[str, Any]:
+    """summary.json ``alignment``: what the pipeline's stream aligner verified and corrected (core/alignment.py)."""
+    al = (last.health.get("alignment") if last is not None else None) or {"mode": "off"}
+    if al.get("mode") != "invariant":
+        return {"mode": al.get("mode", "off")}
+    return {"mode": "controller invariant", "verified": bool(al.get("verified")),
+            "relative_residual": al.get("relative_residual"), "realignments": int(al.get("realignments", 0)),
+            "refilled": int(al.get("reconstructed", 0)), "surplus": int(al.get("surplus", 0)),
+            "set_aside": int(al.get("invalidated", 0)) + int(al.get("late", 0)),
+            "undecided_samples": int(al.get("undecided", 0)), "late_samples": int(al.get("late", 0))}
 
 
 def main(argv: list[str] | None = None) -> int:
