@@ -452,4 +452,5 @@ def autostart_config(cfg: Any, r, u, y, count: int | None = None) -> tuple[Any, 
                      max_count=max(cfg.max_mode_count, k), frequency_range_hz=cfg.frequency_range_hz,
                      max_iterations=max(30, cfg.estimator.init_max_iterations))
     modal = np.array([m if s.n == 2 else (0.0, 0.0, m[2]) for m, s in zip(res.modal, res.structures, strict=True)])
-    return cfg.with_modes(modal, [s.integrators for s in res.structures]), res
+    order = np.argsort(modal[:, 0], kind="stable")   # modes numbered by frequency (rigid body first), as users do
+    return cfg.with_modes(modal[order], [res.structures[i].integrators for i in order]), res
