@@ -33,7 +33,7 @@ import numpy as np
 from scipy import signal
 
 from .core.model import SubmodelStructure, split_theta, theta_from_modal
-from .verdict import Verdict, assess
+from .verdict import Verdict, relative_change, assess
 
 QUANTITIES = ("natural_frequency", "damping", "gain")
 QUANTITY_LABELS = ("natural frequency [Hz]", "damping ratio [-]", "gain (DC) [y/u]")
@@ -307,16 +307,6 @@ def verdict(events: Sequence[Mapping[str, Any]], series: DiagnosisSeries, durati
     return v.level, v.text
 
 
-def _rel_change(value: Any, base: Any) -> float | None:
-    try:
-        v, b = float(value), float(base)
-    except (TypeError, ValueError):
-        return None
-    if not (math.isfinite(v) and math.isfinite(b)) or b == 0:
-        return None
-    return 100.0 * (v - b) / abs(b)
-
-
 # ------------------------------------------------------------------------------------------------- figures
 def _figure(w: float, h: float, *, top_in: float = 0.45, bottom_in: float = 0.55, left_in: float = 0.9,
             right_in: float = 0.25, hspace: float = 0.15, wspace: float = 0.25) -> Any:
@@ -465,7 +455,7 @@ def timeline_figure(inp: ReportInput) -> Any:
 
 
 def _fmt_rel(e: Mapping[str, Any]) -> str:
-    rel = _rel_change(e.get("value"), e.get("baseline"))
+    rel = relative_change(e.get("value"), e.get("baseline"))
     return "" if rel is None else f"{rel:+.1f} %"
 
 
@@ -602,7 +592,7 @@ def summary_rows(inp: ReportInput) -> list[dict[str, Any]]:
             elif ev:
                 fault = f"{len(ev)} cleared event(s)"
             rows.append({"mode": i + 1, "quantity": QUANTITIES[q], "label": QUANTITY_LABELS[q], "final": final,
-                         "std": std, "baseline": base, "change_pct": _rel_change(final, base), "truth": truth,
+                         "std": std, "baseline": base, "change_pct": relative_change(final, base), "truth": truth,
                          "fault": fault})
     return rows
 

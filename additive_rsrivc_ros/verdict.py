@@ -200,7 +200,7 @@ def _span_text(blind: Sequence[BlindInterval], limit: int = 3) -> str:
 def _event_text(events: Sequence[Mapping[str, Any]], limit: int = 4) -> str:
     parts = []
     for e in events[:limit]:
-        rel = _rel_change(e.get("value"), e.get("baseline"))
+        rel = relative_change(e.get("value"), e.get("baseline"))
         clear = e.get("clear_time_s")
         state = "still open at the end" if clear in (None, "") else f"cleared at {float(clear):.2f} s"
         parts.append(f"mode {e['mode']} {str(e['quantity']).replace('_', ' ')} {e['direction']}"
@@ -209,7 +209,8 @@ def _event_text(events: Sequence[Mapping[str, Any]], limit: int = 4) -> str:
     return f"{len(events)} structural fault event(s): " + "; ".join(parts) + more
 
 
-def _rel_change(value: Any, base: Any) -> float | None:
+def relative_change(value: Any, base: Any) -> float | None:
+    """Change of ``value`` against ``base`` in % (None when either is not a finite number or the base is 0)."""
     try:
         v, b = float(value), float(base)
     except (TypeError, ValueError):

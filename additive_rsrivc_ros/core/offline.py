@@ -336,7 +336,7 @@ def _finite(thetas) -> bool:
     return all(np.all(np.isfinite(t)) for t in thetas)
 
 
-def _rel_change(new: list[np.ndarray], old: list[np.ndarray], scale: np.ndarray) -> float:
+def relative_change(new: list[np.ndarray], old: list[np.ndarray], scale: np.ndarray) -> float:
     """``||beta_new - beta_old|| / ||beta_old||`` with each parameter scaled by its initial magnitude."""
     bn, bo = np.concatenate(new) / scale, np.concatenate(old) / scale
     return float(np.linalg.norm(bn - bo) / max(np.linalg.norm(bo), 1e-300))
@@ -442,7 +442,7 @@ def additive_iv(data: _Data, structures, thetas0, *, closed_loop: bool, method: 
             message = f"iteration {it}: {note}"
             it -= 1
             break
-        change = _rel_change(new, thetas, scale)
+        change = relative_change(new, thetas, scale)
         thetas = new
         if change < tol:
             converged = True
@@ -502,7 +502,7 @@ def bcd_srivc(data: _Data, structures, thetas0, *, max_iterations: int = 50, tol
                     thetas = trial
                     xhat[i] = xi[0]
                     break
-        change = _rel_change(thetas, old, scale)
+        change = relative_change(thetas, old, scale)
         if change < tol:
             converged = True
             break
