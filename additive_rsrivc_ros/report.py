@@ -33,7 +33,7 @@ import numpy as np
 from scipy import signal
 
 from .core.model import SubmodelStructure, split_theta, theta_from_modal
-from .verdict import Verdict, relative_change, assess
+from .verdict import Verdict, assess, relative_change
 
 QUANTITIES = ("natural_frequency", "damping", "gain")
 QUANTITY_LABELS = ("natural frequency [Hz]", "damping ratio [-]", "gain (DC) [y/u]")
