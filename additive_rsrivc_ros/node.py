@@ -774,14 +774,18 @@ def make_node_class() -> type:
 
         # ------------------------------------------------------------------------------------ output
         def _current(self, out: str) -> tuple[Any, Any, bool]:
-            """(report, modal, new): the newest report not yet published on ``out`` (modes | diagnostics), else
-            the live estimate (when the worker lets go of the lock within 20 ms), else the last snapshot."""
+            """(report, modal, new): the newest report not yet published on ``out`` (modes | diagnostics), else the
+            newest report again (so /diagnostics and ~/modes show the same vetted estimate), else, before any report
+            (a state restored from ``state_file``), the live estimate when the worker lets go of the lock within
+            20 ms, else the last snapshot."""
             rep = self._latest_report          # read once; the worker only ever replaces it (no lost update)
             if rep is not None and rep is not self._last_published.get(out):
                 self._last_published[out] = rep
                 if out == "modes":
                     self._reports_published += 1
                 return rep, rep.modal, True
+            if rep is not None:
+                return rep, rep.modal, False
             if self.lock.acquire(timeout=0.02):
                 try:
                     if self.pipeline is not None:
