@@ -30,9 +30,9 @@ EventsExecutor serves bursts topic by topic (measured: 3000 messages of one topi
 alignment tolerates large temporary count differences between the topics.
 
 Resources and timing (issue 13): every input queue is bounded (``sync.max_queue_s``, oldest dropped, counted per
-topic, one log line per episode); a separate publisher thread publishes the newest report and one
-``/diagnostics`` array per publish period, so publishing never holds up the consumption of the inputs (reports
-produced faster than they can be published are coalesced and counted). Each topic's arrival rate is compared
+topic, one log line per episode); a separate publisher thread publishes every report's estimate on ``~/modes``
+(in order) and one ``/diagnostics`` array per publish period from the newest report, so publishing never holds
+up the consumption of the inputs (``~/modes`` messages are coalesced, and counted, only past ``MODES_QUEUE``). Each topic's arrival rate is compared
 with ``loop_rate_hz`` (``sync.rate_window_s``, ``sync.rate_tolerance``): a mismatch is a WARN naming the topic.
 The node measures its own loop: a topic is silent (STALE) only when the executor was spinning for longer than
 ``stale_timeout_s`` and nothing arrived; a late burst caused by the node's own stall (start-up, GC, a busy
@@ -49,6 +49,7 @@ import signal
 import sys
 import threading
 import time
+from collections import deque
 from pathlib import Path
 from typing import Any
 
@@ -89,6 +90,7 @@ example:
 
 ALLOWED_EXTRA_PARAMS = ("use_sim_time", "start_type_description_service")
 STALL_NS = 250_000_000     # the executor or the worker not running for this long is a stall of the node itself
+MODES_QUEUE = 10_000        # ~/modes messages the publisher may fall behind before the oldest are coalesced (counted)
 
 
 def _beside(path: str) -> str:
@@ -520,6 +522,9 @@ def make_node_class() -> type:
             self._last_error = ""
             self._next_graph_ns = 0
             self._latest_report = None           # newest pipeline report (worker -> publisher)
+            # every report's (K, 6) estimate for ~/modes, in order (a cheap message: none is coalesced unless the
+            # publisher falls this far behind; /diagnostics is composed once per cycle from the newest report)
+            self._modes_queue: deque = deque(maxlen=MODES_QUEUE)
             self._last_published = None
             self._reports_made = 0
             self._reports_published = 0
@@ -581,6 +586,7 @@ def make_node_class() -> type:
                         self.delays_ms.extend((time.monotonic_ns() - blk.arrival_ns) * 1e-6)
                     if reports:
                         self._reports_made += len(reports)
+                        self._modes_queue.extend(r.modal for r in reports)
                         self._latest_report = reports[-1]
                         self._snapshot = (reports[-1], reports[-1].modal)
                 if now >= self._next_graph_ns:
@@ -660,7 +666,6 @@ def make_node_class() -> type:
             rep = self._latest_report          # read once; the worker only ever replaces it (no lost update)
             if rep is not None and rep is not self._last_published:
                 self._last_published = rep
-                self._reports_published += 1
                 return rep, rep.modal, True
             if self.lock.acquire(timeout=0.02):
                 try:
@@ -675,9 +680,10 @@ def make_node_class() -> type:
             sync, modes_pub, diag_pub = self.sync, self._modes_pub, self._diag_pub
             if sync is None or modes_pub is None or diag_pub is None or not self._active:
                 return
-            rep, modal, new = self._current()
-            if new:
-                modes_pub.publish(cv.modes_array(modal))
+            rep, modal, _ = self._current()
+            while self._modes_queue:
+                modes_pub.publish(cv.modes_array(self._modes_queue.popleft()))
+                self._reports_published += 1
             silent = sync.silent(time.monotonic_ns(), self._stale_timeout_s, self.looking_since_ns)
             stale = bool(silent) or rep is None or not rep.estimating
             name, hw = self.get_name(), self.get_fully_qualified_name()
