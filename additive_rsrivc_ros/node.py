@@ -38,15 +38,15 @@ CPU), and five seconds of history cover such stalls (Float64 messages are 8 byte
 next), so the alignment tolerates large temporary count differences between the topics.
 
 Resources and timing (issue 13): every input queue is bounded (``sync.max_queue_s``, oldest dropped, counted per
-topic, one log line per episode); a separate publisher thread publishes the newest report on ``~/modes`` at
-``publish_rate_hz`` and one ``/diagnostics`` array per ``diagnostics_period_s`` (1 s by default), so publishing
-never holds up the consumption of the inputs (reports produced faster than they can be published are coalesced and
-counted). Each topic's arrival rate is compared with ``loop_rate_hz`` (``sync.rate_window_s``,
-``sync.rate_tolerance``): a mismatch is a WARN naming the topic. The node measures its own loop: a topic is silent
-(STALE) only when the executor was spinning for longer than ``stale_timeout_s`` and nothing arrived; a late burst
-caused by the node's own stall (start-up, GC, a busy worker) is not an input pause. ``state_file``: a file refused
-at start (other model, rate or corrupt) is never overwritten; this run's state is saved beside it (``<stem>.<UTC
-time>.json``). SIGINT/SIGTERM only set a flag.
+topic, one log line per episode); a separate publisher thread publishes every report's estimate on ``~/modes`` (in
+order, once per ``1/publish_rate_hz`` cycle) and one ``/diagnostics`` array per ``diagnostics_period_s`` (1 s by
+default) from the newest report, so publishing never holds up the consumption of the inputs (``~/modes`` messages are
+coalesced, and counted, only past ``MODES_QUEUE``). Each topic's arrival rate is compared with ``loop_rate_hz``
+(``sync.rate_window_s``, ``sync.rate_tolerance``): a mismatch is a WARN naming the topic. The node measures its own
+loop: a topic is silent (STALE) only when the executor was spinning for longer than ``stale_timeout_s`` and nothing
+arrived; a late burst caused by the node's own stall (start-up, GC, a busy worker) is not an input pause.
+``state_file``: a file refused at start (other model, rate or corrupt) is never overwritten; this run's state is
+saved beside it (``<stem>.<UTC time>.json``). SIGINT/SIGTERM only set a flag.
 """
 
 from __future__ import annotations
@@ -58,6 +58,7 @@ import signal
 import sys
 import threading
 import time
+from collections import deque
 from pathlib import Path
 from typing import Any
 
@@ -102,6 +103,7 @@ example:
 ALLOWED_EXTRA_PARAMS = ("use_sim_time", "start_type_description_service")
 REQUIRED_PARAMS = ("loop_rate_hz",)     # no usable default: absent means the params file did not reach the node
 STALL_NS = 250_000_000     # the executor or the worker not running for this long is a stall of the node itself
+MODES_QUEUE = 10_000        # ~/modes messages the publisher may fall behind before the oldest are coalesced (counted)
 
 
 def split_unknown(names: Any, known: Any) -> tuple[list[str], list[str]]:
@@ -628,7 +630,10 @@ def make_node_class() -> type:
             self._last_error = ""
             self._next_graph_ns = 0
             self._latest_report = None           # newest pipeline report (worker -> publisher)
-            self._last_published: dict[str, Any] = {}      # output -> the report it last published
+            # every report's (K, 6) estimate for ~/modes, in order (a cheap message: none is coalesced unless the
+            # publisher falls this far behind; /diagnostics is composed once per cycle from the newest report)
+            self._modes_queue: deque = deque(maxlen=MODES_QUEUE)
+            self._last_published = None
             self._reports_made = 0
             self._reports_published = 0
             self._snapshot: tuple[Any, Any] = (None, None)   # (last report, modal) the publisher can always use
@@ -689,6 +694,7 @@ def make_node_class() -> type:
                         self.delays_ms.extend((time.monotonic_ns() - blk.arrival_ns) * 1e-6)
                     if reports:
                         self._reports_made += len(reports)
+                        self._modes_queue.extend(r.modal for r in reports)
                         self._latest_report = reports[-1]
                         self._snapshot = (reports[-1], reports[-1].modal)
                 if now >= self._next_graph_ns:
@@ -773,16 +779,14 @@ def make_node_class() -> type:
             self._wrong_types = wrong
 
         # ------------------------------------------------------------------------------------ output
-        def _current(self, out: str) -> tuple[Any, Any, bool]:
-            """(report, modal, new): the newest report not yet published on ``out`` (modes | diagnostics), else the
-            newest report again (so /diagnostics and ~/modes show the same vetted estimate), else, before any report
+        def _current(self) -> tuple[Any, Any, bool]:
+            """(report, modal, new) for /diagnostics: the newest report (new: not shown before; the same vetted
+            estimate as the last ~/modes message), else, before any report
             (a state restored from ``state_file``), the live estimate when the worker lets go of the lock within
             20 ms, else the last snapshot."""
             rep = self._latest_report          # read once; the worker only ever replaces it (no lost update)
-            if rep is not None and rep is not self._last_published.get(out):
-                self._last_published[out] = rep
-                if out == "modes":
-                    self._reports_published += 1
+            if rep is not None and rep is not self._last_published:
+                self._last_published = rep
                 return rep, rep.modal, True
             if rep is not None:
                 return rep, rep.modal, False
@@ -795,20 +799,20 @@ def make_node_class() -> type:
             return self._snapshot[0], self._snapshot[1], False
 
         def _publish_modes(self) -> None:
-            """~/modes: the newest report, if there is one not published yet."""
+            """~/modes: every report's estimate not published yet, in order."""
             modes_pub = self._modes_pub
             if self.sync is None or modes_pub is None or not self._active:
                 return
-            rep, modal, new = self._current("modes")
-            if new:
-                modes_pub.publish(cv.modes_array(modal))
+            while self._modes_queue:
+                modes_pub.publish(cv.modes_array(self._modes_queue.popleft()))
+                self._reports_published += 1
 
         def _publish_diagnostics(self) -> None:
             """/diagnostics: one status per mode and the estimator status, always (STALE without data)."""
             sync, diag_pub = self.sync, self._diag_pub
             if sync is None or diag_pub is None or not self._active:
                 return
-            rep, modal, _ = self._current("diagnostics")
+            rep, modal, _ = self._current()
             silent = sync.silent(time.monotonic_ns(), self._stale_timeout_s, self.looking_since_ns)
             stale = bool(silent) or rep is None or not rep.estimating
             name, hw = self.status_prefix(), self.get_fully_qualified_name()

@@ -8,7 +8,8 @@
   other axis's mode 3, and count exactly its own samples: nothing crosses.
 * QoS: ``qos_overrides./plant_output.subscription.reliability:=best_effort`` makes that subscription BEST_EFFORT
   (seen through the graph API from another process) while the other two stay RELIABLE.
-* /diagnostics at ``diagnostics_period_s`` independently of ~/modes at ``publish_rate_hz`` (a ratio of counts).
+* /diagnostics at ``diagnostics_period_s`` (wall time) independently of ~/modes (every report, ``publish_rate_hz`` in
+  the data's time): a ratio of counts.
 * A missing ``loop_rate_hz`` under a namespace names the params-file keys (one line).
 """
 import importlib.util
@@ -124,7 +125,7 @@ def test_two_axes_in_namespaces_from_one_params_file(ros_env, tmp_path):
 
 def test_qos_override_and_diagnostics_period(ros_env, tmp_path):
     """plant_output BEST_EFFORT by the standard qos_overrides parameter, the others RELIABLE (graph API); with
-    publish_rate_hz 10 and diagnostics_period_s 1, ~/modes goes out about 10 times as often as /diagnostics."""
+    publish_rate_hz 10 and diagnostics_period_s 1 and the data replayed 10x, ~/modes goes out ~100x as often."""
     dom = int(ros_env["ROS_DOMAIN_ID"])
     sc = scenarios.build("paper_example", duration_s=130.0, seed=5)
     bag = sc.write_bag(tmp_path / "paper")
@@ -144,15 +145,17 @@ def test_qos_override_and_diagnostics_period(ros_env, tmp_path):
         play = subprocess.Popen(["rsrivc_replay", str(bag), "--rate", "10", "--clock", "--topics", "/reference",
                                  "/plant_input", "/plant_output", "--wait-for-subscribers", "30"], env=ros_env,
                                 stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
-        # reports are made at 10 Hz of bag time (100 Hz wall at --rate 10): ~/modes is limited by publish_rate_hz
         cli.wait_for(lambda: len(cli.modes) > 0, 60, "the first ~/modes message (end of the initialization)")
         n0 = (len(cli.modes), len(cli.diags))
         time.sleep(4.0)                          # a window while the data stream (the bag lasts 13 s of wall time)
         n1 = (len(cli.modes), len(cli.diags))
         _, err = play.communicate(timeout=120)
         assert play.returncode == 0, err
+        # ~/modes carries every report: publish_rate_hz (10) per second of data, and the data come 10x faster than
+        # real time (100 per wall second); /diagnostics once per wall second: a ratio of about 100. Tied to one
+        # publish cycle (as before issue 14) /diagnostics would come at 10 Hz (ratio 10).
         n_modes, n_diag = n1[0] - n0[0], n1[1] - n0[1]
-        assert n_diag >= 2 and n_modes / n_diag >= 4.0 and n_modes / n_diag <= 20.0, (n_modes, n_diag)
+        assert n_diag >= 2 and 40.0 <= n_modes / n_diag <= 250.0, (n_modes, n_diag)
         cli.wait_for(lambda: int(cli.status("estimator")["values"]["samples_aligned"]) >= 0.9 * sc.t.size, 30,
                      "the samples aligned (a best-effort plant_output still delivers on loopback)")
     finally:

@@ -292,7 +292,9 @@ class MonitorPipeline:
             self.settings = self.faults.settings
             self.health.settings = self.settings
         if "modes.memory_s" in params:
-            mem = np.asarray(params["modes.memory_s"], dtype=float)
+            mem = np.asarray(params["modes.memory_s"], dtype=float).ravel()
+            if mem.size == 1:                 # one value for all modes, as in the params file
+                mem = np.full(self.K, float(mem[0]))
             if mem.shape != (self.K,) or not np.all(mem * self.rate >= 2.0):
                 raise PipelineError(f"modes.memory_s must list {self.K} memories of at least two samples")
             self.est.set_memory(mem)
