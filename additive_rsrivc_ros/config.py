@@ -75,9 +75,10 @@ CORE_PARAMS: list[Param] = [
           "data; empty: the whole band the data excite.", 0.0, None, True),
     Param("init_duration_s", "double", 5.0, "Data used for the offline initialization before the recursion "
           "starts (000 Algorithm 2 step 1).", 0.0, 1e5, True),
-    Param("publish_rate_hz", "double", 10.0, "Output rate of estimates and diagnostics. At most 100 Hz: a report "
-          "costs the pipeline ~1.3 ms (measured), so 1000 Hz would need more than a core and stop the consumption of "
-          "4096 Hz inputs (scripts/bench_node.py --publish-rate).", 0.01, 100.0),
+    Param("publish_rate_hz", "double", 10.0, "Rate of the estimates on ~/modes (reports, in the data's time; "
+          "/diagnostics: diagnostics_period_s). At most 100 Hz: a report costs the pipeline ~1.3 ms (measured), so "
+          "1000 Hz would need more than a core and stop the consumption of 4096 Hz inputs "
+          "(scripts/bench_node.py --publish-rate).", 0.01, 100.0),
     Param("estimator.block_sweeps", "int", 1, "M_l: block-coordinate sweeps over the modes per sample.", 1, 20,
           True),
     Param("estimator.refinements", "int", 0, "M_s: SRIVC refinements per mode and sweep.", 0, 20, True),
