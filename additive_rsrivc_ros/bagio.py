@@ -26,7 +26,7 @@ import math
 import os
 import shutil
 from collections.abc import Sequence
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 from pathlib import Path
 from typing import Any
 
@@ -315,6 +315,13 @@ def _read_fast(path: Path, sigcfg: dict, topic_to_sig: dict, extra: list, by_top
         return None
 
 
+def bag_topic(sig: Any) -> Any:
+    """A bag stores absolute topic names: a relative configured topic ``name`` (the node resolves it in its
+    namespace, /name in the root namespace) matches the bag's ``/name``."""
+    topic = sig.topic.strip()
+    return sig if topic.startswith("/") else replace(sig, topic="/" + topic)
+
+
 def read_signals(bag: str | Path, config: MonitorConfig) -> Signals:
     """Read and check ``r``, ``u``, ``y`` (and the truth topics, if any) of a bag for ``config``.
 
@@ -326,7 +333,7 @@ def read_signals(bag: str | Path, config: MonitorConfig) -> Signals:
     """
     path = _resolve(bag)
     wanted = ["input", "output"] + (["reference"] if config.closed_loop else [])
-    sigcfg = {name: config.signals[name] for name in wanted}
+    sigcfg = {name: bag_topic(config.signals[name]) for name in wanted}
     raw: dict[str, list[bytes]] = {name: [] for name in wanted}
     log_ns: dict[str, list[int]] = {name: [] for name in wanted}
     truth_raw: list[tuple[int, bytes]] = []

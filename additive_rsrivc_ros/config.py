@@ -75,9 +75,10 @@ CORE_PARAMS: list[Param] = [
           "data; empty: the whole band the data excite.", 0.0, None, True),
     Param("init_duration_s", "double", 5.0, "Data used for the offline initialization before the recursion "
           "starts (000 Algorithm 2 step 1).", 0.0, 1e5, True),
-    Param("publish_rate_hz", "double", 10.0, "Output rate of estimates and diagnostics. At most 100 Hz: a report "
-          "costs the pipeline ~1.3 ms (measured), so 1000 Hz would need more than a core and stop the consumption of "
-          "4096 Hz inputs (scripts/bench_node.py --publish-rate).", 0.01, 100.0),
+    Param("publish_rate_hz", "double", 10.0, "Rate of the estimates on ~/modes (reports, in the data's time; "
+          "/diagnostics: diagnostics_period_s). At most 100 Hz: a report costs the pipeline ~1.3 ms (measured), so "
+          "1000 Hz would need more than a core and stop the consumption of 4096 Hz inputs "
+          "(scripts/bench_node.py --publish-rate).", 0.01, 100.0),
     Param("estimator.block_sweeps", "int", 1, "M_l: block-coordinate sweeps over the modes per sample.", 1, 20,
           True),
     Param("estimator.refinements", "int", 0, "M_s: SRIVC refinements per mode and sweep.", 0, 20, True),
@@ -110,9 +111,12 @@ CORE_PARAMS: list[Param] = [
 ]
 
 SIGNAL_PARAMS: list[Param] = []
-for _sig, _topic in (("reference", "/reference"), ("input", "/plant_input"), ("output", "/plant_output")):
+for _sig, _topic in (("reference", "reference"), ("input", "plant_input"), ("output", "plant_output")):
     SIGNAL_PARAMS += [
-        Param(f"{_sig}.topic", "string", _topic, f"Topic of the {_sig} signal.", read_only=True),
+        Param(f"{_sig}.topic", "string", _topic, f"Topic of the {_sig} signal. A relative name resolves in the "
+              f"node's namespace (/{_topic} in the root namespace, /<ns>/{_topic} under -r __ns:=/<ns>); remap it "
+              f"(-r {_topic}:=/other) rather than changing it. In a bag, a relative name matches /{_topic}.",
+              read_only=True),
         Param(f"{_sig}.type", "string", "std_msgs/msg/Float64", f"Message type of the {_sig} signal.",
               read_only=True, choices=("std_msgs/msg/Float64", "sensor_msgs/msg/JointState")),
         Param(f"{_sig}.joint", "string", "", f"JointState joint name of the {_sig} signal (empty: first joint).",
@@ -212,6 +216,8 @@ NODE_PARAMS: list[Param] = [
           "(at least 100), enough to ride out a stalled executor without losing data.", 0, 10000000, True),
     Param("qos_reliable", "bool", True, "Subscribe RELIABLE (no loss; does not match BEST_EFFORT publishers) or "
           "BEST_EFFORT (matches any publisher, may lose samples under load).", read_only=True),
+    Param("diagnostics_period_s", "double", 1.0, "Period of the /diagnostics array (s); 1 s is the "
+          "diagnostic_updater norm. ~/modes goes out at publish_rate_hz, independently.", 0.05, 60.0),
     Param("block_period_s", "double", 0.002, "Period of the estimation worker: queued samples are aligned and "
           "fed to the estimator in blocks at this period.", 1e-4, 1.0, True),
     Param("sync.max_backlog_s", "double", 0.25, "Float64 topics: one topic ahead of another by more than this much "

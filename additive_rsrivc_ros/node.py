@@ -20,24 +20,33 @@ DDS reports no "message lost" event for that, measured).
 Outputs: ``/diagnostics`` (one ``<node>: mode <i>`` status per mode with exactly the CONTRACT keys, one
 ``<node>: estimator`` status with counters, condition numbers, real-time factor, CPU, and the delay from a
 sample's arrival to the return of the pipeline update that includes it), ``~/modes``; services ``~/reset``,
-``~/rebaseline``, ``~/save_state``; ``state_file`` persistence across restarts.
+``~/rebaseline``, ``~/save_state``; ``state_file`` persistence across restarts. ``<node>`` is the node name in the
+root namespace and the full name without its leading '/' under a namespace (``axis1/additive_rsrivc_monitor``).
+
+Names (issue 14): the input topics are relative by default (``reference``, ``plant_input``, ``plant_output``),
+resolved in the node's namespace and remapped by ``-r from:=to``; every check and message (wrong type, silence,
+rates, queues) names the resolved topic. Parameters the node does not know are warned about in one line unless they
+lie in one of its own groups (``modes.*`` ...: a misspelling, rejected), so a shared ``/**`` params file works. A
+missing ``loop_rate_hz`` names the params-file keys that would reach this node.
 
 QoS of the signal subscriptions: RELIABLE, KEEP_LAST with a depth of five seconds of samples (param
-``qos_depth``). Reliable delivery over loopback never drops a sample by itself; the only loss left is a
-reader history overflow when the executor falls behind (a loaded CPU), and five seconds of history cover
-such stalls (Float64 messages are 8 bytes of payload; 4096 Hz x 3 topics x 5 s is a few MB). The
-EventsExecutor serves bursts topic by topic (measured: 3000 messages of one topic before the next), so the
-alignment tolerates large temporary count differences between the topics.
+``qos_depth``); per subscription overridable by the standard ``qos_overrides.<resolved topic>.subscription.``
+``{reliability,history,depth}`` parameters (rclpy ``QoSOverridingOptions``). Reliable delivery over loopback never
+drops a sample by itself; the only loss left is a reader history overflow when the executor falls behind (a loaded
+CPU), and five seconds of history cover such stalls (Float64 messages are 8 bytes of payload; 4096 Hz x 3 topics x
+5 s is a few MB). The EventsExecutor serves bursts topic by topic (measured: 3000 messages of one topic before the
+next), so the alignment tolerates large temporary count differences between the topics.
 
 Resources and timing (issue 13): every input queue is bounded (``sync.max_queue_s``, oldest dropped, counted per
-topic, one log line per episode); a separate publisher thread publishes every report's estimate on ``~/modes``
-(in order) and one ``/diagnostics`` array per publish period from the newest report, so publishing never holds
-up the consumption of the inputs (``~/modes`` messages are coalesced, and counted, only past ``MODES_QUEUE``). Each topic's arrival rate is compared
-with ``loop_rate_hz`` (``sync.rate_window_s``, ``sync.rate_tolerance``): a mismatch is a WARN naming the topic.
-The node measures its own loop: a topic is silent (STALE) only when the executor was spinning for longer than
-``stale_timeout_s`` and nothing arrived; a late burst caused by the node's own stall (start-up, GC, a busy
-worker) is not an input pause. ``state_file``: a file refused at start (other model, rate or corrupt) is never
-overwritten; this run's state is saved beside it (``<stem>.<UTC time>.json``). SIGINT/SIGTERM only set a flag.
+topic, one log line per episode); a separate publisher thread publishes every report's estimate on ``~/modes`` (in
+order, once per ``1/publish_rate_hz`` cycle) and one ``/diagnostics`` array per ``diagnostics_period_s`` (1 s by
+default) from the newest report, so publishing never holds up the consumption of the inputs (``~/modes`` messages are
+coalesced, and counted, only past ``MODES_QUEUE``). Each topic's arrival rate is compared with ``loop_rate_hz``
+(``sync.rate_window_s``, ``sync.rate_tolerance``): a mismatch is a WARN naming the topic. The node measures its own
+loop: a topic is silent (STALE) only when the executor was spinning for longer than ``stale_timeout_s`` and nothing
+arrived; a late burst caused by the node's own stall (start-up, GC, a busy worker) is not an input pause.
+``state_file``: a file refused at start (other model, rate or corrupt) is never overwritten; this run's state is
+saved beside it (``<stem>.<UTC time>.json``). SIGINT/SIGTERM only set a flag.
 """
 
 from __future__ import annotations
@@ -78,19 +87,59 @@ if sys.argv and sys.argv[0].rsplit("/", 1)[-1] == "rsrivc_monitor" and threading
 USAGE = """usage: rsrivc_monitor [-h] [--ros-args [--params-file FILE.yaml] [-p NAME:=VALUE] [-r __node:=NAME]]
 
 ROS 2 lifecycle node: online closed-loop additive recursive SRIVC of mechanical resonances with fault
-diagnosis. Subscribes /reference, /plant_input, /plant_output (std_msgs/msg/Float64 or
-sensor_msgs/msg/JointState), publishes /diagnostics and ~/modes, serves ~/reset, ~/rebaseline,
-~/save_state (std_srvs/srv/Trigger). Default node name: additive_rsrivc_monitor. Parameters: see
-config/template.yaml (the YAML key must be the node name or /**).
+diagnosis. Subscribes reference, plant_input, plant_output (relative names: /reference ... in the root
+namespace, /<ns>/reference ... under -r __ns:=/<ns>; std_msgs/msg/Float64 or sensor_msgs/msg/JointState),
+publishes /diagnostics and ~/modes, serves ~/reset, ~/rebaseline, ~/save_state (std_srvs/srv/Trigger).
+Default node name: additive_rsrivc_monitor. Parameters: see config/template.yaml (the YAML key must match
+the node's full name: additive_rsrivc_monitor, /**/additive_rsrivc_monitor, /<ns>/additive_rsrivc_monitor or
+/**). QoS per subscription: -p qos_overrides./<ns>/plant_output.subscription.reliability:=best_effort.
 
 example:
   rsrivc_monitor --ros-args --params-file my_plant.yaml
   rsrivc_monitor --ros-args --params-file my_plant.yaml -p use_sim_time:=true -p state_file:=/tmp/s.json
+  rsrivc_monitor --ros-args -r __ns:=/axis1 --params-file axes.yaml -r plant_output:=/axis1/encoder
 """
 
 ALLOWED_EXTRA_PARAMS = ("use_sim_time", "start_type_description_service")
+REQUIRED_PARAMS = ("loop_rate_hz",)     # no usable default: absent means the params file did not reach the node
 STALL_NS = 250_000_000     # the executor or the worker not running for this long is a stall of the node itself
 MODES_QUEUE = 10_000        # ~/modes messages the publisher may fall behind before the oldest are coalesced (counted)
+
+
+def split_unknown(names: Any, known: Any) -> tuple[list[str], list[str]]:
+    """Parameter names the monitor does not declare, as ``(errors, warnings)``.
+
+    A name inside one of the monitor's own groups (``modes.memory_sec``: the first dotted part of a known name) is a
+    misspelling and an error; any other name (another node's parameter in a shared ``/**`` section, ROS's own
+    ``qos_overrides.*``) is at most warned about: ROS params files are shared between nodes."""
+    known = set(known)
+    groups = {n.split(".", 1)[0] for n in known if "." in n}
+    unknown = sorted(n for n in names if n not in known and n not in ALLOWED_EXTRA_PARAMS
+                     and not n.startswith("qos_overrides."))
+    errors = [n for n in unknown if "." in n and n.split(".", 1)[0] in groups]
+    return errors, [n for n in unknown if n not in errors]
+
+
+def unknown_warning(names: list[str], known: Any) -> str:
+    """One log line about parameters the monitor ignores (with the closest own name when one is close)."""
+    import difflib
+
+    parts = []
+    for n in names:
+        close = difflib.get_close_matches(n, list(known), 1, 0.85)
+        parts.append(f"{n} (did you mean {close[0]}?)" if close else n)
+    return f"ignoring parameter(s) this node does not use (another node's, in a shared section?): {', '.join(parts)}"
+
+
+def missing_required(name: str, fqn: str, given: Any, known: Any) -> str:
+    """One-line error for a required parameter that no params section gave to the node ``fqn``."""
+    ns, _, base = fqn.rpartition("/")
+    own = [n for n in given if n in set(known) and n not in ("autostart",)]
+    if own:
+        return f"parameter '{name}' is required (the params for node '{fqn}' do not set it)"
+    keys = (f"/**/{base}", fqn) if ns else (base, f"/**/{base}")
+    return (f"parameter '{name}' is required (no params for node '{fqn}': the YAML key must be '{keys[0]}' or "
+            f"'{keys[1]}')")
 
 
 def _beside(path: str) -> str:
@@ -124,6 +173,7 @@ def _import_ros() -> None:
     """Import rclpy and the message packages lazily (``--help`` must work without ROS)."""
     global rclpy, LifecycleNode, TransitionCallbackReturn, LifecycleState, EventsExecutor
     global ExternalShutdownException, QoSProfile, ReliabilityPolicy, HistoryPolicy, DurabilityPolicy
+    global QoSOverridingOptions
     global Float64, JointState, Float64MultiArray, DiagnosticArray, Trigger, SetParametersResult, Parameter, cv, np
     import numpy as np
     import rclpy  # noqa: F401
@@ -135,6 +185,7 @@ def _import_ros() -> None:
     from rclpy.lifecycle import LifecycleNode, LifecycleState, TransitionCallbackReturn
     from rclpy.parameter import Parameter
     from rclpy.qos import DurabilityPolicy, HistoryPolicy, QoSProfile, ReliabilityPolicy
+    from rclpy.qos_overriding_options import QoSOverridingOptions
     from sensor_msgs.msg import JointState
     from std_msgs.msg import Float64, Float64MultiArray
     from std_srvs.srv import Trigger
@@ -219,7 +270,12 @@ def make_node_class() -> type:
 
         # ------------------------------------------------------------------------------------ parameters
         def _declare_all(self) -> None:
-            """Declare every Param row with its descriptor; integer YAML values of double params are coerced."""
+            """Declare every Param row with its descriptor; integer YAML values of double params are coerced. A
+            required parameter nobody gave raises ParamError naming it and the params-file key (one line)."""
+            for name in REQUIRED_PARAMS:
+                if name not in self._parameter_overrides:
+                    raise ParamError(missing_required(name, self.get_fully_qualified_name(),
+                                                      self._parameter_overrides, self._table))
             for name, ov in list(self._parameter_overrides.items()):
                 if name in self._table:
                     self._parameter_overrides[name] = cv.coerce_int_to_double(self._table[name], ov)
@@ -267,6 +323,8 @@ def make_node_class() -> type:
                         self.get_logger().info("applied " + ", ".join(f"{k}={v}" for k, v in runtime.items()))
                 if "publish_rate_hz" in changed:
                     self._publish_period_s = 1.0 / float(changed["publish_rate_hz"])
+                if "diagnostics_period_s" in changed:
+                    self._diag_period_s = float(changed["diagnostics_period_s"])
                 if "stale_timeout_s" in changed:
                     self._stale_timeout_s = float(changed["stale_timeout_s"])
                     if self.sync is not None:
@@ -289,9 +347,9 @@ def make_node_class() -> type:
 
         # ------------------------------------------------------------------------------------ lifecycle
         def on_configure(self, state: Any) -> Any:
-            unknown = sorted(n for n in self._parameter_overrides
-                             if n not in self._table and n not in ALLOWED_EXTRA_PARAMS
-                             and not n.startswith("qos_overrides."))
+            unknown, foreign = split_unknown(self._parameter_overrides, self._table)
+            if foreign:
+                self.get_logger().warning(unknown_warning(foreign, self._table))
             try:
                 if unknown:
                     raise ParamError(f"unknown parameter(s): {', '.join(unknown)}")
@@ -313,31 +371,35 @@ def make_node_class() -> type:
                 self.get_logger().error(f"configuration rejected: {exc}")
                 return TransitionCallbackReturn.FAILURE
             self.signals = ("reference", "input", "output") if cfg.closed_loop else ("input", "output")
+            try:
+                self.topics = self._resolve_topics(cfg)
+            except ParamError as exc:
+                self.config_error = str(exc)
+                self.get_logger().error(f"configuration rejected: {exc}")
+                return TransitionCallbackReturn.FAILURE
             types = [cfg.signals[s].type for s in self.signals]
             self.sync = InputSync(
                 self.signals, cfg.loop_rate_hz, stamped=all(t == "sensor_msgs/msg/JointState" for t in types),
                 max_backlog=self._backlog_samples(v["sync.max_backlog_s"]),
                 quiet_s=v["sync.quiet_s"], gap_s=self._gap_s(v["sync.gap_s"]), hold_s=v["sync.hold_s"],
                 silent_s=v["stale_timeout_s"], stall_s=v["sync.stall_s"],
-                max_queue=self._queue_samples(v), labels=tuple(cfg.signals[s].topic for s in self.signals),
+                max_queue=self._queue_samples(v), labels=tuple(self.topics[s] for s in self.signals),
                 rate_window_s=v["sync.rate_window_s"], rate_tolerance=v["sync.rate_tolerance"])
             self._use_sim_time = bool(self.get_parameter("use_sim_time").value)
             if self.pipeline.t_last is not None:
                 self.sync.set_time_floor(self.pipeline.t_last)
             self._stale_timeout_s = v["stale_timeout_s"]
             self._publish_period_s = 1.0 / cfg.publish_rate_hz
+            self._diag_period_s = v["diagnostics_period_s"]
             self._block_period_s = v["block_period_s"]
             self._reset_stats()
-            depth = v["qos_depth"] or max(100, int(math.ceil(5.0 * cfg.loop_rate_hz)))
-            qos = QoSProfile(history=HistoryPolicy.KEEP_LAST, depth=depth,
-                             reliability=ReliabilityPolicy.RELIABLE if v["qos_reliable"]
-                             else ReliabilityPolicy.BEST_EFFORT, durability=DurabilityPolicy.VOLATILE)
-            for i, s in enumerate(self.signals):
-                sc = cfg.signals[s]
-                if sc.type == "sensor_msgs/msg/JointState":
-                    self._subs.append(self.create_subscription(JointState, sc.topic, self._joint_cb(i, s, sc), qos))
-                else:
-                    self._subs.append(self.create_subscription(Float64, sc.topic, self._float_cb(i), qos))
+            try:
+                qos_text = self._subscribe(cfg, v)
+            except ParamError as exc:
+                self._destroy_interfaces()
+                self.config_error = str(exc)
+                self.get_logger().error(f"configuration rejected: {exc}")
+                return TransitionCallbackReturn.FAILURE
             self._modes_pub = self.create_lifecycle_publisher(Float64MultiArray, "~/modes", 10)
             self._diag_pub = self.create_lifecycle_publisher(DiagnosticArray, "/diagnostics", 10)
             self._srvs = [self.create_service(Trigger, "~/reset", self._srv_reset),
@@ -345,10 +407,56 @@ def make_node_class() -> type:
                           self.create_service(Trigger, "~/save_state", self._srv_save)]
             self.get_logger().info(
                 f"configured: K={cfg.K}, {cfg.loop_rate_hz:g} Hz, {'closed' if cfg.closed_loop else 'open'} loop, "
-                f"inputs {', '.join(cfg.signals[s].topic for s in self.signals)} "
-                f"({'stamped' if self.sync.stamped else 'arrival order'}), QoS depth {depth}, input queues "
+                f"inputs {', '.join(self.topics[s] for s in self.signals)} "
+                f"({'stamped' if self.sync.stamped else 'arrival order'}), QoS {qos_text}, input queues "
                 f"bounded at {self.sync.max_queue} samples per topic (<= {self.sync.queue_bytes() / 1e6:.3g} MB)")
             return TransitionCallbackReturn.SUCCESS
+
+        def _resolve_topics(self, cfg: Any) -> dict[str, str]:
+            """The configured signal topics expanded in the node's namespace and remapped (``-r from:=to``), as
+            the subscriptions will use them; every check and message names these (ParamError: invalid name)."""
+            out = {}
+            for s in self.signals:
+                try:
+                    out[s] = self.resolve_topic_name(cfg.signals[s].topic)
+                except Exception as exc:  # noqa: BLE001 - rclpy raises RuntimeError / rcl errors for bad names
+                    raise ParamError(f"parameter '{s}.topic' = {cfg.signals[s].topic!r} is not a valid topic name "
+                                     f"({str(exc).splitlines()[0] if str(exc) else type(exc).__name__})") from None
+            return out
+
+        def _subscribe(self, cfg: Any, v: dict[str, Any]) -> str:
+            """Create the signal subscriptions: RELIABLE (``qos_reliable``), KEEP_LAST ``qos_depth``, each
+            overridable by the standard ``qos_overrides.<resolved topic>.subscription.{history,depth,reliability}``
+            parameters (rclpy QoSOverridingOptions). Returns a one-line QoS summary; ParamError on a bad override."""
+            depth = v["qos_depth"] or max(100, int(math.ceil(5.0 * cfg.loop_rate_hz)))
+            opts = QoSOverridingOptions.with_default_policies()
+            for i, s in enumerate(self.signals):
+                sc = cfg.signals[s]
+                qos = QoSProfile(history=HistoryPolicy.KEEP_LAST, depth=depth,
+                                 reliability=ReliabilityPolicy.RELIABLE if v["qos_reliable"]
+                                 else ReliabilityPolicy.BEST_EFFORT, durability=DurabilityPolicy.VOLATILE)
+                joint = sc.type == "sensor_msgs/msg/JointState"
+                cb = self._joint_cb(i, s, sc) if joint else self._float_cb(i)
+                try:
+                    sub = self.create_subscription(JointState if joint else Float64, self.topics[s], cb, qos,
+                                                   qos_overriding_options=opts)
+                except Exception as exc:  # noqa: BLE001 - rclpy raises several types for a bad override value
+                    raise ParamError(f"QoS override for {self.topics[s]} rejected: "
+                                     f"{str(exc).splitlines()[0] if str(exc) else type(exc).__name__}") from None
+                self._subs.append(sub)
+            self._warn_stray_qos_overrides()
+            return ", ".join(f"{self.topics[s]} {q.reliability.name.lower()} {q.history.name.lower()} {q.depth}"
+                             for s, q in zip(self.signals, (sub.qos_profile for sub in self._subs), strict=True))
+
+        def _warn_stray_qos_overrides(self) -> None:
+            """A ``qos_overrides.<topic>...`` for none of this node's subscriptions (e.g. the unnamespaced topic
+            under a namespace) changes nothing: one warning line naming it and the resolved topics."""
+            mine = {f"qos_overrides.{t}.subscription." for t in self.topics.values()}
+            stray = sorted(n for n in self._parameter_overrides if n.startswith("qos_overrides.")
+                           and ".subscription." in n and not any(n.startswith(m) for m in mine))
+            if stray:
+                self.get_logger().warning(f"QoS override(s) {', '.join(stray)} match no subscription of this node "
+                                          f"(its topics: {', '.join(self.topics.values())})")
 
         def _queue_samples(self, v: dict[str, Any]) -> int:
             """sync.max_queue_s in samples; it must exceed the stall and backlog allowances (ParamError)."""
@@ -626,24 +734,34 @@ def make_node_class() -> type:
             return (r1 - r0) / ((a1 - a0) * 1e-9)
 
         def _run_publisher(self) -> None:
-            """Publish the newest report (~/modes) and one /diagnostics array per publish period."""
-            nxt = time.monotonic()
+            """Publish the newest report on ~/modes once per ``1/publish_rate_hz`` and one /diagnostics array once
+            per ``diagnostics_period_s``, each on its own schedule (no catch-up burst after falling behind)."""
+            start = time.monotonic()
+            due = {"modes": start + self._publish_period_s, "diagnostics": start + self._diag_period_s}
             while not self._stop.is_set():
-                period = self._publish_period_s
-                nxt += period
                 now = time.monotonic()
-                if nxt < now - period:         # fell behind (loaded CPU): no catch-up burst
-                    nxt = now
-                if self._stop.wait(max(0.0, nxt - now)):
+                if self._stop.wait(max(0.0, min(due.values()) - now)):
                     break
-                try:
-                    self._publish()
-                except Exception as exc:  # noqa: BLE001 - reported like a worker error
-                    self._errors += 1
-                    msg = f"publishing failed: {type(exc).__name__}: {exc}"
-                    if msg != self._last_error:
-                        self.get_logger().error(msg)
-                    self._last_error = msg
+                now = time.monotonic()
+                for out, period in (("modes", self._publish_period_s), ("diagnostics", self._diag_period_s)):
+                    if now < due[out]:
+                        continue
+                    due[out] = max(due[out] + period, now)   # fell behind (loaded CPU): no catch-up burst
+                    self._publish_guarded(out)
+
+        def _publish_guarded(self, out: str) -> None:
+            """Publish ``out`` (modes | diagnostics); an exception is counted and logged once, never raised."""
+            try:
+                if out == "modes":
+                    self._publish_modes()
+                else:
+                    self._publish_diagnostics()
+            except Exception as exc:  # noqa: BLE001 - reported like a worker error
+                self._errors += 1
+                msg = f"publishing failed: {type(exc).__name__}: {exc}"
+                if msg != self._last_error:
+                    self.get_logger().error(msg)
+                self._last_error = msg
 
         def _check_graph(self) -> None:
             """A configured topic carrying another message type: name the topic and both types."""
@@ -651,9 +769,10 @@ def make_node_class() -> type:
             wrong = []
             for s in self.signals:
                 sc = self.cfg.signals[s]
-                others = [t for t in found.get(sc.topic, []) if t != sc.type]
+                topic = self.topics[s]
+                others = [t for t in found.get(topic, []) if t != sc.type]
                 if others:
-                    wrong.append(f"topic {sc.topic} ({s}) carries {', '.join(others)} but {s}.type is {sc.type}")
+                    wrong.append(f"topic {topic} ({s}) carries {', '.join(others)} but {s}.type is {sc.type}")
             if wrong and wrong != self._wrong_types:
                 for w in wrong:
                     self.get_logger().error(f"wrong message type: {w}")
@@ -661,12 +780,16 @@ def make_node_class() -> type:
 
         # ------------------------------------------------------------------------------------ output
         def _current(self) -> tuple[Any, Any, bool]:
-            """(report, modal, new): the newest unpublished report, else the live estimate (when the worker
-            lets go of the lock within 20 ms), else the last snapshot."""
+            """(report, modal, new) for /diagnostics: the newest report (new: not shown before; the same vetted
+            estimate as the last ~/modes message), else, before any report
+            (a state restored from ``state_file``), the live estimate when the worker lets go of the lock within
+            20 ms, else the last snapshot."""
             rep = self._latest_report          # read once; the worker only ever replaces it (no lost update)
             if rep is not None and rep is not self._last_published:
                 self._last_published = rep
                 return rep, rep.modal, True
+            if rep is not None:
+                return rep, rep.modal, False
             if self.lock.acquire(timeout=0.02):
                 try:
                     if self.pipeline is not None:
@@ -675,18 +798,24 @@ def make_node_class() -> type:
                     self.lock.release()
             return self._snapshot[0], self._snapshot[1], False
 
-        def _publish(self) -> None:
-            """Compose and publish once: ~/modes (a new report only) and /diagnostics (always)."""
-            sync, modes_pub, diag_pub = self.sync, self._modes_pub, self._diag_pub
-            if sync is None or modes_pub is None or diag_pub is None or not self._active:
+        def _publish_modes(self) -> None:
+            """~/modes: every report's estimate not published yet, in order."""
+            modes_pub = self._modes_pub
+            if self.sync is None or modes_pub is None or not self._active:
                 return
-            rep, modal, _ = self._current()
             while self._modes_queue:
                 modes_pub.publish(cv.modes_array(self._modes_queue.popleft()))
                 self._reports_published += 1
+
+        def _publish_diagnostics(self) -> None:
+            """/diagnostics: one status per mode and the estimator status, always (STALE without data)."""
+            sync, diag_pub = self.sync, self._diag_pub
+            if sync is None or diag_pub is None or not self._active:
+                return
+            rep, modal, _ = self._current()
             silent = sync.silent(time.monotonic_ns(), self._stale_timeout_s, self.looking_since_ns)
             stale = bool(silent) or rep is None or not rep.estimating
-            name, hw = self.get_name(), self.get_fully_qualified_name()
+            name, hw = self.status_prefix(), self.get_fully_qualified_name()
             arr = DiagnosticArray()
             arr.header.stamp = self.get_clock().now().to_msg()
             for i in range(self.cfg.K):
@@ -698,12 +827,18 @@ def make_node_class() -> type:
                     vals.update({k: md[k] for k in (*cv.BASELINE_FIELDS, *cv.FLAG_FIELDS)})
                     level, msg = int(rep.mode_levels[i]), self._mode_message(rep, i)
                 if silent:
-                    level, msg = int(Level.STALE), "no data on " + ", ".join(self.cfg.signals[s].topic for s in silent)
+                    level, msg = int(Level.STALE), "no data on " + ", ".join(self.topics[s] for s in silent)
                 elif rep is None or not rep.estimating:
                     level, msg = int(Level.STALE), "initializing"
                 arr.status.append(cv.mode_status(f"{name}: mode {i + 1}", hw, vals, level, msg))
             arr.status.append(self._estimator_status(rep, silent, stale, hw))
             diag_pub.publish(arr)
+
+        def status_prefix(self) -> str:
+            """Name prefix of this node's /diagnostics statuses: the node name in the root namespace (as ever), the
+            full name without its leading '/' under a namespace (``axis1/additive_rsrivc_monitor``), so that the
+            monitors of several axes publishing on the one /diagnostics topic never share a status name."""
+            return self.get_fully_qualified_name().lstrip("/")
 
         @staticmethod
         def _mode_message(rep: Any, i: int) -> str:
@@ -776,7 +911,7 @@ def make_node_class() -> type:
                 "delay_p95_ms": d95,
                 "delay_max_ms": dmax,
                 "internal_errors": self._errors,
-                "silent_topics": " ".join(self.cfg.signals[s].topic for s in silent),
+                "silent_topics": " ".join(self.topics[s] for s in silent),
                 "wrong_types": "; ".join(self._wrong_types),
             }
 
@@ -812,7 +947,7 @@ def make_node_class() -> type:
                 reasons.append(f"internal error: {self._last_error}")
                 level = max(level, int(Level.ERROR)) if level != int(Level.STALE) else level
             if silent:
-                reasons.insert(0, "no data on " + ", ".join(f"{self.cfg.signals[s].topic} for more than "
+                reasons.insert(0, "no data on " + ", ".join(f"{self.topics[s]} for more than "
                                                             f"{self._stale_timeout_s:g} s" for s in silent))
                 level = int(Level.STALE)
             elif stale and rep is None and not lasting:
@@ -822,7 +957,7 @@ def make_node_class() -> type:
                 level = int(Level.ERROR)
             vals["reasons"] = "; ".join(reasons)
             msg = "; ".join(reasons) if reasons else (vals["phase"] if rep is not None else "no data")
-            return cv.status(f"{self.get_name()}: estimator", hw, vals, level, msg)
+            return cv.status(f"{self.status_prefix()}: estimator", hw, vals, level, msg)
 
     return MonitorNode
 
@@ -898,7 +1033,9 @@ def main(argv: list[str] | None = None) -> int:
     except (KeyboardInterrupt, ExternalShutdownException):
         pass
     except Exception as exc:  # noqa: BLE001 - parameter declaration errors etc.: one line, non-zero exit
-        print(f"rsrivc_monitor: {type(exc).__name__}: {exc}", file=sys.stderr)
+        from .config import ParamError
+        kind = "" if isinstance(exc, ParamError) else f"{type(exc).__name__}: "
+        print(f"rsrivc_monitor: {kind}{exc}", file=sys.stderr)
         code = 1
     finally:
         if node is not None:

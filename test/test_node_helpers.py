@@ -23,8 +23,12 @@ TOPICS = {"reference": "/reference", "input": "/plant_input", "output": "/plant_
 DATA_QOS = QoSProfile(depth=20000, reliability=ReliabilityPolicy.RELIABLE, history=HistoryPolicy.KEEP_LAST)
 
 
-def start_node(env: dict, params_file: str, *overrides: str) -> subprocess.Popen:
-    args = ["rsrivc_monitor", "--ros-args", "--params-file", params_file]
+def start_node(env: dict, params_file: str, *overrides: str, ros_args: tuple[str, ...] = ()) -> subprocess.Popen:
+    """rsrivc_monitor with ``-p`` overrides (and extra ROS arguments such as ``-r __ns:=/axis1``). The tests were
+    written for /diagnostics at 10 Hz: unless an override sets it, diagnostics_period_s is 0.1 s here."""
+    args = ["rsrivc_monitor", "--ros-args", *ros_args, "--params-file", params_file]
+    if not any(o.startswith("diagnostics_period_s:=") for o in overrides):
+        overrides = (*overrides, "diagnostics_period_s:=0.1")
     for o in overrides:
         args += ["-p", o]
     env = {**env, "PYTHONFAULTHANDLER": "1"}  # a hung node dumps every thread's stack on SIGABRT (stop_node)
@@ -49,16 +53,18 @@ def stop_node(proc: subprocess.Popen, sig: str = "TERM", timeout: float = 30.0) 
 class Client:
     """Publishers for the signals, subscribers to /diagnostics and ~/modes, service/parameter calls."""
 
-    def __init__(self, domain_id: int, msg_type, node: str = NODE) -> None:
+    def __init__(self, domain_id: int, msg_type, node: str = NODE, ns: str = "") -> None:
+        """``ns``: the monitor's namespace without slashes ('' = root); topics, services and status names follow."""
         self.ctx = Context()
         rclpy.init(context=self.ctx, domain_id=domain_id)
         self.node = rclpy.create_node("rsrivc_test_client", context=self.ctx)
-        self.pubs = {s: self.node.create_publisher(msg_type, t, DATA_QOS) for s, t in TOPICS.items()}
+        base = f"/{ns}" if ns else ""
+        self.pubs = {s: self.node.create_publisher(msg_type, base + t, DATA_QOS) for s, t in TOPICS.items()}
         self.diags: list[DiagnosticArray] = []
         self.modes: list[Float64MultiArray] = []
         self.node.create_subscription(DiagnosticArray, "/diagnostics", self.diags.append, 100)
-        self.node.create_subscription(Float64MultiArray, f"/{node}/modes", self.modes.append, 100)
-        self.target = node
+        self.node.create_subscription(Float64MultiArray, f"{base}/{node}/modes", self.modes.append, 100)
+        self.target = f"{ns}/{node}" if ns else node
         self.ex = SingleThreadedExecutor(context=self.ctx)
         self.ex.add_node(self.node)
         self.thread = threading.Thread(target=self._spin, daemon=True)
