@@ -156,7 +156,7 @@ def test_runtime_parameters_and_input_errors():
     assert np.allclose(pipe.est.forgetting, 1.0 - 1.0 / (np.array([30.0, 30.0, 10.0]) * 20.0))
     assert pipe.faults.settings.min_change[2] == 0.3 and pipe.faults.memory_s.tolist() == [30.0, 30.0, 10.0]
     with pytest.raises(PipelineError, match="memory_s"):
-        pipe.update_params({"modes.memory_s": [30.0]})
+        pipe.update_params({"modes.memory_s": [30.0, 30.0]})      # K = 3 (one value would mean all modes)
     with pytest.raises(PipelineError, match="min_change"):
         pipe.update_params({"faults.min_change.gain": -1.0})
     with pytest.raises(PipelineError, match="equal length"):
