@@ -11,11 +11,17 @@ coordinates keep the state meaningful when the coefficients change from one samp
 slow-variation approximation of 000 Remark 4.4), which is how the recursive engine and the simulator
 carry filter states.
 
-The closed form uses ``expm(M h) = e^{s h} [c I + S (M - s I)]`` with ``s = tr(M)/2``,
-``q^2 = s^2 - det(M)``, ``c = cosh(q h)``, ``S = sinh(q h)/q`` (trigonometric when ``q^2 < 0``; a series
-near ``q = 0``), and ``Gamma = [1 - Phi_11, -Phi_21]`` (the step response). ``1 - Phi_11`` is evaluated
-with ``expm1`` and half-angle forms, so that a 3 Hz mode at 4096 Hz or a 183 Hz mode with zeta = 0.002
-keeps full relative precision.
+For admissible coefficients (``a1 >= 0``, ``a2 > 0``: every iterate after the stability projection of 000
+§4.7) :func:`second_order_zoh` is exact and finite for any ``h > 0`` (issue 17 item 2), by regime of the poles
+``lambda_{1,2}`` of ``1/A`` (``z = lambda h``): all ``|z| <= SERIES_RADIUS``: power series of the divided
+differences ``exp[z1, z2]`` and ``exp[0, z1, z2]`` (nothing cancels, full relative precision of the step
+response ``Gamma1`` however small ``h``); underdamped, or overdamped with ``q h < POLE_FORM_X``:
+``expm(M h) = e^{s h} [c I + S (M - s I)]`` with ``s = tr(M)/2 <= 0``, ``q^2 = s^2 - det(M)``,
+``c = cos/cosh(q h)``, ``S = sin/sinh(q h)/q`` (bounded here); overdamped otherwise: the real-pole form with
+``e^{lambda h} <= 1`` only (never ``e^{+q h}``: the old closed form overflowed above ``q h ~ 710`` and lost
+accuracy from ``q h ~ 20`` on). ``a1^2 - 4 a2`` is formed with an exact product, so near-critical damping keeps
+its digits. ``Gamma = [1 - Phi_11, -Phi_21]`` (the step response). ``scripts/validate_zoh.py`` measures the error
+against a 90-digit reference.
 """
 
 from __future__ import annotations
@@ -24,7 +30,6 @@ import math
 
 import numpy as np
 from numba import njit
-
 
 SERIES_RADIUS = 1.0  # |pole| h below which Phi, Gamma come from the divided-difference series (all terms small)
 POLE_FORM_X = 0.5   # overdamped: q h from which the real-pole form replaces cosh/sinh (no e^{+q h} anywhere)
