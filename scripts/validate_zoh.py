@@ -14,9 +14,11 @@ and squaring of the augmented 3x3 matrix in ``decimal``) checks that closed form
 Error measure: ``|x - ref| / scale`` per entry, ``scale = max(|ref|, natural scale)``; the natural scale of an
 entry is the size of the terms that the exact value is made of, in dimensionless coordinates
 ``[w, h w']`` (so no unit makes an entry look small): ``e^{s h}(|c| + |s h S/h|)`` for the diagonal,
-``e^{s h}|S/h|`` times the coordinate factors for ``Phi12 / h`` and ``h Phi21``, ``h Gamma2``; ``Gamma1`` (the step
-response, ``>= 0``) is measured relative to itself only. Entries below 1e-290 of their scale count as
-underflow (absolute).
+``e^{s h}|S/h|`` times the coordinate factors for ``Phi12 / h`` and ``h Phi21``, ``h Gamma2``; for complex poles the
+envelope of these oscillating terms (``|c| -> 1``, ``|S/h| -> min(1, 1/(omega_d h))``), since near a zero of
+``sin`` the value itself carries the float rounding of the phase ``omega_d h`` of the float inputs (~1e-16
+``omega_d h``). ``Gamma1`` (the step response, ``>= 0``) is measured relative to itself only. Entries whose scale
+is below 1e-290 count as underflow (absolute error).
 """
 
 from __future__ import annotations
@@ -103,7 +105,7 @@ def reference_zoh(a1: float, a2: float, h: float) -> tuple[np.ndarray, np.ndarra
         sig = s * H
         if q2 > 0 and q2.sqrt() * H >= 1:   # e^{s h} cosh, e^{s h} sinh/x from e^{(s +- q) h}: no huge exponents
             x = q2.sqrt() * H
-            ep, em = (sig + x).exp(), (sig - x).exp()
+            ep, em = ((H * H / A2) / (sig - x)).exp(), (sig - x).exp()   # sig + x = (h^2/a2)/(sig - x)
             ec, es = (ep + em) / 2, (ep - em) / (2 * x)
         else:
             if q2 > 0:
@@ -120,10 +122,15 @@ def reference_zoh(a1: float, a2: float, h: float) -> tuple[np.ndarray, np.ndarra
         p22 = ec + sig * es
         g1 = 1 - p11
         g2 = p12 / A2
-        # natural scales in coordinates [w, h w']: Phi12/h, h Phi21, h Gamma2 dimensionless
-        sc_diag = abs(ec) + abs(sig * es)
-        sc_12 = abs(es) * H
-        sc_21 = abs(es) * H / A2
+        # natural scales in coordinates [w, h w']: Phi12/h, h Phi21, h Gamma2 dimensionless; an oscillating entry
+        # (q^2 < 0) is measured against its envelope e^{s h} (1, 1/y), not its value near a zero of cos or sin
+        if q2 < 0:
+            y = (-q2).sqrt() * H
+            env = e * (1 / y if y > 1 else Dec(1))
+            sc_diag, sc_12 = e + abs(sig) * env, env * H
+        else:
+            sc_diag, sc_12 = abs(ec) + abs(sig * es), abs(es) * H
+        sc_21 = sc_12 / A2
         vals = [p11, p12, p21, p22, g1, g2]
         scales = [sc_diag, sc_12, sc_21, sc_diag, abs(g1), sc_21]
         ref = np.array([float(v) for v in vals])

@@ -1,4 +1,8 @@
-"""Closed-form ZOH of second-order sections against the augmented matrix exponential (scipy)."""
+"""Closed-form ZOH of second-order sections against the augmented matrix exponential (scipy) and, over the whole
+admissible domain, against an extended-precision reference (``scripts/validate_zoh.py``, issue 17 item 2)."""
+import importlib.util
+from pathlib import Path
+
 import numpy as np
 import pytest
 from scipy.linalg import expm
@@ -62,3 +66,58 @@ def test_step_response_settles_to_dc_gain():
     for _ in range(5000):
         x = phi @ x + gam
     np.testing.assert_allclose(x, [1.0, 0.0], atol=1e-12)
+
+
+_spec = importlib.util.spec_from_file_location("validate_zoh", Path(__file__).resolve().parents[1] / "scripts" /
+                                               "validate_zoh.py")
+vz = importlib.util.module_from_spec(_spec)
+_spec.loader.exec_module(vz)
+
+
+def test_decimal_reference_matches_decimal_expm():
+    """The closed-form reference equals the Taylor/squaring expm of the augmented matrix in decimal (independent)."""
+    rng = np.random.default_rng(5)
+    pts, _ = vz.sample_iterates(400, 11)
+    norms = np.array([max(h / a2 * (1 + a1 + a2), h) for a1, a2, h in pts])
+    pick = pts[norms < 30.0]
+    assert len(pick) >= 40
+    for a1, a2, h in pick[rng.permutation(len(pick))[:40]]:
+        ref_phi, ref_gam, scale = vz.reference_zoh(a1, a2, h)
+        e_phi, e_gam = vz.decimal_expm(a1, a2, h)
+        got = np.concatenate((e_phi.ravel(), e_gam))
+        want = np.concatenate((ref_phi.ravel(), ref_gam))
+        assert np.all(np.abs(got - want) <= 1e-14 * scale), (a1, a2, h)
+
+
+def test_property_finite_and_exact_over_admissible_domain():
+    """2000 random admissible (a1, a2, h): under-, critically, over-damped, stiff (q h up to 1e4), a2 -> 0."""
+    pts, cls = vz.sample_iterates(2000, 1)
+    assert set(cls) == set(range(len(vz.CLASS_NAMES)))
+    err, fin = vz.errors(pts)
+    assert np.all(fin)
+    assert err.max() <= 1e-9, (pts[np.argmax(err)], err.max())
+
+
+@pytest.mark.parametrize("a1,a2,h", [
+    (0.01, 3e-7, 0.05),        # issue 17: fast pole at -3.3e4 rad/s at 20 Hz (q h ~ 833, old form NaN)
+    (0.01, 1e-9, 0.05),        # q h ~ 2.5e5: e^{lambda2 h} underflows to 0, first-order limit 1/(a1 p + 1)
+    (2.0, 1e-300, 1.0),        # near-singular a2
+    (0.25, 0.015625 * (1 - 1e-13), 50.0),    # near-critical damping (zeta - 1 ~ 5e-14), s h = -25
+])
+def test_stiff_iterates_are_finite_and_match_reference(a1, a2, h):
+    phi, gam = np.zeros((2, 2)), np.zeros(2)
+    second_order_zoh(a1, a2, h, phi, gam)
+    ref_phi, ref_gam, scale = vz.reference_zoh(a1, a2, h)
+    got = np.concatenate((phi.ravel(), gam))
+    want = np.concatenate((ref_phi.ravel(), ref_gam))
+    assert np.all(np.isfinite(got))
+    assert np.all(np.abs(got - want) <= 1e-12 * np.maximum(scale, 1e-300))
+
+
+def test_first_order_limit_of_a_stiff_mode():
+    """a2 -> 0 with a1 fixed: 1/(a2 p^2 + a1 p + 1) -> 1/(a1 p + 1), w(h) = 1 - e^{-h/a1} for a unit step."""
+    a1, h = 0.01, 0.05
+    phi, gam = np.zeros((2, 2)), np.zeros(2)
+    second_order_zoh(a1, 1e-20, h, phi, gam)  # O(a2/a1^2) = 1e-16 from the limit
+    np.testing.assert_allclose(gam[0], -np.expm1(-h / a1), rtol=1e-12)
+    np.testing.assert_allclose(phi[0, 0], np.exp(-h / a1), rtol=1e-12)

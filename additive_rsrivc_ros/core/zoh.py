@@ -206,10 +206,15 @@ def second_order_zoh(a1: float, a2: float, h: float, phi: np.ndarray, gamma: np.
     and accurate to a few ulp of each entry's scale for any ``h > 0`` (``scripts/validate_zoh.py``), by regime of
     the poles ``lambda`` of ``1/A``: all ``|lambda| h <= SERIES_RADIUS``: divided-difference series;
     underdamped or ``q h < POLE_FORM_X``: ``e^{s h}`` times bounded cos/cosh terms; otherwise the real-pole form
-    (no ``e^{+q h}``). Other non-zero ``a2`` (unstable, not admissible) use the plain closed form.
+    (no ``e^{+q h}``). Other non-zero ``a2`` (unstable, not admissible) use the plain closed form; ``a2 = 0`` or
+    non-finite inputs give NaN entries (no discretization exists; callers reject them).
     """
     if not (a1 >= 0.0 and a2 > 0.0 and h > 0.0):
-        _general_zoh(a1, a2, h, phi, gamma)
+        if a2 != 0.0 and math.isfinite(a1) and math.isfinite(a2) and math.isfinite(h):
+            _general_zoh(a1, a2, h, phi, gamma)
+        else:   # no discretization (a2 = 0, NaN): NaN entries, which the kernel rejects and counts
+            phi[:, :] = math.nan
+            gamma[:] = math.nan
         return
     disc = _discriminant(a1, a2)            # 4 a2^2 q^2
     t = h / (2.0 * a2)
