@@ -258,16 +258,28 @@ def run_block(r: np.ndarray, u: np.ndarray, y: np.ndarray, valid: np.ndarray, al
         # propagate every bank t_{k-1} -> t_k with theta_bar(t_{k-1}) (cached Phi, Gamma)
         finite = True
         for i in range(K):
-            zoh_ok[i] = _ensure_finite_zoh(i, kind, theta, thf, h, phi, gam)
-            if not zoh_ok[i]:
-                # no valid discretization of this mode's filters: held at rest, counted; the others run on
-                T[i, :, :] = 0.0
-                rejr[i, R_DISC] += 1
-                continue
+            zoh_ok[i] = True
             _propagate_mode(i, phi, gam, xs, T, vin[i, 0], ud_prev, zd_prev, vin[i, 1])
+            mode_finite = True
             for b in range(N_BANKS):
                 if not (math.isfinite(T[i, b, 0]) and math.isfinite(T[i, b, 1])):
-                    finite = False
+                    mode_finite = False
+            if not mode_finite and not _finite_zoh(phi[i], gam[i]):
+                # the cached Phi, Gamma are the cause (the kernel only caches finite ones: a restored snapshot)
+                zoh_ok[i] = _ensure_finite_zoh(i, kind, theta, thf, h, phi, gam)
+                if zoh_ok[i]:
+                    _propagate_mode(i, phi, gam, xs, T, vin[i, 0], ud_prev, zd_prev, vin[i, 1])
+                    mode_finite = True
+                    for b in range(N_BANKS):
+                        if not (math.isfinite(T[i, b, 0]) and math.isfinite(T[i, b, 1])):
+                            mode_finite = False
+                else:
+                    # no valid discretization of this mode's filters: held at rest, counted; the others run on
+                    T[i, :, :] = 0.0
+                    rejr[i, R_DISC] += 1
+                    mode_finite = True
+            if not mode_finite:
+                finite = False
         if not finite:
             # re-prime: filters from rest, no updates for hold_len samples (counted)
             T[:, :, :] = 0.0
@@ -349,7 +361,6 @@ def run_block(r: np.ndarray, u: np.ndarray, y: np.ndarray, valid: np.ndarray, al
                                 capped = True
                         lam_eff = 1.0 if capped else lam_i
                         den = lam_eff
-                        den_abs = lam_eff
                         eps = yf
                         for a in range(nt):
                             acc = 0.0
@@ -357,11 +368,15 @@ def run_block(r: np.ndarray, u: np.ndarray, y: np.ndarray, valid: np.ndarray, al
                             for c in range(nt):
                                 acc += P[i, a, c] * phh[c]
                                 acc2 += ph[c] * P[i, c, a]
-                                den_abs += abs(ph[a] * P[i, a, c] * phh[c])
                             Pph[a] = acc
                             phP[a] = acc2
                             den += ph[a] * acc
                             eps -= ph[a] * theta[i, a]
+                        den_abs = lam_eff
+                        if not den >= lam_eff:   # phi^T P phi^ < 0: terms cancel, compare with their magnitude
+                            for a in range(nt):
+                                for c in range(nt):
+                                    den_abs += abs(ph[a] * P[i, a, c] * phh[c])
                         if not iv_denominator_ok(den, den_abs, lam_eff):
                             rej[i] += 1
                             rejr[i, R_DEN] += 1

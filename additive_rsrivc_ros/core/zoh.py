@@ -31,6 +31,8 @@ import math
 import numpy as np
 from numba import njit
 
+_INV_FACT = np.array([1.0 / math.factorial(k) for k in range(40)])   # 1/k! (compile-time constants in numba)
+_INV_INT = np.array([1.0 / k if k else 0.0 for k in range(40)])
 SERIES_RADIUS = 1.0  # |pole| h below which Phi, Gamma come from the divided-difference series (all terms small)
 POLE_FORM_X = 0.5   # overdamped: q h from which the real-pole form replaces cosh/sinh (no e^{+q h} anywhere)
 
@@ -99,20 +101,16 @@ def _series_zoh(e1: float, e2: float, rho: float, h: float, a2: float, phi: np.n
     """
     hm2 = 1.0
     hm1 = e1
-    f1 = 0.5           # 1/(k+1)! at k = 1
-    f2 = 1.0 / 6.0     # 1/(k+2)! at k = 1
-    d1 = 1.0 + e1 * f1
-    d2 = 0.5 + e1 * f2
+    d1 = 1.0 + e1 * 0.5
+    d2 = 0.5 + e1 * _INV_FACT[3]
     bound = rho        # rho^k / k! >= |h_k|/(k+1)! (|h_k| <= (k+1) rho^k)
-    for k in range(2, 40):
+    for k in range(2, 34):
         hk = e1 * hm1 - e2 * hm2
-        f1 /= k + 1.0
-        f2 /= k + 2.0
-        d1 += hk * f1
-        d2 += hk * f2
+        d1 += hk * _INV_FACT[k + 1]
+        d2 += hk * _INV_FACT[k + 2]
         hm2 = hm1
         hm1 = hk
-        bound *= rho / k
+        bound *= rho * _INV_INT[k]
         if bound < 1e-18:
             break
     g1 = e2 * d2
