@@ -121,3 +121,25 @@ def test_first_order_limit_of_a_stiff_mode():
     second_order_zoh(a1, 1e-20, h, phi, gam)  # O(a2/a1^2) = 1e-16 from the limit
     np.testing.assert_allclose(gam[0], -np.expm1(-h / a1), rtol=1e-12)
     np.testing.assert_allclose(phi[0, 0], np.exp(-h / a1), rtol=1e-12)
+
+
+@pytest.mark.parametrize("a1,a2,h", [(0.01, 3e-7, 0.05), (0.25, 0.25, 0.05), (2.0, 1e-12, 1e-3), (0.0, 0.04, 0.05)])
+@pytest.mark.parametrize("scale", [1.0, 37.0])
+def test_zoh_matrices_of_second_order_companions_are_exact(a1, a2, h, scale):
+    """zoh_matrices (used by core.filters for the offline filters) on a (scaled) companion form of 1/A(p) equals the
+    reference in the same coordinates, also where the matrix exponential loses the stiff entries."""
+    from additive_rsrivc_ros.core.filters import svf_continuous
+    A = np.array([[0.0, scale], [-1.0 / (a2 * scale), -a1 / a2]])
+    B = np.array([0.0, 1.0 / (a2 * scale)])
+    phi, gam = zoh_matrices(A, B, h)
+    ref_phi, ref_gam, sc = vz.reference_zoh(a1, a2, h)
+    S = np.diag([1.0, 1.0 / scale])
+    want_phi = S @ ref_phi @ np.linalg.inv(S)
+    want_gam = S @ ref_gam
+    got = np.concatenate((phi.ravel(), gam[:, 0]))
+    want = np.concatenate((want_phi.ravel(), want_gam))
+    coord = np.array([1.0, scale, 1.0 / scale, 1.0, 1.0, 1.0 / scale])    # the entries' natural scales, same coords
+    assert np.all(np.abs(got - want) <= 1e-11 * np.maximum(sc * coord, 1e-300)), (got, want)
+    A2, B2, _, _ = svf_continuous(np.array([1.0, a1, a2]))   # the realization the offline filters use
+    p2, g2 = zoh_matrices(A2, B2, h)
+    assert np.all(np.isfinite(p2)) and np.all(np.isfinite(g2))

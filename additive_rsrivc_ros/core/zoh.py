@@ -239,13 +239,39 @@ def integrator_chain_zoh(l: int, h: float, phi: np.ndarray, gamma: np.ndarray) -
         gamma[i] = h ** (l - i) / math.gamma(l - i + 1.0)
 
 
+def _scaled_companion_zoh(a: np.ndarray, b: np.ndarray, h: float) -> tuple[np.ndarray, np.ndarray] | None:
+    """``x' = [[0, s], [alpha, beta]] x + [0, g] v`` (the scaled companion form of ``core.filters.svf_continuous``)
+    with an admissible ``1/A``: exact :func:`second_order_zoh` in ``[w, w']`` coordinates, ``x = diag(1, 1/s)
+    [w, w']``; ``None`` for any other system."""
+    sc = a[0, 1]
+    if not (a[0, 0] == 0.0 and sc > 0.0 and b[0, 0] == 0.0 and np.all(np.isfinite(a)) and np.all(np.isfinite(b))):
+        return None
+    k = -sc * a[1, 0]          # w'' = -k w - c w' + s g v
+    c = -a[1, 1]
+    if not (k > 0.0 and c >= 0.0 and math.isfinite(1.0 / k)):
+        return None
+    a2 = 1.0 / k
+    phi, gam = np.zeros((2, 2)), np.zeros(2)
+    second_order_zoh(c * a2, a2, h, phi, gam)
+    gain = sc * b[1, 0] * a2
+    phi[0, 1] *= sc
+    phi[1, 0] /= sc
+    return phi, np.array([[gam[0] * gain], [gam[1] * gain / sc]])
+
+
 def zoh_matrices(a: np.ndarray, b: np.ndarray, h: float) -> tuple[np.ndarray, np.ndarray]:
-    """Generic exact ZOH of ``x' = a x + b v`` via the augmented matrix exponential (any order)."""
+    """Exact ZOH of ``x' = a x + b v``: second-order (scaled) companion forms with an admissible ``1/A`` by
+    :func:`second_order_zoh` (finite and accurate however stiff), any other system by the augmented matrix
+    exponential (scipy)."""
     from scipy.linalg import expm  # lazy: keeps the kernel's import (and the node's start) fast
 
     a = np.atleast_2d(np.asarray(a, dtype=float))
     b = np.asarray(b, dtype=float).reshape(a.shape[0], -1)
     n, m = b.shape
+    if n == 2 and m == 1 and h > 0.0:
+        exact = _scaled_companion_zoh(a, b, h)
+        if exact is not None:
+            return exact
     aug = np.zeros((n + m, n + m))
     aug[:n, :n] = a * h
     aug[:n, n:] = b * h
