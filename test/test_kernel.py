@@ -1,7 +1,7 @@
 """The compiled kernel against a plain numpy reference of 000 Algorithm 2, and JIT vs interpreted.
 
 The reference below is written independently of core/kernel.py: per sample and per iterate it builds the
-filters' ``Phi, Gamma`` with scipy's matrix exponential (core.zoh.zoh_matrices, not the closed form),
+filters' ``Phi, Gamma`` with scipy's matrix exponential of the augmented matrix (not core.zoh's closed form),
 forms the residual output (000 eq. 22), regressor and instrument (eqs. 26-28, 33), the IV-RLS update of
 Algorithm 2 lines 7-9 (1/lambda, no factor 1/2: NOTES erratum 2) and the stability projection with
 numpy's polynomial roots (model.reflect_unstable). The optional filter model (recursive.set_filter_memory:
@@ -18,12 +18,13 @@ from pathlib import Path
 
 import numpy as np
 import pytest
+from scipy.linalg import expm
 from test_recursive_sim import PAPER_THETA, PID, paper_reference, simulate_modal
 
 from additive_rsrivc_ros.core.kernel import project_second_order
 from additive_rsrivc_ros.core.model import SubmodelStructure, reflect_unstable
 from additive_rsrivc_ros.core.recursive import FILTER_PERIODS, RecursiveAdditiveSRIVC, p0_diagonal
-from additive_rsrivc_ros.core.zoh import companion, zoh_matrices
+from additive_rsrivc_ros.core.zoh import companion
 
 Y, U, Z, X = range(4)
 
@@ -52,7 +53,10 @@ class ReferenceAlgorithm2:
 
     def zoh(self, th):
         A, B = companion(np.array([1.0, th[0], th[1]]))
-        phi, gam = zoh_matrices(A, B, self.h)
+        aug = np.zeros((3, 3))
+        aug[:2, :2], aug[:2, 2] = A * self.h, B * self.h
+        e = expm(aug)                       # scipy, independent of core.zoh (whose zoh_matrices uses the closed form)
+        phi, gam = e[:2, :2], e[:2, 2:]
         return phi, gam[:, 0]
 
     def propagate(self, i, af, ud, zd):
