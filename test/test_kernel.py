@@ -1,7 +1,7 @@
 """The compiled kernel against a plain numpy reference of 000 Algorithm 2, and JIT vs interpreted.
 
 The reference below is written independently of core/kernel.py: per sample and per iterate it builds the
-filters' ``Phi, Gamma`` with scipy's matrix exponential (core.zoh.zoh_matrices, not the closed form),
+filters' ``Phi, Gamma`` with scipy's matrix exponential of the augmented matrix (not core.zoh's closed form),
 forms the residual output (000 eq. 22), regressor and instrument (eqs. 26-28, 33), the IV-RLS update of
 Algorithm 2 lines 7-9 (1/lambda, no factor 1/2: NOTES erratum 2) and the stability projection with
 numpy's polynomial roots (model.reflect_unstable). The optional filter model (recursive.set_filter_memory:
@@ -18,12 +18,13 @@ from pathlib import Path
 
 import numpy as np
 import pytest
+from scipy.linalg import expm
 from test_recursive_sim import PAPER_THETA, PID, paper_reference, simulate_modal
 
 from additive_rsrivc_ros.core.kernel import project_second_order
 from additive_rsrivc_ros.core.model import SubmodelStructure, reflect_unstable
 from additive_rsrivc_ros.core.recursive import FILTER_PERIODS, RecursiveAdditiveSRIVC, p0_diagonal
-from additive_rsrivc_ros.core.zoh import companion, zoh_matrices
+from additive_rsrivc_ros.core.zoh import companion
 
 Y, U, Z, X = range(4)
 
@@ -52,7 +53,10 @@ class ReferenceAlgorithm2:
 
     def zoh(self, th):
         A, B = companion(np.array([1.0, th[0], th[1]]))
-        phi, gam = zoh_matrices(A, B, self.h)
+        aug = np.zeros((3, 3))
+        aug[:2, :2], aug[:2, 2] = A * self.h, B * self.h
+        e = expm(aug)                       # scipy, independent of core.zoh (whose zoh_matrices uses the closed form)
+        phi, gam = e[:2, :2], e[:2, 2:]
         return phi, gam[:, 0]
 
     def propagate(self, i, af, ud, zd):
@@ -190,3 +194,101 @@ def test_interpreted_kernel_matches_compiled(tmp_path):
     comp = est.update(r, u, y, trace=True)
     assert np.max(np.abs(comp[-1] / comp[0] - 1)) > 1e-3
     np.testing.assert_allclose(interp, comp, rtol=1e-10, atol=0)
+
+
+def _closed_loop_estimates(start, n=4000, controller=PID):
+    """000 §5 closed loop (noise variance 0.01, paper reference), 50 s memory, started at ``start``."""
+    from test_recursive import _data
+    r, u, y = _data(n, True, delay=1, noise_std=0.1, seed=3)
+    est = RecursiveAdditiveSRIVC([SubmodelStructure()] * 3, start, 20.0, forgetting=1 - 1 / (50 * 20.0),
+                                 controller=controller, input_delay=1)
+    return est, (r, u, y)
+
+
+def _max_rel_err(thetas):
+    return np.array([np.max(np.abs(t / th - 1)) for t, th in zip(thetas, PAPER_THETA, strict=True)])
+
+
+def test_stiff_iterate_does_not_freeze_the_other_modes():
+    """Issue 17: mode 3 started at the stiff iterate (a1, a2, b0) = (0.01, 3e-7, 1) (fast pole -3.3e4 rad/s, q h ~ 830
+    at 20 Hz; the old closed form gave NaN and re-primed every sample: 0 updates). Now its discretization is exact,
+    every sample updates, nothing is re-primed, and modes 1-2 move and end as close to the truth as from a normal
+    start (5 % off) on the same data."""
+    far = [th * np.array([1.05, 0.95, 1.05]) for th in PAPER_THETA]
+    normal, data = _closed_loop_estimates(far)
+    normal.update(*data)
+    stiff_start = far[:2] + [np.array([0.01, 3e-7, 1.0])]
+    stiff, data = _closed_loop_estimates(stiff_start)
+    stiff.update(*data)
+    h = stiff.health
+    assert h["updates"] == 4000 and h["reprimes"] == 0 and h["held_samples"] == 0
+    assert h["rejected_discretization"] == [0, 0, 0]       # exact for every admissible iterate: nothing to reject
+    assert all(np.all(np.isfinite(t)) for t in stiff.thetas)
+    for i in range(2):
+        assert np.max(np.abs(stiff.thetas[i] / stiff_start[i] - 1)) > 1e-3       # they do move
+    e_normal, e_stiff = _max_rel_err(normal.thetas), _max_rel_err(stiff.thetas)
+    assert np.all(e_stiff[:2] <= 1.25 * e_normal[:2]), (e_stiff, e_normal)
+
+
+def test_invalid_discretization_is_rejected_per_mode_and_counted():
+    """A mode without a finite discretization (here a snapshot with a2 = 0 and NaN Phi, Gamma cached) is held at rest
+    and counted per sample; its estimate does not change, the other modes keep updating, nothing re-primes."""
+    far = [th * np.array([1.05, 0.95, 1.05]) for th in PAPER_THETA]
+    est, (r, u, y) = _closed_loop_estimates(far, n=2000)
+    st = est.get_state()
+    st["theta"][2, 1] = 0.0
+    st["thf"][2, 1] = 0.0
+    st["phi"][2] = np.nan
+    st["gam"][2] = np.nan
+    est.set_state(st)
+    est.update(r, u, y)
+    h = est.health
+    assert h["updates"] == 2000 and h["reprimes"] == 0
+    assert h["rejected_discretization"][2] >= 2000 and h["rejected_discretization"][:2] == [0, 0]
+    assert h["rejected_updates"][2] >= 2000
+    assert est.thetas[2][1] == 0.0 and est.thetas[2][0] == st["theta"][2, 0]
+    for i in range(2):
+        assert np.max(np.abs(est.thetas[i] / far[i] - 1)) > 1e-3
+
+
+def test_iv_denominator_floor():
+    """``den = lam + phi^T P phi^``: RLS has den >= lam; tiny positive values (step amplified by lam/den), values at
+    the round-off of the terms, non-positive and non-finite ones are refused."""
+    from additive_rsrivc_ros.core.kernel import DEN_FLOOR, iv_denominator_ok
+    lam = 0.999
+    assert iv_denominator_ok(lam, lam, lam) and iv_denominator_ok(0.5 * lam, 3.0, lam)
+    assert iv_denominator_ok(2.0 * DEN_FLOOR * lam, 1.0, lam)
+    assert not iv_denominator_ok(0.5 * DEN_FLOOR * lam, 1.0, lam)
+    assert not iv_denominator_ok(1e-300, 1.0, lam)
+    assert not iv_denominator_ok(1.0, 1e14, lam)          # 1 out of 1e14: round-off, sign unknown
+    assert not iv_denominator_ok(-1.0, 2.0, lam)
+    assert not iv_denominator_ok(np.nan, 1.0, lam) and not iv_denominator_ok(1.0, np.inf, lam)
+
+
+def test_bad_iv_denominators_are_rejected_and_counted():
+    """P of mode 2 made negative definite: lam + phi^T P phi^ is mostly far below lam; those updates are rejected and
+    counted for that mode (per reason), the estimator keeps running and stays finite (the accepted updates with such
+    a P still drive the model far off: this only shows that the guard counts, not that it rescues a broken P)."""
+    far = [th * np.array([1.05, 0.95, 1.05]) for th in PAPER_THETA]
+    est, (r, u, y) = _closed_loop_estimates(far, n=2000)
+    st = est.get_state()
+    st["P"][1] = -1e6 * st["P"][1]
+    est.set_state(st)
+    est.update(r, u, y)
+    h = est.health
+    assert h["rejected_iv_denominator"][1] > 0
+    assert h["rejected_updates"][1] >= h["rejected_iv_denominator"][1]
+    assert h["samples"] == 2000 and h["updates"] > 0
+    assert all(np.all(np.isfinite(t)) for t in est.thetas)
+
+
+def test_nonfinite_instrument_is_counted():
+    """An unstable C_d (pole at 2) makes the recursively generated instrument overflow: each non-finite sample is
+    replaced by 0 and counted, the estimates stay finite."""
+    from additive_rsrivc_ros.core.controller import DiscreteController
+    far = [th * np.array([1.05, 0.95, 1.05]) for th in PAPER_THETA]
+    est, data = _closed_loop_estimates(far, n=3000, controller=DiscreteController((1.0,), (1.0, -2.0)))
+    est.update(*data)
+    h = est.health
+    assert h["nonfinite_instrument"] >= 1
+    assert all(np.all(np.isfinite(t)) for t in est.thetas)

@@ -1,4 +1,8 @@
-"""Closed-form ZOH of second-order sections against the augmented matrix exponential (scipy)."""
+"""Closed-form ZOH of second-order sections against the augmented matrix exponential (scipy) and, over the whole
+admissible domain, against an extended-precision reference (``scripts/validate_zoh.py``, issue 17 item 2)."""
+import importlib.util
+from pathlib import Path
+
 import numpy as np
 import pytest
 from scipy.linalg import expm
@@ -62,3 +66,80 @@ def test_step_response_settles_to_dc_gain():
     for _ in range(5000):
         x = phi @ x + gam
     np.testing.assert_allclose(x, [1.0, 0.0], atol=1e-12)
+
+
+_spec = importlib.util.spec_from_file_location("validate_zoh", Path(__file__).resolve().parents[1] / "scripts" /
+                                               "validate_zoh.py")
+vz = importlib.util.module_from_spec(_spec)
+_spec.loader.exec_module(vz)
+
+
+def test_decimal_reference_matches_decimal_expm():
+    """The closed-form reference equals the Taylor/squaring expm of the augmented matrix in decimal (independent)."""
+    rng = np.random.default_rng(5)
+    pts, _ = vz.sample_iterates(400, 11)
+    norms = np.array([max(h / a2 * (1 + a1 + a2), h) for a1, a2, h in pts])
+    pick = pts[norms < 30.0]
+    assert len(pick) >= 40
+    for a1, a2, h in pick[rng.permutation(len(pick))[:40]]:
+        ref_phi, ref_gam, scale = vz.reference_zoh(a1, a2, h)
+        e_phi, e_gam = vz.decimal_expm(a1, a2, h)
+        got = np.concatenate((e_phi.ravel(), e_gam))
+        want = np.concatenate((ref_phi.ravel(), ref_gam))
+        assert np.all(np.abs(got - want) <= 1e-14 * scale), (a1, a2, h)
+
+
+def test_property_finite_and_exact_over_admissible_domain():
+    """2000 random admissible (a1, a2, h): under-, critically, over-damped, stiff (q h up to 1e4), a2 -> 0."""
+    pts, cls = vz.sample_iterates(2000, 1)
+    assert set(cls) == set(range(len(vz.CLASS_NAMES)))
+    err, fin = vz.errors(pts)
+    assert np.all(fin)
+    assert err.max() <= 1e-9, (pts[np.argmax(err)], err.max())
+
+
+@pytest.mark.parametrize("a1,a2,h", [
+    (0.01, 3e-7, 0.05),        # issue 17: fast pole at -3.3e4 rad/s at 20 Hz (q h ~ 833, old form NaN)
+    (0.01, 1e-9, 0.05),        # q h ~ 2.5e5: e^{lambda2 h} underflows to 0, first-order limit 1/(a1 p + 1)
+    (2.0, 1e-300, 1.0),        # near-singular a2
+    (0.25, 0.015625 * (1 - 1e-13), 50.0),    # near-critical damping (zeta - 1 ~ 5e-14), s h = -25
+])
+def test_stiff_iterates_are_finite_and_match_reference(a1, a2, h):
+    phi, gam = np.zeros((2, 2)), np.zeros(2)
+    second_order_zoh(a1, a2, h, phi, gam)
+    ref_phi, ref_gam, scale = vz.reference_zoh(a1, a2, h)
+    got = np.concatenate((phi.ravel(), gam))
+    want = np.concatenate((ref_phi.ravel(), ref_gam))
+    assert np.all(np.isfinite(got))
+    assert np.all(np.abs(got - want) <= 1e-12 * np.maximum(scale, 1e-300))
+
+
+def test_first_order_limit_of_a_stiff_mode():
+    """a2 -> 0 with a1 fixed: 1/(a2 p^2 + a1 p + 1) -> 1/(a1 p + 1), w(h) = 1 - e^{-h/a1} for a unit step."""
+    a1, h = 0.01, 0.05
+    phi, gam = np.zeros((2, 2)), np.zeros(2)
+    second_order_zoh(a1, 1e-20, h, phi, gam)  # O(a2/a1^2) = 1e-16 from the limit
+    np.testing.assert_allclose(gam[0], -np.expm1(-h / a1), rtol=1e-12)
+    np.testing.assert_allclose(phi[0, 0], np.exp(-h / a1), rtol=1e-12)
+
+
+@pytest.mark.parametrize("a1,a2,h", [(0.01, 3e-7, 0.05), (0.25, 0.25, 0.05), (2.0, 1e-12, 1e-3), (0.0, 0.04, 0.05)])
+@pytest.mark.parametrize("scale", [1.0, 37.0])
+def test_zoh_matrices_of_second_order_companions_are_exact(a1, a2, h, scale):
+    """zoh_matrices (used by core.filters for the offline filters) on a (scaled) companion form of 1/A(p) equals the
+    reference in the same coordinates, also where the matrix exponential loses the stiff entries."""
+    from additive_rsrivc_ros.core.filters import svf_continuous
+    A = np.array([[0.0, scale], [-1.0 / (a2 * scale), -a1 / a2]])
+    B = np.array([0.0, 1.0 / (a2 * scale)])
+    phi, gam = zoh_matrices(A, B, h)
+    ref_phi, ref_gam, sc = vz.reference_zoh(a1, a2, h)
+    S = np.diag([1.0, 1.0 / scale])
+    want_phi = S @ ref_phi @ np.linalg.inv(S)
+    want_gam = S @ ref_gam
+    got = np.concatenate((phi.ravel(), gam[:, 0]))
+    want = np.concatenate((want_phi.ravel(), want_gam))
+    coord = np.array([1.0, scale, 1.0 / scale, 1.0, 1.0, 1.0 / scale])    # the entries' natural scales, same coords
+    assert np.all(np.abs(got - want) <= 1e-11 * np.maximum(sc * coord, 1e-300)), (got, want)
+    A2, B2, _, _ = svf_continuous(np.array([1.0, a1, a2]))   # the realization the offline filters use
+    p2, g2 = zoh_matrices(A2, B2, h)
+    assert np.all(np.isfinite(p2)) and np.all(np.isfinite(g2))

@@ -40,12 +40,18 @@ IV-RLS (Algorithm 2 lines 7-9, Appendix B eqs. B.5-B.7; NOTES erratum 2, no fact
 every iterate (sweep l, refinement s) restarts from ``theta_bar(t_{k-1})``, ``P_bar(t_{k-1})``.
 Stability projection (000 §4.7) reflects right-half-plane roots of ``A_i`` in closed form.
 
-Safeguards (counted, never silent): an update that produces a non-finite value, a non-positive IV
-denominator or a relative parameter step larger than ``max_step`` is rejected (theta, P keep the previous
-iterate); a non-finite or masked sample is skipped (no update, output replaced by the model prediction;
-a non-finite input or reference is held at its last value, a finite one still drives the filters);
-non-finite filter states reset the filters and re-prime (``hold`` samples without updates); P growth
-without excitation (wind-up) is stopped at ``p_cap`` times P(0).
+Safeguards (counted, never silent): an update is rejected (theta, P, filter model and its ``Phi, Gamma`` keep the
+previous iterate of that mode only; the other modes go on updating) and counted per mode and reason in ``rejr``
+when its filter discretization is not finite (``R_DISC``), when the IV denominator ``lam + phi^T P phi^`` is below
+``DEN_FLOOR lam`` or below the round-off of its terms (``R_DEN``; ordinary RLS has ``den >= lam``, a smaller one
+amplifies the step by ``lam/den``), or when it produces a non-finite value, ``a2 = 0`` or a relative parameter
+step larger than ``max_step`` (``R_STEP``). A mode whose cached ``Phi, Gamma`` are not finite (a snapshot of an
+older version) is re-discretized from its filter model; if that fails too its filters are held at rest and
+counted (``R_DISC``) instead of re-priming every mode at every sample. A non-finite or masked sample is skipped
+(no update, output replaced by the model prediction; a non-finite input or reference is held at its last value,
+a finite one still drives the filters); non-finite filter states reset the filters and re-prime (``hold`` samples
+without updates); a non-finite closed-loop instrument sample is replaced by 0 and counted
+(``I_NONFINITE_Z``); P growth without excitation (wind-up) is stopped at ``p_cap`` times P(0).
 """
 
 from __future__ import annotations
@@ -63,8 +69,15 @@ N_BANKS = 4
 NT = 3  # padded parameter length (second-order mode [a1, a2, b0]; rigid body uses [b0] in slot 0)
 
 # int state slots (ist)
-I_POS, I_SAMPLES, I_SUBCOUNT, I_HOLD, I_UPDATES, I_SKIPPED, I_REPRIMES, I_HELD, I_CAPPED = range(9)
-N_IST = 9
+I_POS, I_SAMPLES, I_SUBCOUNT, I_HOLD, I_UPDATES, I_SKIPPED, I_REPRIMES, I_HELD, I_CAPPED, I_NONFINITE_Z = range(10)
+N_IST = 10
+# reasons of a rejected update (rejr columns): discretization, IV denominator, non-finite / a2 = 0 / max_step
+R_DISC, R_DEN, R_STEP = range(3)
+N_REJ = 3
+# relative floor of the IV denominator: den = lam + phi^T P phi^ >= DEN_FLOOR lam (RLS: den >= lam), and den above
+# DEN_ROUNDOFF times the sum of the magnitudes of its terms (below that its sign and size are round-off)
+DEN_FLOOR = 1e-3
+DEN_ROUNDOFF = 1e-12
 # float state slots (fst)
 F_SIGACC, F_SIGW, F_RLAST, F_ULAST, F_YHAT = range(5)
 N_FST = 5
@@ -105,6 +118,39 @@ def discretize_mode(kind: int, a1: float, a2: float, h: float, phi: np.ndarray, 
 
 
 @njit(cache=True)
+def iv_denominator_ok(den: float, den_abs: float, lam: float) -> bool:
+    """IV-RLS denominator ``den = lam + phi^T P phi^`` usable (000 eq. 31 / B.5): ``den >= DEN_FLOOR lam`` (ordinary
+    RLS has ``den >= lam``; a smaller one multiplies the step by ``lam/den``) and ``den >= DEN_ROUNDOFF den_abs``
+    (``den_abs = lam + sum |phi_a P_ac phi^_c|``: below that its value is round-off), all finite."""
+    return math.isfinite(den) and math.isfinite(den_abs) and den >= DEN_FLOOR * lam and den >= DEN_ROUNDOFF * den_abs
+
+
+@njit(cache=True)
+def _finite_zoh(phi: np.ndarray, gam: np.ndarray) -> bool:
+    """All entries of a mode's ``Phi`` (2x2) and ``Gamma`` (2,) are finite."""
+    return (math.isfinite(phi[0, 0]) and math.isfinite(phi[0, 1]) and math.isfinite(phi[1, 0])
+            and math.isfinite(phi[1, 1]) and math.isfinite(gam[0]) and math.isfinite(gam[1]))
+
+
+@njit(cache=True)
+def _ensure_finite_zoh(i: int, kind: np.ndarray, theta: np.ndarray, thf: np.ndarray, h: float, phi: np.ndarray,
+                       gam: np.ndarray) -> bool:
+    """Cached ``Phi_i, Gamma_i`` finite; if not, re-discretized from the filter model, else from the estimate (which
+    then becomes the filter model). False if neither has a finite discretization."""
+    if _finite_zoh(phi[i], gam[i]):
+        return True
+    discretize_mode(kind[i], thf[i, 0], thf[i, 1], h, phi[i], gam[i])
+    if _finite_zoh(phi[i], gam[i]):
+        return True
+    discretize_mode(kind[i], theta[i, 0], theta[i, 1], h, phi[i], gam[i])
+    if _finite_zoh(phi[i], gam[i]):
+        thf[i, 0] = theta[i, 0]
+        thf[i, 1] = theta[i, 1]
+        return True
+    return False
+
+
+@njit(cache=True)
 def _propagate_mode(i: int, phi: np.ndarray, gam: np.ndarray, xs: np.ndarray, T: np.ndarray,
                     vy: float, vu: float, vz: float, vx: float) -> None:
     """``T[i, b] = Phi_i xs[i, b] + Gamma_i v_b`` for the four banks (t_{k-1} -> t_k)."""
@@ -136,7 +182,7 @@ def run_block(r: np.ndarray, u: np.ndarray, y: np.ndarray, valid: np.ndarray, al
               theta: np.ndarray, thf: np.ndarray, P: np.ndarray, xs: np.ndarray, vin: np.ndarray,
               phi: np.ndarray,
               gam: np.ndarray, ubuf: np.ndarray, zbuf: np.ndarray, ce: np.ndarray, cz: np.ndarray,
-              ist: np.ndarray, fst: np.ndarray, proj: np.ndarray, rej: np.ndarray,
+              ist: np.ndarray, fst: np.ndarray, proj: np.ndarray, rej: np.ndarray, rejr: np.ndarray,
               trace: np.ndarray) -> None:
     """Process a block of samples in place: 000 Algorithm 2 lines 2-16 for each sample.
 
@@ -177,6 +223,9 @@ def run_block(r: np.ndarray, u: np.ndarray, y: np.ndarray, valid: np.ndarray, al
     phP = np.zeros(NT)
     gain = np.zeros(NT)
     thn = np.zeros(NT)
+    phn = np.empty((2, 2))
+    gmn = np.empty(2)
+    zoh_ok = np.empty(K, dtype=np.bool_)
     Pn = np.zeros((NT, NT))
     ib0 = np.empty(K, dtype=np.int64)
     ntk = np.empty(K, dtype=np.int64)
@@ -209,10 +258,28 @@ def run_block(r: np.ndarray, u: np.ndarray, y: np.ndarray, valid: np.ndarray, al
         # propagate every bank t_{k-1} -> t_k with theta_bar(t_{k-1}) (cached Phi, Gamma)
         finite = True
         for i in range(K):
+            zoh_ok[i] = True
             _propagate_mode(i, phi, gam, xs, T, vin[i, 0], ud_prev, zd_prev, vin[i, 1])
+            mode_finite = True
             for b in range(N_BANKS):
                 if not (math.isfinite(T[i, b, 0]) and math.isfinite(T[i, b, 1])):
-                    finite = False
+                    mode_finite = False
+            if not mode_finite and not _finite_zoh(phi[i], gam[i]):
+                # the cached Phi, Gamma are the cause (the kernel only caches finite ones: a restored snapshot)
+                zoh_ok[i] = _ensure_finite_zoh(i, kind, theta, thf, h, phi, gam)
+                if zoh_ok[i]:
+                    _propagate_mode(i, phi, gam, xs, T, vin[i, 0], ud_prev, zd_prev, vin[i, 1])
+                    mode_finite = True
+                    for b in range(N_BANKS):
+                        if not (math.isfinite(T[i, b, 0]) and math.isfinite(T[i, b, 1])):
+                            mode_finite = False
+                else:
+                    # no valid discretization of this mode's filters: held at rest, counted; the others run on
+                    T[i, :, :] = 0.0
+                    rejr[i, R_DISC] += 1
+                    mode_finite = True
+            if not mode_finite:
+                finite = False
         if not finite:
             # re-prime: filters from rest, no updates for hold_len samples (counted)
             T[:, :, :] = 0.0
@@ -266,6 +333,9 @@ def run_block(r: np.ndarray, u: np.ndarray, y: np.ndarray, valid: np.ndarray, al
                             if j != i:
                                 yt -= tf_it[j, ib0[j]] * T[j, BU, 0]
                         ytil[i] = yt
+                        if not zoh_ok[i]:
+                            rej[i] += 1    # no filters for this mode (counted per sample in R_DISC above)
+                            continue
                         if kind[i] == 0:
                             a1 = tf_it[i, 0]                          # the filters' A (filter model)
                             a2 = tf_it[i, 1]
@@ -302,7 +372,16 @@ def run_block(r: np.ndarray, u: np.ndarray, y: np.ndarray, valid: np.ndarray, al
                             phP[a] = acc2
                             den += ph[a] * acc
                             eps -= ph[a] * theta[i, a]
-                        good = den > 0.0 and math.isfinite(den) and math.isfinite(eps)
+                        den_abs = lam_eff
+                        if not den >= lam_eff:   # phi^T P phi^ < 0: terms cancel, compare with their magnitude
+                            for a in range(nt):
+                                for c in range(nt):
+                                    den_abs += abs(ph[a] * P[i, a, c] * phh[c])
+                        if not iv_denominator_ok(den, den_abs, lam_eff):
+                            rej[i] += 1
+                            rejr[i, R_DEN] += 1
+                            continue
+                        good = math.isfinite(eps)
                         if good:
                             for a in range(nt):
                                 gain[a] = Pph[a] / den
@@ -326,21 +405,39 @@ def run_block(r: np.ndarray, u: np.ndarray, y: np.ndarray, valid: np.ndarray, al
                                     proj[i] += 1
                         if not good:
                             rej[i] += 1
+                            rejr[i, R_STEP] += 1
                             continue
+                        # filter model of A_i: a_f = mu_f a_f_bar + (1 - mu_f) a (mu_f = 0: Algorithm 2)
+                        fa1 = 0.0
+                        fa2 = 0.0
+                        if kind[i] == 0:
+                            if mu_f == 0.0:
+                                fa1 = thn[0]
+                                fa2 = thn[1]
+                            else:
+                                fa1 = mu_f * thf[i, 0] + (1.0 - mu_f) * thn[0]
+                                fa2 = mu_f * thf[i, 1] + (1.0 - mu_f) * thn[1]
+                            second_order_zoh(fa1, fa2, h, phn, gmn)
+                            if not _finite_zoh(phn, gmn):
+                                rej[i] += 1
+                                rejr[i, R_DISC] += 1
+                                continue
                         if capped:
                             ist[I_CAPPED] += 1
                         for a in range(nt):
                             th_it[i, a] = thn[a]
-                            # filter model of A_i: a_f = mu_f a_f_bar + (1 - mu_f) a (mu_f = 0: Algorithm 2)
-                            if mu_f == 0.0 or kind[i] != 0 or a == 2:
+                            if kind[i] != 0 or a == 2:
                                 tf_it[i, a] = thn[a]
-                            else:
-                                tf_it[i, a] = mu_f * thf[i, a] + (1.0 - mu_f) * thn[a]
                             for c in range(nt):
                                 P_it[i, a, c] = Pn[a, c]
                         # filters of this mode follow the new filter model (re-run from the t_{k-1} states)
                         if kind[i] == 0:
-                            second_order_zoh(tf_it[i, 0], tf_it[i, 1], h, phi_it[i], gam_it[i])
+                            tf_it[i, 0] = fa1
+                            tf_it[i, 1] = fa2
+                            for a in range(2):
+                                gam_it[i, a] = gmn[a]
+                                for c in range(2):
+                                    phi_it[i, a, c] = phn[a, c]
                             _propagate_mode(i, phi_it, gam_it, xs, T, vin[i, 0], ud_prev, zd_prev, vin[i, 1])
                             if not finite:
                                 T[i, :, :] = 0.0
@@ -377,6 +474,7 @@ def run_block(r: np.ndarray, u: np.ndarray, y: np.ndarray, valid: np.ndarray, al
                 zk -= cden[j] * cz[j - 1]
             if not math.isfinite(zk):
                 zk = 0.0
+                ist[I_NONFINITE_Z] += 1
             for j in range(ce.shape[0] - 1, 0, -1):
                 ce[j] = ce[j - 1]
             ce[0] = ek

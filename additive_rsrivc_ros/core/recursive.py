@@ -33,9 +33,11 @@ from . import kernel as kn
 from .model import SubmodelStructure, modal_from_theta, modal_std
 
 STATE_KEYS = ("kind", "lam", "muf", "cnum", "cden", "cfg_i", "cfg_f", "p0diag", "theta", "thf", "P", "xs", "vin", "phi",
-              "gam", "ubuf", "zbuf", "ce", "cz", "ist", "fst", "proj", "rej")
-_INT_KEYS = ("kind", "cfg_i", "ist", "proj", "rej")
-STATE_VERSION = 2  # 2: filter model "thf", "muf"; version-1 snapshots load with thf = theta, muf = 0 (Algorithm 2)
+              "gam", "ubuf", "zbuf", "ce", "cz", "ist", "fst", "proj", "rej", "rejr")
+_INT_KEYS = ("kind", "cfg_i", "ist", "proj", "rej", "rejr")
+# 2: filter model "thf", "muf"; version-1 snapshots load with thf = theta, muf = 0 (Algorithm 2)
+# 3: rejections per reason "rejr" and the non-finite instrument counter in "ist"; older snapshots load with zeros
+STATE_VERSION = 3
 FILTER_PERIODS = 1.0  # default filter-model time constant in periods of each mode (set_filter_memory)
 # "auto" filter policy: smooth the prefilter denominator of a mode only where the slow-variation approximation of
 # 000 Remark 4.4 fails, i.e. where the forgetting memory is shorter than this many decay times 1/(zeta omega)
@@ -297,6 +299,7 @@ class RecursiveAdditiveSRIVC:
             "fst": np.zeros(kn.N_FST),
             "proj": np.zeros(K, dtype=np.int64),
             "rej": np.zeros(K, dtype=np.int64),
+            "rejr": np.zeros((K, kn.N_REJ), dtype=np.int64),
         }
         self._s = s
         self.set_forgetting(forgetting)
@@ -429,15 +432,16 @@ class RecursiveAdditiveSRIVC:
         for i, s in enumerate(self.structures):
             nt = s.n_theta
             dinv = 1.0 / np.maximum(np.abs(self._s["theta"][i, :nt]), 1e-300)
-            m = dinv[:, None] * self._s["P"][i, :nt, :nt] * dinv[None, :]
+            with np.errstate(over="ignore", invalid="ignore"):   # a zero parameter: cond is inf/NaN, not a warning
+                m = dinv[:, None] * self._s["P"][i, :nt, :nt] * dinv[None, :]
             if np.all(np.isfinite(m)):
                 out[i] = float(np.linalg.cond(m))
         return out
 
     @property
     def health(self) -> dict[str, Any]:
-        """Samples, updates, skipped/held samples, re-primes, projections and rejections per mode,
-        IV condition numbers, residual variance."""
+        """Samples, updates, skipped/held samples, re-primes, projections and rejections per mode (total and per
+        reason, core/kernel.py "Safeguards"), non-finite instrument samples, IV condition numbers, residual variance."""
         ist = self._s["ist"]
         return {
             "samples": int(ist[kn.I_SAMPLES]),
@@ -449,6 +453,12 @@ class RecursiveAdditiveSRIVC:
             "capped_updates": int(ist[kn.I_CAPPED]),
             "projections": [int(v) for v in self._s["proj"]],
             "rejected_updates": [int(v) for v in self._s["rej"]],
+            # per mode: updates whose filter discretization was not finite (or samples whose filters were held at
+            # rest for that reason), whose IV denominator was below the floor, with a non-finite value/a2 = 0/step
+            "rejected_discretization": [int(v) for v in self._s["rejr"][:, kn.R_DISC]],
+            "rejected_iv_denominator": [int(v) for v in self._s["rejr"][:, kn.R_DEN]],
+            "rejected_nonfinite_or_step": [int(v) for v in self._s["rejr"][:, kn.R_STEP]],
+            "nonfinite_instrument": int(ist[kn.I_NONFINITE_Z]),
             "cond": [float(v) for v in self.iv_condition()],
             "residual_var": self.residual_variance,
             "init_message": self.init_message,
@@ -580,7 +590,8 @@ class RecursiveAdditiveSRIVC:
         s = self._s
         kn.run_block(r, u, y, valid, allow_update, s["kind"], s["lam"], s["muf"], s["cnum"], s["cden"], s["cfg_i"],
                      s["cfg_f"], s["p0diag"], s["theta"], s["thf"], s["P"], s["xs"], s["vin"], s["phi"], s["gam"],
-                     s["ubuf"], s["zbuf"], s["ce"], s["cz"], s["ist"], s["fst"], s["proj"], s["rej"], trace)
+                     s["ubuf"], s["zbuf"], s["ce"], s["cz"], s["ist"], s["fst"], s["proj"], s["rej"], s["rejr"],
+                     trace)
 
     def update(self, r: Any, u: Any, y: Any, valid: Any = None, *, trace: bool = False) -> np.ndarray | None:
         """Process any number of samples (000 Algorithm 2 lines 2-16 per sample).
@@ -723,6 +734,11 @@ class RecursiveAdditiveSRIVC:
             state["thf"] = np.asarray(state["theta"], dtype=float).copy()
         if "muf" not in state and "lam" in state:
             state["muf"] = np.zeros(np.asarray(state["lam"]).shape)
+        if "rejr" not in state:   # version <= 2: no per-reason counts, shorter int state
+            state["rejr"] = np.zeros_like(self._s["rejr"])
+        if "ist" in state and np.asarray(state["ist"]).shape[0] < kn.N_IST:
+            state["ist"] = np.concatenate((np.asarray(state["ist"], dtype=np.int64),
+                                           np.zeros(kn.N_IST - np.asarray(state["ist"]).shape[0], dtype=np.int64)))
         for k in STATE_KEYS:
             if k not in state:
                 raise ValueError(f"state is missing '{k}'")

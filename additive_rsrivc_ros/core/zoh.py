@@ -11,11 +11,17 @@ coordinates keep the state meaningful when the coefficients change from one samp
 slow-variation approximation of 000 Remark 4.4), which is how the recursive engine and the simulator
 carry filter states.
 
-The closed form uses ``expm(M h) = e^{s h} [c I + S (M - s I)]`` with ``s = tr(M)/2``,
-``q^2 = s^2 - det(M)``, ``c = cosh(q h)``, ``S = sinh(q h)/q`` (trigonometric when ``q^2 < 0``; a series
-near ``q = 0``), and ``Gamma = [1 - Phi_11, -Phi_21]`` (the step response). ``1 - Phi_11`` is evaluated
-with ``expm1`` and half-angle forms, so that a 3 Hz mode at 4096 Hz or a 183 Hz mode with zeta = 0.002
-keeps full relative precision.
+For admissible coefficients (``a1 >= 0``, ``a2 > 0``: every iterate after the stability projection of 000
+§4.7) :func:`second_order_zoh` is exact and finite for any ``h > 0`` (issue 17 item 2), by regime of the poles
+``lambda_{1,2}`` of ``1/A`` (``z = lambda h``): all ``|z| <= SERIES_RADIUS``: power series of the divided
+differences ``exp[z1, z2]`` and ``exp[0, z1, z2]`` (nothing cancels, full relative precision of the step
+response ``Gamma1`` however small ``h``); underdamped, or overdamped with ``q h < POLE_FORM_X``:
+``expm(M h) = e^{s h} [c I + S (M - s I)]`` with ``s = tr(M)/2 <= 0``, ``q^2 = s^2 - det(M)``,
+``c = cos/cosh(q h)``, ``S = sin/sinh(q h)/q`` (bounded here); overdamped otherwise: the real-pole form with
+``e^{lambda h} <= 1`` only (never ``e^{+q h}``: the old closed form overflowed above ``q h ~ 710`` and lost
+accuracy from ``q h ~ 20`` on). ``a1^2 - 4 a2`` is formed with an exact product, so near-critical damping keeps
+its digits. ``Gamma = [1 - Phi_11, -Phi_21]`` (the step response). ``scripts/validate_zoh.py`` measures the error
+against a 90-digit reference.
 """
 
 from __future__ import annotations
@@ -24,6 +30,11 @@ import math
 
 import numpy as np
 from numba import njit
+
+_INV_FACT = np.array([1.0 / math.factorial(k) for k in range(40)])   # 1/k! (compile-time constants in numba)
+_INV_INT = np.array([1.0 / k if k else 0.0 for k in range(40)])
+SERIES_RADIUS = 1.0  # |pole| h below which Phi, Gamma come from the divided-difference series (all terms small)
+POLE_FORM_X = 0.5   # overdamped: q h from which the real-pole form replaces cosh/sinh (no e^{+q h} anywhere)
 
 
 @njit(cache=True)
@@ -45,12 +56,8 @@ def _c_s_1mc(q2: float, h: float) -> tuple[float, float, float]:
 
 
 @njit(cache=True)
-def second_order_zoh(a1: float, a2: float, h: float, phi: np.ndarray, gamma: np.ndarray) -> None:
-    """Fill ``phi`` (2x2) and ``gamma`` (2,) with the exact ZOH of ``a2 w'' + a1 w' + w = v``.
-
-    Requires ``a2 != 0``. Valid for any damping (under-, critically, over-damped) and for unstable
-    coefficients as well (the caller projects those first, 000 §4.7).
-    """
+def _general_zoh(a1: float, a2: float, h: float, phi: np.ndarray, gamma: np.ndarray) -> None:
+    """``e^{s h}[c I + S (M - s I)]`` for any coefficients with ``a2 != 0`` (used outside the admissible set)."""
     s = -0.5 * a1 / a2
     q2 = s * s - 1.0 / a2
     c, sv, one_minus_c = _c_s_1mc(q2, h)
@@ -66,6 +73,164 @@ def second_order_zoh(a1: float, a2: float, h: float, phi: np.ndarray, gamma: np.
 
 
 @njit(cache=True)
+def _discriminant(a1: float, a2: float) -> float:
+    """``a1^2 - 4 a2`` with the rounding error of ``a1^2`` added back (Dekker's exact product).
+
+    ``a1^2 - 4 a2`` is exact by Sterbenz' lemma where the two nearly cancel (near-critical damping), so the
+    result keeps full relative precision there; the damping ratio is not rounded away.
+    """
+    p = a1 * a1
+    if not (1e-290 < p < 1e290):
+        return p - 4.0 * a2
+    big = 134217729.0 * a1
+    hi = big - (big - a1)
+    lo = a1 - hi
+    err = ((hi * hi - p) + 2.0 * hi * lo) + lo * lo
+    return (p - 4.0 * a2) + err
+
+
+@njit(cache=True)
+def _series_zoh(e1: float, e2: float, rho: float, h: float, a2: float, phi: np.ndarray, gamma: np.ndarray) -> None:
+    """All poles small (``|lambda| h <= SERIES_RADIUS``): divided differences of ``exp`` as power series.
+
+    With ``z1, z2 = lambda_{1,2} h`` (``e1 = z1 + z2 = 2 s h``, ``e2 = z1 z2 = h^2/a2``, real also for complex
+    poles), ``d1 = exp[z1, z2] = sum_k h_k/(k+1)!`` and ``d2 = exp[0, z1, z2] = sum_k h_k/(k+2)!`` with the
+    complete symmetric polynomials ``h_k = e1 h_{k-1} - e2 h_{k-2}``; then ``Phi12 = h d1``, ``Gamma1 = e2 d2``
+    (the step response, full relative precision however small h is), ``Phi11 = 1 - Gamma1``,
+    ``Phi22 = 1 + e1 d1 - e2 d2``, ``Gamma2 = -Phi21 = Phi12/a2``.
+    """
+    hm2 = 1.0
+    hm1 = e1
+    d1 = 1.0 + e1 * 0.5
+    d2 = 0.5 + e1 * _INV_FACT[3]
+    bound = rho        # rho^k / k! >= |h_k|/(k+1)! (|h_k| <= (k+1) rho^k)
+    for k in range(2, 34):
+        hk = e1 * hm1 - e2 * hm2
+        d1 += hk * _INV_FACT[k + 1]
+        d2 += hk * _INV_FACT[k + 2]
+        hm2 = hm1
+        hm1 = hk
+        bound *= rho * _INV_INT[k]
+        if bound < 1e-18:
+            break
+    g1 = e2 * d2
+    phi[0, 0] = 1.0 - g1
+    phi[0, 1] = h * d1
+    phi[1, 1] = 1.0 + e1 * d1 - g1
+    g2 = (h / a2) * d1
+    phi[1, 0] = -g2
+    gamma[0] = g1
+    gamma[1] = g2
+
+
+@njit(cache=True)
+def _oscillatory_zoh(x2: float, sigma: float, disc: float, h: float, a2: float, phi: np.ndarray,
+                     gamma: np.ndarray) -> None:
+    """Underdamped (``x2 = q^2 h^2 < 0``) or overdamped with small ``q h``: ``e^{s h}[c I + S (M - s I)]``.
+
+    ``c = cos/cosh``, ``St = sin(x)/x`` or ``sinh(x)/x`` are bounded here, ``e^{sigma}`` with ``sigma = s h <= 0``
+    never overflows. ``Gamma1 = 1 - Phi11`` where ``Phi11 <= 1/2``; otherwise the expm1/half-angle form.
+    """
+    if abs(x2) < 1e-2:
+        omc = -(x2 / 2.0) * (1.0 + x2 / 12.0 * (1.0 + x2 / 30.0 * (1.0 + x2 / 56.0 * (1.0 + x2 / 90.0))))
+        st = 1.0 + x2 / 6.0 * (1.0 + x2 / 20.0 * (1.0 + x2 / 42.0 * (1.0 + x2 / 72.0)))
+        c = 1.0 - omc
+    elif x2 > 0.0:
+        x = math.sqrt(x2)
+        half = math.sinh(0.5 * x)
+        c = math.cosh(x)
+        st = math.sinh(x) / x
+        omc = -2.0 * half * half
+    else:
+        x = math.sqrt(-x2)
+        half = math.sin(0.5 * x)
+        c = math.cos(x)
+        st = math.sin(x) / x
+        omc = 2.0 * half * half
+    e = math.exp(sigma)
+    hoa2 = h / a2
+    if math.isfinite(hoa2):
+        g2 = e * st * hoa2
+    else:  # h/a2 = 2 x / sqrt|disc|: only reached with a2 near the underflow limit
+        g2 = e * st * 2.0 * math.sqrt(abs(x2)) / math.sqrt(abs(disc)) if e > 0.0 else 0.0
+    p11 = e * (c - sigma * st)
+    phi[0, 0] = p11
+    phi[0, 1] = e * st * h
+    phi[1, 0] = -g2
+    phi[1, 1] = e * (c + sigma * st)
+    if p11 < 0.5:
+        gamma[0] = 1.0 - p11
+    else:
+        gamma[0] = omc + sigma * st - math.expm1(sigma) * (c - sigma * st)
+    gamma[1] = g2
+
+
+@njit(cache=True)
+def _real_pole_zoh(a1: float, a2: float, disc: float, h: float, phi: np.ndarray, gamma: np.ndarray) -> None:
+    """Overdamped, ``q h >= POLE_FORM_X``: real poles ``lambda_1 = -2/(a1 + sD)`` (slow) and
+    ``lambda_2 = -(a1 + sD)/(2 a2)`` (fast), ``sD = sqrt(a1^2 - 4 a2)``; only ``e^{lambda h} <= 1`` appear.
+
+    ``E1 = e^{lambda_1 h}``, ``g = 1 - e^{-(lambda_1 - lambda_2) h}`` (expm1): ``Gamma2 = E1 g/sD``,
+    ``Phi12 = a2 Gamma2``, ``Phi11 = E1 - lambda_1 Phi12`` (a sum of positive terms), ``Phi22 = E1 + lambda_2 Phi12``,
+    ``Gamma1 = 1 - Phi11`` or, where ``Phi11 > 1/2``, ``(lambda_2 (E1 - 1) - lambda_1 (E2 - 1))/(lambda_1 -
+    lambda_2)``. A very stiff fast pole gives ``e^{lambda_2 h} = 0`` gracefully (first-order limit).
+    """
+    sd = math.sqrt(disc)
+    den = a1 + sd
+    lam1 = -2.0 / den
+    z1 = lam1 * h
+    e1 = math.exp(z1)
+    g = -math.expm1(-sd * (h / a2))
+    g2 = e1 * g / sd
+    p12 = a2 * g2
+    p11 = e1 - lam1 * p12
+    phi[0, 0] = p11
+    phi[0, 1] = p12
+    phi[1, 0] = -g2
+    phi[1, 1] = e1 * (1.0 - den * g / (2.0 * sd))
+    if p11 < 0.5:
+        gamma[0] = 1.0 - p11
+    else:
+        z2 = -(den / (2.0 * a2)) * h
+        gamma[0] = (-(0.5 * den) * math.expm1(z1) + (2.0 * a2 / den) * math.expm1(z2)) / sd
+    gamma[1] = g2
+
+
+@njit(cache=True)
+def second_order_zoh(a1: float, a2: float, h: float, phi: np.ndarray, gamma: np.ndarray) -> None:
+    """Fill ``phi`` (2x2) and ``gamma`` (2,) with the exact ZOH of ``a2 w'' + a1 w' + w = v``.
+
+    Admissible coefficients (``a1 >= 0``, ``a2 > 0``, every iterate after the projection of 000 §4.7): finite
+    and accurate to a few ulp of each entry's scale for any ``h > 0`` (``scripts/validate_zoh.py``), by regime of
+    the poles ``lambda`` of ``1/A``: all ``|lambda| h <= SERIES_RADIUS``: divided-difference series;
+    underdamped or ``q h < POLE_FORM_X``: ``e^{s h}`` times bounded cos/cosh terms; otherwise the real-pole form
+    (no ``e^{+q h}``). Other non-zero ``a2`` (unstable, not admissible) use the plain closed form; ``a2 = 0`` or
+    non-finite inputs give NaN entries (no discretization exists; callers reject them).
+    """
+    if not (a1 >= 0.0 and a2 > 0.0 and h > 0.0):
+        if a2 != 0.0 and math.isfinite(a1) and math.isfinite(a2) and math.isfinite(h):
+            _general_zoh(a1, a2, h, phi, gamma)
+        else:   # no discretization (a2 = 0, NaN): NaN entries, which the kernel rejects and counts
+            phi[:, :] = math.nan
+            gamma[:] = math.nan
+        return
+    disc = _discriminant(a1, a2)            # 4 a2^2 q^2
+    t = h / (2.0 * a2)
+    sigma = -a1 * t                         # s h
+    x2 = disc * t * t if math.isfinite(t) else (math.inf if disc > 0.0 else -math.inf)
+    if disc < 0.0:
+        rho = h / math.sqrt(a2)             # |z1| = |z2| for complex poles
+    else:
+        rho = (a1 + math.sqrt(disc)) * t    # |lambda_2| h, the fast pole
+    if rho <= SERIES_RADIUS:
+        _series_zoh(2.0 * sigma, h * (h / a2), rho, h, a2, phi, gamma)
+    elif disc < 0.0 or x2 < POLE_FORM_X * POLE_FORM_X:
+        _oscillatory_zoh(x2, sigma, disc, h, a2, phi, gamma)
+    else:
+        _real_pole_zoh(a1, a2, disc, h, phi, gamma)
+
+
+@njit(cache=True)
 def integrator_chain_zoh(l: int, h: float, phi: np.ndarray, gamma: np.ndarray) -> None:
     """Exact ZOH of ``1/p^l`` in coordinates ``[w, w', ..., w^(l-1)]``: ``Phi_ij = h^(j-i)/(j-i)!``."""
     for i in range(l):
@@ -74,13 +239,39 @@ def integrator_chain_zoh(l: int, h: float, phi: np.ndarray, gamma: np.ndarray) -
         gamma[i] = h ** (l - i) / math.gamma(l - i + 1.0)
 
 
+def _scaled_companion_zoh(a: np.ndarray, b: np.ndarray, h: float) -> tuple[np.ndarray, np.ndarray] | None:
+    """``x' = [[0, s], [alpha, beta]] x + [0, g] v`` (the scaled companion form of ``core.filters.svf_continuous``)
+    with an admissible ``1/A``: exact :func:`second_order_zoh` in ``[w, w']`` coordinates, ``x = diag(1, 1/s)
+    [w, w']``; ``None`` for any other system."""
+    sc = a[0, 1]
+    if not (a[0, 0] == 0.0 and sc > 0.0 and b[0, 0] == 0.0 and np.all(np.isfinite(a)) and np.all(np.isfinite(b))):
+        return None
+    k = -sc * a[1, 0]          # w'' = -k w - c w' + s g v
+    c = -a[1, 1]
+    if not (k > 0.0 and c >= 0.0 and math.isfinite(1.0 / k)):
+        return None
+    a2 = 1.0 / k
+    phi, gam = np.zeros((2, 2)), np.zeros(2)
+    second_order_zoh(c * a2, a2, h, phi, gam)
+    gain = sc * b[1, 0] * a2
+    phi[0, 1] *= sc
+    phi[1, 0] /= sc
+    return phi, np.array([[gam[0] * gain], [gam[1] * gain / sc]])
+
+
 def zoh_matrices(a: np.ndarray, b: np.ndarray, h: float) -> tuple[np.ndarray, np.ndarray]:
-    """Generic exact ZOH of ``x' = a x + b v`` via the augmented matrix exponential (any order)."""
+    """Exact ZOH of ``x' = a x + b v``: second-order (scaled) companion forms with an admissible ``1/A`` by
+    :func:`second_order_zoh` (finite and accurate however stiff), any other system by the augmented matrix
+    exponential (scipy)."""
     from scipy.linalg import expm  # lazy: keeps the kernel's import (and the node's start) fast
 
     a = np.atleast_2d(np.asarray(a, dtype=float))
     b = np.asarray(b, dtype=float).reshape(a.shape[0], -1)
     n, m = b.shape
+    if n == 2 and m == 1 and h > 0.0:
+        exact = _scaled_companion_zoh(a, b, h)
+        if exact is not None:
+            return exact
     aug = np.zeros((n + m, n + m))
     aug[:n, :n] = a * h
     aug[:n, n:] = b * h
