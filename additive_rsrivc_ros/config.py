@@ -21,7 +21,7 @@ import numpy as np
 import yaml
 
 from .core.controller import DiscreteController
-from .core.model import SubmodelStructure, theta_from_modal
+from .core.model import SubmodelStructure, guess_structure, guess_theta
 
 DEFAULT_NODE_NAME = "additive_rsrivc_monitor"
 PARAM_TYPES = ("bool", "int", "double", "string", "bool[]", "int[]", "double[]", "string[]")
@@ -363,14 +363,10 @@ class ModeConfig:
     @property
     def structure(self) -> SubmodelStructure:
         """Rigid body ``b0/p^l`` when the frequency is 0, otherwise a second-order mode."""
-        if self.natural_frequency_hz == 0.0:
-            return SubmodelStructure(n=0, m=0, integrators=self.integrators)
-        return SubmodelStructure(n=2, m=0, integrators=self.integrators)
+        return guess_structure(self.natural_frequency_hz, self.integrators)
 
     def theta0(self) -> np.ndarray:
-        if self.natural_frequency_hz == 0.0:
-            return np.array([float(self.gain)])
-        return theta_from_modal(self.natural_frequency_hz, self.damping_ratio, self.gain)
+        return guess_theta(self.natural_frequency_hz, self.damping_ratio, self.gain)
 
 
 @dataclass(frozen=True)

@@ -34,7 +34,7 @@ from typing import Any
 import numpy as np
 
 from .frf import FRFEstimate, estimate_frf
-from .model import TWO_PI, SubmodelStructure, modal_from_theta, theta_from_modal
+from .model import TWO_PI, SubmodelStructure, guess_structure, guess_theta, modal_from_theta
 
 MIN_PROMINENCE_DECADES = 0.1  # 2 dB
 DEFAULT_MARGIN = 0.02
@@ -56,14 +56,10 @@ class Candidate:
 
     @property
     def structure(self) -> SubmodelStructure:
-        if self.natural_frequency_hz == 0.0:
-            return SubmodelStructure(0, 0, self.integrators)
-        return SubmodelStructure(2, 0, self.integrators)
+        return guess_structure(self.natural_frequency_hz, self.integrators)
 
     def theta(self) -> np.ndarray:
-        if self.natural_frequency_hz == 0.0:
-            return np.array([self.gain])
-        return theta_from_modal(self.natural_frequency_hz, self.damping_ratio, self.gain)
+        return guess_theta(self.natural_frequency_hz, self.damping_ratio, self.gain)
 
     def to_dict(self) -> dict[str, Any]:
         return {"natural_frequency_hz": self.natural_frequency_hz, "damping_ratio": self.damping_ratio,

@@ -68,6 +68,20 @@ def theta_from_modal(natural_frequency_hz: float, damping_ratio: float, gain: fl
     return np.array([2.0 * damping_ratio / w, 1.0 / w**2, float(gain)])
 
 
+def guess_structure(natural_frequency_hz: float, integrators: int = 0) -> SubmodelStructure:
+    """Submodel of a modal guess: rigid body ``b0/p^l`` when the frequency is 0, else ``b0/(a2 p² + a1 p + 1)``."""
+    if natural_frequency_hz == 0.0:
+        return SubmodelStructure(n=0, m=0, integrators=integrators)
+    return SubmodelStructure(n=2, m=0, integrators=integrators)
+
+
+def guess_theta(natural_frequency_hz: float, damping_ratio: float, gain: float) -> np.ndarray:
+    """θ (000 eq. 7) of a modal guess; a rigid body (frequency 0) has only ``b0``."""
+    if natural_frequency_hz == 0.0:
+        return np.array([float(gain)])
+    return theta_from_modal(natural_frequency_hz, damping_ratio, gain)
+
+
 def modal_from_theta(theta: np.ndarray, s: SubmodelStructure = SubmodelStructure()) -> np.ndarray:
     """``[natural_frequency_hz, damping_ratio, gain]`` of a submodel (NaN where a2 <= 0).
 
