@@ -48,7 +48,12 @@ setup(
         "setuptools", "numpy", "scipy", "numba", "pyyaml", "matplotlib", "rosbags",
     ],
     # optional MCAP bulk reader (mcap_fast.py); without it bags are read by rosbags (bagio._read_fast)
-    extras_require={"mcap": ["mcap"], "test": ["pytest", "ruff", "mcap", "mcap-ros2-support"]},
+    extras_require={
+        "mcap": ["mcap"],
+        # rsrivc_fleet only (rosdistro has no dask key; the node never needs it)
+        "fleet": ["dask[distributed]"],
+        "test": ["pytest", "ruff", "mcap", "mcap-ros2-support"],
+    },
     cmdclass={"build_py": BuildPyWithConfig},
     zip_safe=True,
     maintainer="additive_rsrivc_ros developers",
