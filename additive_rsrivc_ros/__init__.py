@@ -5,3 +5,8 @@ the command-line programs are thin shells around it.
 """
 
 __version__ = "0.1.0"
+
+from . import numba_cache as _numba_cache
+
+#: where this process caches compiled kernels (see :mod:`additive_rsrivc_ros.numba_cache`)
+NUMBA_CACHE_DIR = _numba_cache.configure()

@@ -32,11 +32,6 @@ def _u16(b: np.ndarray, p: int) -> int:
 
 
 @njit(cache=True)
-def _u32(b: np.ndarray, p: int) -> int:
-    return int(b[p]) | (int(b[p + 1]) << 8) | (int(b[p + 2]) << 16) | (int(b[p + 3]) << 24)
-
-
-@njit(cache=True)
 def _u64(b: np.ndarray, p: int) -> int:
     v = 0
     for i in range(8):

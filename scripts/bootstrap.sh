@@ -23,4 +23,6 @@ if [ "$want" != "$have" ]; then
   "$VENV/bin/python" -m pip install --quiet --disable-pip-version-check --no-deps --no-build-isolation -e "$ROOT"
   echo "$want" > "$STAMP"
 fi
+# compile the numba kernels into the user cache now, not on the first run (a no-op when they are cached)
+"$VENV/bin/python" -m additive_rsrivc_ros.warmup --if-needed
 echo "$VENV"

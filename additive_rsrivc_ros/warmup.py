@@ -1,0 +1,128 @@
+"""``rsrivc_warmup``: compile every numba kernel once, into the cache (:mod:`.numba_cache`), so that no tool and no
+node pays compilation on its first run.
+
+It exercises the code paths the node and the offline tools take, on short simulated records written as real
+bags: closed loop (the beam), a rigid-body mode (integrators), open loop, and an automatic start without guesses;
+each is simulated (core.simulate), written (rosbag2/MCAP), read back (bagio, mcap_fast) and diagnosed
+(pipeline: alignment, recursion, filters, ZOH, faults). ``--check`` then lists kernels that were never compiled.
+The setup (``scripts/bootstrap.sh``) runs it; after ``colcon build`` run ``ros2 run additive_rsrivc_ros
+rsrivc_warmup`` once (otherwise the first node start compiles, about 20-40 s).
+"""
+
+from __future__ import annotations
+
+import argparse
+import contextlib
+import io
+import sys
+import tempfile
+import time
+from pathlib import Path
+
+from . import numba_cache
+
+#: (scenario, params file, seconds after the init window): every structural code path of the kernels
+CASES = (
+    ("beam_fault", "beam_fault.yaml", 2.0),            # closed loop, 4096 Hz, input delay
+    ("beam_fault", "beam_plant.yaml", 2.0),            # no guesses: the automatic start (FRF, mode finding)
+    ("rigid_body", "rigid_body.yaml", 2.0),            # integrators (b0/p^2), PD control
+    ("open_loop_multisine", "open_loop_multisine.yaml", 2.0),  # open loop
+)
+MARKER = ".warm"
+
+
+def kernel_dispatchers() -> dict[str, object]:
+    """Every numba dispatcher defined in the package's modules, by ``module.name``."""
+    import importlib
+    import pkgutil
+
+    from numba.core.registry import CPUDispatcher
+
+    import additive_rsrivc_ros as pkg
+
+    found: dict[str, object] = {}
+    for info in pkgutil.walk_packages(pkg.__path__, "additive_rsrivc_ros."):
+        if info.name.endswith((".node", "warmup")) or ".ros" in info.name:
+            continue                                   # the ROS shell defines no kernels (and needs rclpy)
+        module = importlib.import_module(info.name)
+        for name, obj in vars(module).items():
+            if isinstance(obj, CPUDispatcher) and obj.py_func.__module__ == info.name:
+                found[f"{info.name}.{name}"] = obj
+    return found
+
+
+def _run_case(work: Path, scenario: str, params: str, after_s: float) -> None:
+    from .cli import diagnose, simulate
+    from .config import load_config
+    from .core.scenarios import config_dir
+
+    cfg_path = config_dir() / params
+    cfg = load_config(cfg_path, "additive_rsrivc_monitor")
+    bag = work / f"{scenario}-{Path(params).stem}"
+    sink = io.StringIO()
+    with contextlib.redirect_stdout(sink), contextlib.redirect_stderr(sink):
+        code = simulate.main(["--scenario", scenario, "--out", str(bag),
+                              "--duration", f"{max(cfg.init_duration_s, 2.0) + after_s:g}"])
+        if code == 0:
+            code = diagnose.main([str(bag), "--params-file", str(cfg_path), "--out", str(work / f"{bag.name}-out"),
+                                  "--no-report", "--quiet", "--no-progress"])
+    if code != 0:
+        raise RuntimeError(f"{scenario} with {params}: {sink.getvalue().strip().splitlines()[-1:]}")
+
+
+def warm(verbose: bool = True) -> float:
+    """Run :data:`CASES`; mark the cache directory warm; return the seconds it took."""
+    t0 = time.monotonic()
+    with tempfile.TemporaryDirectory(prefix="rsrivc-warmup-") as tmp:
+        for scenario, params, after_s in CASES:
+            t = time.monotonic()
+            _run_case(Path(tmp), scenario, params, after_s)
+            if verbose:
+                print(f"rsrivc_warmup: {scenario} / {params}: {time.monotonic() - t:.1f} s", file=sys.stderr)
+    directory = numba_cache.configure()
+    if directory:
+        (Path(directory) / MARKER).write_text(f"{time.time():.0f}\n", encoding="utf-8")
+    return time.monotonic() - t0
+
+
+def is_warm() -> bool:
+    """The current source's cache directory was filled by :func:`warm`."""
+    import os
+
+    directory = os.environ.get("NUMBA_CACHE_DIR")
+    return bool(directory) and (Path(directory) / MARKER).is_file()
+
+
+def main(argv: list[str] | None = None) -> int:
+    ap = argparse.ArgumentParser(prog="rsrivc_warmup", description=__doc__.split("\n\n")[0])
+    ap.add_argument("--if-needed", action="store_true", help="do nothing when this source's cache is warm")
+    ap.add_argument("--check", action="store_true", help="afterwards, list kernels that were never compiled")
+    ap.add_argument("--quiet", action="store_true")
+    args = ap.parse_args(argv)
+    import os
+
+    where = os.environ.get("NUMBA_CACHE_DIR", "numba's default (next to the sources)")
+    if args.if_needed and is_warm() and not args.check:
+        return 0                                       # silent: the setup calls this on every run
+    if not args.quiet:
+        print(f"rsrivc_warmup: compiling the numba kernels once into {where} (about a minute)", file=sys.stderr)
+    try:
+        seconds = warm(verbose=not args.quiet)
+    except (RuntimeError, OSError, ValueError) as exc:
+        print(f"rsrivc_warmup: error: {exc}", file=sys.stderr)
+        return 1
+    except KeyboardInterrupt:
+        print("rsrivc_warmup: interrupted (the kernels compiled so far stay cached)", file=sys.stderr)
+        return 130
+    if not args.quiet:
+        print(f"rsrivc_warmup: kernels compiled and cached in {where} ({seconds:.1f} s)", file=sys.stderr)
+    if args.check:
+        cold = [name for name, d in kernel_dispatchers().items() if not d.signatures]
+        for name in cold:
+            print(f"rsrivc_warmup: never compiled: {name}", file=sys.stderr)
+        return 1 if cold else 0
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())

@@ -1,0 +1,76 @@
+"""Cold start (issue 16): the kernel cache is keyed on the kernels' source, user-writable, and complete after
+``rsrivc_warmup`` (a fresh process diagnosing a bag compiles nothing)."""
+import os
+import subprocess
+import sys
+from pathlib import Path
+
+from additive_rsrivc_ros import numba_cache
+
+REPO = Path(__file__).resolve().parents[1]
+
+
+def _child_cache_dir(env: dict) -> str:
+    code = "import additive_rsrivc_ros as p; print(p.NUMBA_CACHE_DIR)"
+    out = subprocess.run([sys.executable, "-c", code], env=env, capture_output=True, text=True, check=True, cwd=REPO)
+    return out.stdout.strip()
+
+
+def test_cache_dir_changes_with_any_kernel_source(tmp_path, monkeypatch):
+    pkg = tmp_path / "pkg"
+    (pkg / "core").mkdir(parents=True)
+    (pkg / "core" / "zoh.py").write_text("x = 1\n")
+    (pkg / "core" / "kernel.py").write_text("y = 2\n")
+    (pkg / "node.py").write_text("z = 3\n")
+    monkeypatch.setattr(numba_cache, "_PACKAGE", pkg)
+    base = numba_cache.source_hash()
+    (pkg / "node.py").write_text("z = 4\n")            # not a kernel module: same cache
+    assert numba_cache.source_hash() == base
+    (pkg / "core" / "zoh.py").write_text("x = 2\n")    # a callee changed: a different cache, never a stale load
+    assert numba_cache.source_hash() != base
+
+
+def test_user_cache_dir_is_respected_and_inherited_auto_dir_is_recomputed(tmp_path):
+    env = {k: v for k, v in os.environ.items() if k not in ("NUMBA_CACHE_DIR", numba_cache.AUTO_MARKER)}
+    env["RSRIVC_CACHE_DIR"] = str(tmp_path / "root")
+    auto = _child_cache_dir(env)
+    assert Path(auto).parent == tmp_path / "root" and Path(auto).is_dir()
+    assert Path(auto).name.endswith(numba_cache.source_hash())
+    # a parent's automatic choice (e.g. from another checkout) is recomputed, not trusted
+    stale = str(tmp_path / "root" / "numba-0-stale")
+    assert _child_cache_dir({**env, "NUMBA_CACHE_DIR": stale, numba_cache.AUTO_MARKER: stale}) == auto
+    # the user's own choice is kept as is
+    mine = str(tmp_path / "mine")
+    assert _child_cache_dir({**env, "NUMBA_CACHE_DIR": mine}) == mine
+
+
+def test_unwritable_cache_root_falls_back(tmp_path, monkeypatch):
+    blocker = tmp_path / "file"
+    blocker.write_text("not a directory")
+    monkeypatch.setenv("RSRIVC_CACHE_DIR", str(blocker / "cache"))   # cannot be created under a file
+    got = numba_cache.cache_dir()
+    assert not str(got).startswith(str(blocker)) and got.is_dir()
+
+
+MISSES = """
+import sys
+from additive_rsrivc_ros.cli import diagnose
+from additive_rsrivc_ros.warmup import kernel_dispatchers
+code = diagnose.main(sys.argv[1:])
+missed = {n: dict(d.stats.cache_misses) for n, d in kernel_dispatchers().items() if d.stats.cache_misses}
+hits = sum(sum(d.stats.cache_hits.values()) for d in kernel_dispatchers().values())
+print("EXIT", code, "MISSED", missed, "HITS", hits)
+"""
+
+
+def test_after_warmup_a_fresh_diagnosis_compiles_nothing(tmp_path):
+    env = {k: v for k, v in os.environ.items() if k not in ("NUMBA_CACHE_DIR", numba_cache.AUTO_MARKER)}
+    warm = subprocess.run([sys.executable, "-m", "additive_rsrivc_ros.warmup", "--if-needed", "--check", "--quiet"],
+                          env=env, capture_output=True, text=True, cwd=REPO, timeout=900)
+    assert warm.returncode == 0, warm.stderr                   # --check: every kernel was compiled by the warm-up
+    run = subprocess.run([sys.executable, "-c", MISSES, str(REPO / "bags" / "beam_fault"), "--params-file",
+                          str(REPO / "config" / "beam_fault.yaml"), "--out", str(tmp_path / "out"), "--quiet",
+                          "--no-report", "--no-progress"], env=env, capture_output=True, text=True, cwd=REPO,
+                         timeout=600)
+    assert "EXIT 0 MISSED {} HITS" in run.stdout, run.stdout + run.stderr
+    assert int(run.stdout.split("HITS")[1]) > 0                # the kernels were loaded from the cache
