@@ -30,9 +30,8 @@ from pathlib import Path
 from typing import Any
 
 import numpy as np
-from scipy import signal
 
-from .core.model import SubmodelStructure, split_theta, theta_from_modal
+from .core.model import SubmodelStructure, theta_from_modal
 from .verdict import Verdict, assess, relative_change
 
 QUANTITIES = ("natural_frequency", "damping", "gain")
@@ -167,6 +166,7 @@ class FrfEstimate:
     coherence: np.ndarray
     t_start_s: float
     t_end_s: float
+    uncertainty: np.ndarray | None = None    # |G| error bound per bin (noise and window leakage; core.frf)
 
 
 @dataclass
@@ -215,78 +215,45 @@ def thetas_from_modal(modal: np.ndarray, structures: Sequence[SubmodelStructure]
 
 def model_frf(thetas: Sequence[np.ndarray], structures: Sequence[SubmodelStructure], freqs_hz: np.ndarray,
               rate_hz: float, delay_samples: int = 0) -> np.ndarray:
-    """Frequency response of the sampled additive model ``sum_i ZOH{B_i/(p^l_i A_i)}(e^{jwh}) q^-d``.
+    """Frequency response of the sampled additive model ``sum_i ZOH{B_i/(p^l_i A_i)}(e^{jwh}) q^-d``: the exact
+    ZOH discretization of :func:`..core.frf.discrete_model_frf`, which is what a nonparametric estimate from
+    sampled data measures (../shared/NOTES.md)."""
+    from .core.frf import discrete_model_frf
 
-    Each submodel is discretized exactly under zero-order hold (the input's intersample behaviour,
-    ../shared/NOTES.md) and the responses are summed (ZOH discretization is linear), which is what a
-    nonparametric estimate from sampled data measures.
-    """
-    h = 1.0 / rate_hz
-    w = 2 * np.pi * np.asarray(freqs_hz, float) * h
-    total = np.zeros(w.shape, complex)
-    for theta, s in zip(thetas, structures, strict=True):
-        a, b = split_theta(theta, s)
-        den = np.concatenate((np.zeros(s.integrators), a))[::-1]   # descending powers of p
-        num = b[::-1]
-        numd, dend, _ = signal.cont2discrete((num, den), h, method="zoh")
-        _, g = signal.freqz(np.atleast_2d(numd)[0], dend, worN=w)
-        total += g
-    return total * np.exp(-1j * w * delay_samples)
+    return discrete_model_frf(thetas, structures, rate_hz, np.asarray(freqs_hz, float), delay_samples)
 
 
-def _excited(p_xx: np.ndarray) -> np.ndarray:
-    """Bins carrying excitation: within 40 dB of the strongest line; for a line spectrum only the peaks."""
-    mask = np.zeros(p_xx.size, bool)
-    if p_xx.size < 3:
-        return mask
-    top = float(np.max(p_xx[1:]))
-    if not top > 0:
-        return mask
-    cand = p_xx > 1e-4 * top
-    cand[0] = False
-    if cand.mean() < 0.3:  # periodic excitation (square wave, multisine): keep local maxima (Hann leakage)
-        pad = np.pad(p_xx, 2, mode="constant")
-        local = np.all([p_xx >= pad[2 + k: 2 + k + p_xx.size] for k in (-2, -1, 1, 2)], axis=0)
-        cand &= local
-    return cand
+def _longest_finite(*xs: np.ndarray) -> slice:
+    """The longest stretch where every signal is finite (a window with invalid samples uses that)."""
+    ok = np.logical_and.reduce([np.isfinite(x) for x in xs])
+    if ok.all():
+        return slice(0, ok.size)
+    edges = np.flatnonzero(np.diff(np.concatenate(([0], ok.astype(int), [0]))))
+    starts, ends = edges[::2], edges[1::2]
+    if not starts.size:
+        return slice(0, 0)
+    j = int(np.argmax(ends - starts))
+    return slice(int(starts[j]), int(ends[j]))
 
 
 def nonparametric_frf(u: np.ndarray, y: np.ndarray, rate_hz: float, r: np.ndarray | None = None,
-                      t_start_s: float = 0.0, nperseg: int | None = None, min_coherence: float = 0.3,
-                      ) -> FrfEstimate:
-    """Welch cross-spectral FRF of a data window on its excited bins.
+                      t_start_s: float = 0.0, nperseg: int | None = None) -> FrfEstimate:
+    """The data's FRF for the report: :func:`..core.frf.estimate_frf` (the one estimate in the code; closed loop
+    ``G = S_yr / S_ur`` through the reference, open loop ``S_yu / S_uu``) on the longest finite stretch of the
+    window, restricted to its valid bins (excited, coherent, informative)."""
+    from .core.frf import estimate_frf
 
-    Closed loop (``r`` given): ``G = S_ry / S_ru``, consistent because the reference is uncorrelated
-    with the disturbance; open loop: ``G = S_uy / S_uu``. Bins kept: excited (see :func:`_excited`)
-    and with coherence between the excitation and y of at least ``min_coherence``.
-    """
     u = np.asarray(u, float)
     y = np.asarray(y, float)
-    x = u if r is None else np.asarray(r, float)
-    ok = np.isfinite(x) & np.isfinite(u) & np.isfinite(y)
-    if not ok.all():  # a window with invalid samples: use its longest finite stretch
-        edges = np.flatnonzero(np.diff(np.concatenate(([0], ok.astype(int), [0]))))
-        starts, ends = edges[::2], edges[1::2]
-        j = int(np.argmax(ends - starts)) if starts.size else 0
-        sl = slice(int(starts[j]), int(ends[j])) if starts.size else slice(0, 0)
-        x, u, y = x[sl], u[sl], y[sl]
-    n = x.size
+    x = None if r is None else np.asarray(r, float)
+    sl = _longest_finite(u, y) if x is None else _longest_finite(x, u, y)
+    n = sl.stop - sl.start
     if n < 64:
-        raise ValueError(f"window too short for a spectral estimate ({n} samples)")
-    if nperseg is None:
-        nperseg = int(min(2 ** int(math.floor(math.log2(max(n // 4, 64)))), 2**16))
-    kw = {"fs": rate_hz, "nperseg": nperseg, "window": "hann", "detrend": "constant"}
-    f, p_xx = signal.welch(x, **kw)
-    _, p_yy = signal.welch(y, **kw)
-    _, p_xy = signal.csd(x, y, **kw)
-    if r is None:
-        g = p_xy / np.where(p_xx > 0, p_xx, np.nan)
-    else:
-        _, p_xu = signal.csd(x, u, **kw)
-        g = p_xy / np.where(np.abs(p_xu) > 0, p_xu, np.nan)
-    coh = np.abs(p_xy) ** 2 / np.where(p_xx * p_yy > 0, p_xx * p_yy, np.nan)
-    keep = _excited(p_xx) & np.isfinite(g) & (coh >= min_coherence)
-    return FrfEstimate(f[keep], g[keep], coh[keep], t_start_s, t_start_s + n / rate_hz)
+        raise ValueError(f"window too short for a spectral estimate ({n} finite samples)")
+    est = estimate_frf(u[sl], y[sl], rate_hz, None if x is None else x[sl], nperseg=nperseg)
+    v = est.valid
+    t0 = t_start_s + sl.start / rate_hz
+    return FrfEstimate(est.freqs_hz[v], est.G[v], est.coherence[v], t0, t0 + n / rate_hz, est.uncertainty[v])
 
 
 def frf_windows(n: int, rate_hz: float, init_duration_s: float = 0.0) -> tuple[slice, slice]:
@@ -320,9 +287,20 @@ def _figure(w: float, h: float, *, top_in: float = 0.45, bottom_in: float = 0.55
 
 
 def _png(fig: Any, dpi: int = 100) -> bytes:
+    """PNG bytes; zlib level 1: a third of the encoding time of the default 6 for a few % more bytes (flat plots)."""
     buf = io.BytesIO()
-    fig.savefig(buf, format="png", dpi=dpi)
+    fig.savefig(buf, format="png", dpi=dpi, pil_kwargs={"compress_level": 1})
     return buf.getvalue()
+
+
+def _plain_log_ticks(ax: Any, which: str = "x") -> None:
+    """Log-axis tick labels as plain numbers (``0.1``, ``10``, ``1000``): matplotlib's default ``$10^{1}$`` needs its
+    mathtext parser, whose first use costs about half a second per process."""
+    from matplotlib.ticker import FuncFormatter, NullFormatter
+
+    axis = ax.xaxis if which == "x" else ax.yaxis
+    axis.set_major_formatter(FuncFormatter(lambda v, _pos: f"{v:g}"))
+    axis.set_minor_formatter(NullFormatter())
 
 
 def _event_end(e: Mapping[str, Any], end_s: float) -> float:
@@ -511,6 +489,7 @@ def frf_figure(inp: ReportInput) -> Any | None:
     ax_p.set_yticks([-180, -90, 0, 90, 180])
     for ax in (ax_m, ax_p):
         ax.grid(True, which="both", alpha=0.3)
+        _plain_log_ticks(ax)
     ax_m.legend(fontsize=8, loc="best")
     how = "G = S_ry/S_ru (closed loop, cross-spectra with the reference)" if inp.closed_loop else \
         "G = S_uy/S_uu (open loop)"
@@ -539,6 +518,7 @@ def health_figure(inp: ReportInput) -> Any:
             v = s.health[key]
             if key in ("residual_var", "condition") and np.any(v[np.isfinite(v)] > 0):
                 ax.semilogy(t, np.where(v > 0, v, np.nan), color="#6a1b9a", lw=1.2)
+                _plain_log_ticks(ax, "y")
             else:
                 ax.plot(t, v, color="#6a1b9a", lw=1.2)
         ax.set_ylabel(label, fontsize=8)

@@ -165,11 +165,56 @@ def estimate_frf(u: Sequence[float], y: Sequence[float], rate_hz: float, r: Sequ
     n_eff_int = max(int(np.floor(n_eff)), 2)
     alpha = min(0.01, 1.0 / freqs.size) if alpha is None else alpha  # Bonferroni: < 1 spurious bin per record
     coherent = (coh > coherence_threshold(n_eff_int, alpha)) & (coh_u > coherence_threshold(n_eff_int, alpha))
-    valid = inner & finite & (S_xx > floor) & coherent & (rel < max_relative_std)
+    leakage, offset = line_spectrum(S_xx)
+    valid = inner & finite & (S_xx > floor) & coherent & (rel < max_relative_std) & ~leakage
+    freqs = freqs + offset * (rate_hz / nperseg)     # a line's estimate belongs to the line's frequency
     G = np.where(finite, G, 0.0)
     var = np.where(finite, var, np.inf)
     return FRFEstimate(freqs, G, np.clip(coh, 0.0, 1.0), var, _resolution_error(G, valid), valid, S_xx,
                        float(n_eff), float(rate_hz), r is not None, nperseg)
+
+
+def line_spectrum(S_xx: np.ndarray, prominence: float = 100.0, margin: float = 10.0, reach: int = 64,
+                  ) -> tuple[np.ndarray, np.ndarray]:
+    """Spectral *lines* of a periodic excitation (square-wave setpoints, multisines) among the bins: which bins are
+    their Hann leakage, and each line's offset from its bin. Returns ``(leakage, offset_bins)``.
+
+    A line is a local maximum (+-2 bins) at least ``prominence`` times the median of the bins 3 to 8 away on both
+    sides (averaged broadband spectra fluctuate by a few times, never by 100: a band-limited noise has no lines).
+
+    * Leakage: at a bin near a line, ``S_yr / S_ur`` measures ``G`` at the line's frequency, not the bin's. The
+      power a line ``P_j`` leaks into bin ``k`` is bounded by ``P_j`` for ``|k - j| <= 2`` (the main lobe) and by
+      the Hann sidelobe envelope ``P_j / (pi^2 d^6)`` at ``d = |k - j| >= 3`` (Harris 1978); a bin is
+      leakage-dominated when its own excitation is less than ``margin`` times that bound.
+    * Offset: a line between bins ``k`` and ``k +- 1`` lies at ``k +- delta`` with ``delta = (2 a - 1) / (a + 1)``,
+      ``a = |X_{k+-1}| / |X_k|`` the amplitude ratio to the larger neighbour (the Hann window's interpolation,
+      Grandke 1983; ``|X| = sqrt(S_xx)`` for a line). The line bin's estimate is ``G`` at ``k +- delta``.
+    """
+    n = S_xx.size
+    leakage, offset = np.zeros(n, dtype=bool), np.zeros(n)
+    if n < 20:
+        return leakage, offset
+    side = 8
+    pad = np.pad(S_xx, side, mode="edge")
+    win = np.lib.stride_tricks.sliding_window_view(pad, 2 * side + 1)
+    around = np.median(np.concatenate((win[:, :side - 2], win[:, side + 3:]), axis=1), axis=1)
+    local = np.all(win[:, side - 2:side + 3] <= S_xx[:, None], axis=1)
+    line = local & (S_xx > prominence * around) & (S_xx > 0)
+    line[0] = False
+    if not line.any():
+        return leakage, offset
+    d = np.arange(-reach, reach + 1, dtype=float)
+    w = np.where(np.abs(d) >= 3, 1.0 / (np.pi**2 * np.maximum(np.abs(d), 1.0) ** 6), 1.0)
+    w[reach] = 0.0                                   # a line does not leak into itself
+    leak = np.convolve(np.where(line, S_xx, 0.0), w, mode="same")
+    leakage = S_xx < margin * leak
+    amp = np.sqrt(np.maximum(S_xx, 0.0))
+    for k in np.flatnonzero(line):
+        left = amp[k - 1] if k > 0 else 0.0
+        right = amp[k + 1] if k + 1 < n else 0.0
+        sign, ratio = (1.0, right / amp[k]) if right >= left else (-1.0, left / amp[k])
+        offset[k] = sign * max(0.0, (2.0 * ratio - 1.0) / (ratio + 1.0))
+    return leakage, offset
 
 
 def _resolution_error(G: np.ndarray, valid: np.ndarray, reach: int = 2) -> np.ndarray:
