@@ -536,15 +536,24 @@ class InvariantAligner:
 
 
 @njit(cache=True)
-def _residual(u, r, y, n_have, j, ju, jr, d, nc):  # pragma: no cover - compiled
-    """``D u - N (r - y)`` at buffer positions y ``j``, u ``ju``, r ``jr`` (NaN where the window leaves the data)."""
-    p = d.size - 1
-    if j - p < 0 or ju - p < 0 or jr - p < 0 or j >= n_have or ju >= n_have or jr >= n_have:
-        return np.nan
-    e = 0.0
-    for i in range(p + 1):
-        e += d[i] * u[ju - i] - nc[i] * (r[jr - i] - y[j - i])
-    return e
+def _fir_terms(x, n_have, lo, hi, c):  # pragma: no cover - compiled
+    """``sum_i c_i x[k - i]`` and ``sum_i |c_i x[k - i]|`` for buffer positions ``lo <= k < hi`` (NaN where the
+    window leaves the data): each stream's part of the invariant, computed once per position, not per
+    hypothesis."""
+    p = c.size - 1
+    m = max(hi - lo, 0)
+    val = np.full(m, np.nan)
+    mag = np.full(m, np.nan)
+    for k in range(max(lo, p), min(hi, n_have)):
+        v = 0.0
+        a = 0.0
+        for i in range(p + 1):
+            t = c[i] * x[k - i]
+            v += t
+            a += abs(t)
+        val[k - lo] = v
+        mag[k - lo] = a
+    return val, mag
 
 
 @njit(cache=True)
@@ -553,24 +562,28 @@ def _cusum_scan(u, r, y, n_have, j0, n, a0, b0, d, nc, hyp, cur, G, rho, k0, swi
     """Per-sample CUSUM of every offset hypothesis against the current one (module docstring).
 
     Buffer position ``j0 + i`` is y index ``k0 + i``; the current offsets ``(a0, b0)`` read u at ``j + a0`` and r
-    at ``j + b0``, hypothesis ``s`` at ``j + a0 + hyp[s, 0]`` / ``j + b0 + hyp[s, 1]``. Updates ``G``, ``rho``
-    (last reset + 1) and ``state`` (running means of log |best residual| and of log(|best residual| /
-    rounding scale)) in place; fills ``flags`` (undecided: an alternative with different data is not worse).
-    Returns ``(i, s)`` at the first sample whose CUSUM of hypothesis ``s`` exceeds ``switch``, else
-    ``(-1, -1)``.
+    at ``j + b0``, hypothesis ``s`` at ``j + a0 + hyp[s, 0]`` / ``j + b0 + hyp[s, 1]``. The residual
+    ``D u - N (r - y)`` of a pairing is ``Du[ju] - Nr[jr] + Ny[j]`` with each stream's FIR part computed once
+    (:func:`_fir_terms`). Updates ``G``, ``rho`` (last reset + 1) and ``state`` (running means of log |best
+    residual| and of log(|best residual| / rounding scale)) in place; fills ``flags`` (undecided: an alternative
+    with different data is not worse). Returns ``(i, s)`` at the first sample whose CUSUM of hypothesis ``s``
+    exceeds ``switch``, else ``(-1, -1)``.
     """
     S = hyp.shape[0]
-    p = d.size - 1
+    lo_u = j0 + a0 + min(0, hyp[:, 0].min())
+    lo_r = j0 + b0 + min(0, hyp[:, 1].min())
+    du, au = _fir_terms(u, n_have, lo_u, j0 + n + a0 + max(0, hyp[:, 0].max()), d)
+    nr, ar = _fir_terms(r, n_have, lo_r, j0 + n + b0 + max(0, hyp[:, 1].max()), nc)
+    ny, ay = _fir_terms(y, n_have, j0, j0 + n, nc)
     log_scale = state[0]
     log_rel = state[1]
     for i in range(n):
-        j = j0 + i
-        e_cur = _residual(u, r, y, n_have, j, j + a0, j + b0, d, nc)
+        ju0 = i + a0 + (j0 - lo_u)
+        jr0 = i + b0 + (j0 - lo_r)
+        e_cur = du[ju0] - nr[jr0] + ny[i]
         if not np.isfinite(e_cur):
             continue
-        scale = 0.0
-        for q in range(p + 1):
-            scale += abs(d[q] * u[j + a0 - q]) + abs(nc[q]) * (abs(r[j + b0 - q]) + abs(y[j - q]))
+        scale = au[ju0] + ar[jr0] + ay[i]
         if not np.isfinite(scale):
             continue
         sig = max(rounding * scale, 1e-300)
@@ -584,7 +597,7 @@ def _cusum_scan(u, r, y, n_have, j0, n, a0, b0, d, nc, hyp, cur, G, rho, k0, swi
         for s in range(S):
             if s == cur:
                 continue
-            e = _residual(u, r, y, n_have, j, j + a0 + hyp[s, 0], j + b0 + hyp[s, 1], d, nc)
+            e = du[ju0 + hyp[s, 0]] - nr[jr0 + hyp[s, 1]] + ny[i]
             if not np.isfinite(e):
                 continue
             if abs(e) < best:

@@ -25,7 +25,6 @@ from dataclasses import dataclass, field
 from typing import Any
 
 import numpy as np
-from scipy.optimize import linear_sum_assignment
 
 from .controller import DiscreteController
 from .filters import (
@@ -309,6 +308,22 @@ def _time_scale(theta: np.ndarray, st: SubmodelStructure) -> float:
     return abs(theta[st.n - 1]) ** (1.0 / st.n) if st.n else 0.0
 
 
+def min_cost_assignment(cost: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Rows and columns of the minimum-cost one-to-one assignment (``scipy.optimize.linear_sum_assignment``); small
+    square problems (a few modes) by enumeration, which spares importing scipy.optimize (half a second)."""
+    import itertools
+
+    cost = np.asarray(cost, float)
+    n, m = cost.shape
+    if n == m and n <= 6:
+        rows = np.arange(n)
+        best = min(itertools.permutations(range(n)), key=lambda p: (float(cost[rows, list(p)].sum()), p))
+        return rows, np.array(best, dtype=int)
+    from scipy.optimize import linear_sum_assignment
+
+    return linear_sum_assignment(cost)
+
+
 def match_order(thetas: list[np.ndarray], reference: list[np.ndarray], structures) -> tuple[list[np.ndarray], bool]:
     """Permute submodels of identical structure so that they follow the reference's (e.g. the initial
     guesses') order by time scale. Any permutation is the same additive model (001 §2: the decomposition is
@@ -324,7 +339,7 @@ def match_order(thetas: list[np.ndarray], reference: list[np.ndarray], structure
         if np.any(te <= 0) or np.any(tr <= 0):
             continue
         cost = np.abs(np.log(te)[:, None] - np.log(tr)[None, :])
-        rows, cols = linear_sum_assignment(cost)
+        rows, cols = min_cost_assignment(cost)
         for r_, c_ in zip(rows, cols, strict=True):
             if r_ != c_:
                 swapped = True
@@ -557,7 +572,7 @@ def split_additive(theta_u: np.ndarray, su: SubmodelStructure, structures: list[
     den_i = []
     if roots.size:
         cost = np.abs(roots[:, None] - np.asarray(ref_roots)[None, :]) / np.maximum(np.abs(ref_roots), 1e-12)[None, :]
-        ri, ci = linear_sum_assignment(cost)
+        ri, ci = min_cost_assignment(cost)
         groups: list[list[complex]] = [[] for _ in structures]
         for r_idx, c_idx in zip(ri, ci, strict=True):
             groups[owner[c_idx]].append(roots[r_idx])
@@ -727,8 +742,8 @@ def initial_transient_test(eps: np.ndarray, thetas, structures, h: float, window
     n_indep = (n - window) // window
     starts = np.linspace(window, n - window, min(16, max(n_indep, 1) * 4)).astype(int)
     null = np.mean([energy(eps[s0: s0 + window]) for s0 in starts])
-    from scipy.stats import f as f_dist
-    threshold = float(f_dist.isf(false_alarm, d, d * n_indep))
+    from scipy.special import fdtri  # F(d, d n_indep) quantile (scipy.stats costs a second to import)
+    threshold = float(fdtri(d, d * n_indep, 1.0 - false_alarm))
     stat = energy(eps[:window]) / null if null > 0 else np.inf
     return TransientTest(float(stat), threshold, window, bool(stat > threshold))
 

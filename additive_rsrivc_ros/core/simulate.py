@@ -28,7 +28,6 @@ from dataclasses import dataclass, field
 
 import numpy as np
 from numba import njit
-from scipy import signal
 
 from .controller import DiscreteController
 from .model import TWO_PI, SubmodelStructure
@@ -259,6 +258,8 @@ def white_noise(n: int, std: float, rng: np.random.Generator) -> np.ndarray:
 
 def prbs(n: int, amplitude: float, rng: np.random.Generator, nbits: int = 10, hold: int = 1) -> np.ndarray:
     """Maximum-length pseudo-random binary sequence (+/- amplitude), random LFSR start, each bit held ``hold``."""
+    from scipy import signal
+
     if not (2 <= nbits <= 32 and hold >= 1):
         raise ValueError("prbs needs 2 <= nbits <= 32 and hold >= 1")
     state = rng.integers(0, 2, nbits)
@@ -278,6 +279,8 @@ def arma_noise(n: int, std: float, rng: np.random.Generator, c: Sequence[float] 
     The stationary variance is computed from the impulse response (D must be stable); a burn-in of
     the filter's settling time is discarded so that ``v`` is stationary from the first sample.
     """
+    from scipy import signal
+
     c, d = np.asarray(c, float), np.asarray(d, float)
     if d.size == 0 or d[0] == 0.0:
         raise ValueError("ARMA denominator must start with a non-zero coefficient")
@@ -616,6 +619,8 @@ def discrete_plant(thetas: Sequence[np.ndarray], structures: Sequence[SubmodelSt
 def closed_loop_poles(thetas: Sequence[np.ndarray], structures: Sequence[SubmodelStructure],
                       controller: DiscreteController, rate_hz: float, input_delay: int = 0) -> np.ndarray:
     """Eigenvalues of the sampled loop ``u = C_d (r - y)`` around the frozen ZOH plant (000 eq. 10)."""
+    from scipy import signal
+
     phi, gam, c = discrete_plant(thetas, structures, rate_hz, input_delay)
     num, den = controller.num, controller.den
     nc = max(num.size, den.size) - 1
