@@ -5,13 +5,17 @@ import sys
 
 
 def test_bench_json_keys():
-    res = subprocess.run([sys.executable, "-m", "additive_rsrivc_ros.cli.bench", "--json", "--seconds", "2"],
+    res = subprocess.run([sys.executable, "-m", "additive_rsrivc_ros.cli.bench", "--json", "--seconds", "2",
+                          "--diagnose-seconds", "6"],
                          capture_output=True, text=True, timeout=600)
     assert res.returncode == 0, res.stderr[-2000:]
     out = json.loads(res.stdout.strip().splitlines()[-1])
     for key in ("k3_20hz_closed_1_0", "k4_4096hz_closed_1_0", "k4_4096hz_closed_3_2"):
         assert out[key]["us_per_sample"] > 0 and out[key]["realtime_factor"] > 0
     assert out["start_to_first_estimate_s"] > 0
+    assert out["cold_start"]["warm_cache_s"] > 0 and out["cold_start"]["empty_cache_s"] > 0
+    dg = out["diagnose_4096hz_k2"]
+    assert dg["process_s"] >= dg["total_s"] > 0 and dg["seconds_of_data"] == 6
 
 
 def test_bench_bad_argument_exits_nonzero():
