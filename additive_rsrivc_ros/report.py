@@ -240,7 +240,8 @@ def nonparametric_frf(u: np.ndarray, y: np.ndarray, rate_hz: float, r: np.ndarra
                       t_start_s: float = 0.0, nperseg: int | None = None) -> FrfEstimate:
     """The data's FRF for the report: :func:`..core.frf.estimate_frf` (the one estimate in the code; closed loop
     ``G = S_yr / S_ur`` through the reference, open loop ``S_yu / S_uu``) on the longest finite stretch of the
-    window, restricted to its valid bins (excited, coherent, informative)."""
+    window, restricted to its valid bins (excited, coherent, informative) that are not a periodic excitation's
+    leakage (there ``G`` leans towards a neighbouring line's value beyond the stated uncertainty)."""
     from .core.frf import estimate_frf
 
     u = np.asarray(u, float)
@@ -251,7 +252,7 @@ def nonparametric_frf(u: np.ndarray, y: np.ndarray, rate_hz: float, r: np.ndarra
     if n < 64:
         raise ValueError(f"window too short for a spectral estimate ({n} finite samples)")
     est = estimate_frf(u[sl], y[sl], rate_hz, None if x is None else x[sl], nperseg=nperseg)
-    v = est.valid
+    v = est.valid & ~est.leakage
     t0 = t_start_s + sl.start / rate_hz
     return FrfEstimate(est.freqs_hz[v], est.G[v], est.coherence[v], t0, t0 + n / rate_hz, est.uncertainty[v])
 

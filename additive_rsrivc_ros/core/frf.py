@@ -66,6 +66,10 @@ class FRFEstimate:
     rate_hz: float
     closed_loop: bool
     nperseg: int
+    #: valid bins whose excitation is mostly Hann leakage of a neighbouring line (:func:`line_spectrum`): they
+    #: still locate a resonance, but their ``G`` leans towards the line's value beyond ``uncertainty``; a plot of
+    #: the FRF with error bars shows ``valid & ~leakage``
+    leakage: np.ndarray | None = None
 
     @property
     def std(self) -> np.ndarray:
@@ -166,12 +170,12 @@ def estimate_frf(u: Sequence[float], y: Sequence[float], rate_hz: float, r: Sequ
     alpha = min(0.01, 1.0 / freqs.size) if alpha is None else alpha  # Bonferroni: < 1 spurious bin per record
     coherent = (coh > coherence_threshold(n_eff_int, alpha)) & (coh_u > coherence_threshold(n_eff_int, alpha))
     leakage, offset = line_spectrum(S_xx)
-    valid = inner & finite & (S_xx > floor) & coherent & (rel < max_relative_std) & ~leakage
+    valid = inner & finite & (S_xx > floor) & coherent & (rel < max_relative_std)
     freqs = freqs + offset * (rate_hz / nperseg)     # a line's estimate belongs to the line's frequency
     G = np.where(finite, G, 0.0)
     var = np.where(finite, var, np.inf)
-    return FRFEstimate(freqs, G, np.clip(coh, 0.0, 1.0), var, _resolution_error(G, valid), valid, S_xx,
-                       float(n_eff), float(rate_hz), r is not None, nperseg)
+    return FRFEstimate(freqs, G, np.clip(coh, 0.0, 1.0), var, _resolution_error(G, valid & ~leakage), valid, S_xx,
+                       float(n_eff), float(rate_hz), r is not None, nperseg, leakage & valid)
 
 
 def line_spectrum(S_xx: np.ndarray, prominence: float = 100.0, margin: float = 10.0, reach: int = 64,
@@ -182,7 +186,7 @@ def line_spectrum(S_xx: np.ndarray, prominence: float = 100.0, margin: float = 1
     A line is a local maximum (+-2 bins) at least ``prominence`` times the median of the bins 3 to 8 away on both
     sides (averaged broadband spectra fluctuate by a few times, never by 100: a band-limited noise has no lines).
 
-    * Leakage: at a bin near a line, ``S_yr / S_ur`` measures ``G`` at the line's frequency, not the bin's. The
+    * Leakage: at a bin near a line, ``S_yr / S_ur`` leans towards ``G`` at the line's frequency. The
       power a line ``P_j`` leaks into bin ``k`` is bounded by ``P_j`` for ``|k - j| <= 2`` (the main lobe) and by
       the Hann sidelobe envelope ``P_j / (pi^2 d^6)`` at ``d = |k - j| >= 3`` (Harris 1978); a bin is
       leakage-dominated when its own excitation is less than ``margin`` times that bound.
