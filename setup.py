@@ -71,6 +71,7 @@ setup(
             "rsrivc_identify = additive_rsrivc_ros.cli.identify:main",
             "rsrivc_bench = additive_rsrivc_ros.cli.bench:main",
             "rsrivc_evaluate = additive_rsrivc_ros.cli.evaluate:main",
+            "rsrivc_fleet = additive_rsrivc_ros.cli.fleet:main",
         ],
     },
 )

@@ -13,7 +13,7 @@ import pytest
 REPO = Path(__file__).resolve().parents[1]
 PKG = "additive_rsrivc_ros"
 EXECUTABLES = ["rsrivc_monitor", "rsrivc_diagnose", "rsrivc_simulate", "rsrivc_replay", "rsrivc_identify",
-               "rsrivc_bench"]
+               "rsrivc_bench", "rsrivc_fleet"]
 
 # import name -> (package.xml key, pip distribution name or None for ROS packages)
 THIRD_PARTY = {

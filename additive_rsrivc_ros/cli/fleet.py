@@ -367,6 +367,17 @@ def close_client(client: Any, cluster: Any) -> None:
             pass
 
 
+def remove_partials(out: Path, names: Sequence[str]) -> None:
+    """Remove the temporary folders of bags whose worker died or was stopped before its folder was complete
+    (:class:`.atomic.AtomicDir` names them ``.<name>.partial-<pid>``); finished folders are never touched."""
+    import glob
+    import shutil
+
+    for name in names:
+        for tmp in out.glob(f".{glob.escape(name)}.partial-*"):
+            shutil.rmtree(tmp, ignore_errors=True)
+
+
 def run_tasks(client: Any, tasks: Sequence[BagTask], stderr: TextIO, show: bool,
               on_done: Callable[[dict[str, Any]], None] | None = None) -> list[dict[str, Any]]:
     """Submit one task per bag and collect the results as they finish (a lost worker fails only its bag)."""
@@ -525,6 +536,7 @@ def fleet(args: argparse.Namespace, stdout: TextIO, stderr: TextIO, state: dict[
         raise ArgError("no bag has a params file")
     out = Path(args.out)
     out.mkdir(parents=True, exist_ok=True)
+    state["partials"] = (out, [t.name for t in tasks])
     t0 = time.monotonic()
     client, cluster = start_client(args.scheduler, args.workers)
     state["client"] = (client, cluster)
@@ -544,6 +556,7 @@ def fleet(args: argparse.Namespace, stdout: TextIO, stderr: TextIO, state: dict[
     results = run_tasks(client, tasks, stderr, bool(show), report)
     close_client(client, cluster)
     state.pop("client", None)
+    remove_partials(*state.pop("partials"))
     results += [{"name": u["bag"], "bag": u["path"], "params_file": "", "ok": False, "error": u["error"]}
                 for u in unmatched]
     summary = fleet_summary(results, alpha)
@@ -583,6 +596,8 @@ def main(argv: list[str] | None = None) -> int:
         finally:
             if state.get("client") is not None:
                 close_client(*state.pop("client"))
+            if state.get("partials") is not None:
+                remove_partials(*state.pop("partials"))
 
 
 def _say(line: str) -> None:
@@ -594,3 +609,47 @@ def _say(line: str) -> None:
 
 if __name__ == "__main__":
     sys.exit(main())
+
+
+# ------------------------------------------------------------------------------------------------- benchmark
+def bench_throughput(n_bags: int = 8, duration_s: float = 10.0, workers: int | None = None,
+                     report: bool = True) -> dict[str, float | int]:
+    """Fleet throughput: bags per minute with 1 worker and with ``workers`` (default: all CPUs available) on the
+    same ``n_bags`` simulated recordings (:mod:`..fleetsim`, ``duration_s`` each, per-bag report included unless
+    ``report`` is False). Timed from submitting the tasks to the last result, on a started cluster whose workers
+    have each diagnosed one warm-up bag first (imports, numba cache, fonts: paid once per worker, not per bag).
+
+    Returns ``{"bags_per_min_1_worker": x, "bags_per_min_all_workers": y, "workers": n}`` (``rsrivc_bench --json``
+    key ``fleet``)."""
+    import tempfile
+
+    from .. import fleetsim
+
+    n_all = workers or default_workers()
+    rates = {}
+    with tempfile.TemporaryDirectory(prefix="rsrivc_fleet_bench_") as tmp:
+        bags, params = fleetsim.write_machine_recordings(Path(tmp) / "bags", n_bags + 1, duration_s=duration_s)
+        warm, bags = bags[0], bags[1:]
+        for n in sorted({1, n_all}):
+            client, cluster = start_client(None, n)
+            try:
+                client.run(_warm_worker, str(warm), str(params), str(Path(tmp) / "warm"), report)
+                tasks = [BagTask(b.name, str(b), str(params), str(Path(tmp) / f"out{n}" / b.name), None, report)
+                         for b in bags]
+                t0 = time.monotonic()
+                results = run_tasks(client, tasks, sys.stderr, False)
+                elapsed = time.monotonic() - t0
+            finally:
+                close_client(client, cluster)
+            failed = [r["error"] for r in results if not r["ok"]]
+            if failed:
+                raise RuntimeError(f"benchmark bag failed: {failed[0]}")
+            rates[n] = 60.0 * n_bags / elapsed
+    return {"bags_per_min_1_worker": rates[1], "bags_per_min_all_workers": rates[n_all], "workers": n_all}
+
+
+def _warm_worker(bag: str, params: str, out: str, report: bool) -> None:
+    """Diagnose a warm-up bag on this worker (its first task would otherwise pay for imports and caches)."""
+    from .diagnose import diagnose_bag
+
+    diagnose_bag(bag, params, Path(out) / str(os.getpid()), report=report)
