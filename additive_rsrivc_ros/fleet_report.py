@@ -30,8 +30,11 @@ def trend_png(machine: Mapping[str, Any], dpi: int = 80) -> bytes:
     k = int(machine["K"])
     w, h = 3.2 * k + 0.6, 6.4
     fig = Figure(figsize=(w, h))
-    fig.subplots_adjust(left=0.75 / w + 0.02, right=1 - 0.15 / w, bottom=0.95 / h, top=1 - 0.35 / h, hspace=0.25,
+    fig.subplots_adjust(left=0.75 / w + 0.02, right=1 - 0.15 / w, bottom=0.8 / h, top=1 - 0.6 / h, hspace=0.25,
                         wspace=0.35)
+    title = "; ".join(f"DRIFT: mode {f['mode']} {f['quantity'].replace('_', ' ')} {f['direction']} "
+                      f"{f['change_percent']:+.2f} % (relevant from {f['first_bag']})" for f in machine["findings"])
+    fig.suptitle(title or "no drift across the recordings", fontsize=9, color="C3" if title else "0.2")
     axes = fig.subplots(3, k, squeeze=False, sharex=True)
     x = list(range(len(bags)))
     for test in tests:
