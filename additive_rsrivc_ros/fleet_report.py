@@ -104,7 +104,7 @@ def _utc(t: float) -> str:
 
 def _machine_html(g: Mapping[str, Any]) -> list[str]:
     esc = html.escape
-    parts = [f"<h2>Machine: {esc(str(g['params_file']))}</h2>"]
+    parts = [f"<h2>Machine: {esc(str(g['machine']))}</h2>", f"<p class='note'>params file {esc(g['params_file'])}</p>"]
     if g["findings"]:
         parts += [f"<p class='drift'>DRIFT: mode {f['mode']} {esc(f['quantity'])} {esc(f['direction'])} "
                   f"{f['change_percent']:+.2f} % across the recordings (relevant change reached at "

@@ -10,7 +10,7 @@ reported on stderr and in ``DIR/fleet_failures.json`` and skipped, never the who
 ``metadata.yaml``, the output folder excluded). ``--params-file``: the node's params file for every bag, or a
 mapping file from bag glob to params file (YAML ``{"<glob>": "<params file>", ...}``, first match wins; globs are
 matched against the bag path as given, its absolute path and its name; relative params paths are relative to the
-mapping file). Bags with the same params file are one machine.
+mapping file). The bags of one params file, or of one glob of a mapping file, are one machine's recordings.
 
 Fleet summary (../shared/CONTRACT.md "Fleet"), recordings ordered by their first sample's time:
 
@@ -92,6 +92,7 @@ class BagTask:
     out_dir: str
     node_name: str | None = None
     report: bool = True
+    machine: str = ""            # the mapping file's glob that matched, or the params file: recordings of one machine
 
 
 def _is_bag(p: Path) -> bool:
@@ -145,8 +146,9 @@ def bag_names(bags: Sequence[Path]) -> list[str]:
     return out
 
 
-def params_resolver(path: str) -> Callable[[Path, str], str | None]:
-    """``(bag, as_given) -> params file`` from a params file (every bag) or a mapping file (module docstring)."""
+def params_resolver(path: str) -> Callable[[Path, str], tuple[str, str] | None]:
+    """``(bag, as_given) -> (params file, machine)`` from a params file (every bag, one machine) or a mapping file
+    (module docstring; the machine is the glob that matched), None when no glob matches."""
     import yaml
 
     p = Path(path)
@@ -158,12 +160,12 @@ def params_resolver(path: str) -> Callable[[Path, str], str | None]:
         raise ArgError(f"--params-file {path}: not valid YAML ({str(exc).splitlines()[0]})") from None
     is_map = isinstance(data, dict) and data and all(isinstance(v, str) for v in data.values())
     if not is_map:
-        return lambda bag, given: str(p)
+        return lambda bag, given: (str(p), str(p))
     rules = [(str(g), str(v if Path(v).is_absolute() else p.parent / v)) for g, v in data.items()]
 
-    def resolve(bag: Path, given: str) -> str | None:
+    def resolve(bag: Path, given: str) -> tuple[str, str] | None:
         keys = (given, str(bag.resolve()), bag.resolve().name)
-        return next((v for g, v in rules if any(fnmatch.fnmatch(k, g) for k in keys)), None)
+        return next(((v, g) for g, v in rules if any(fnmatch.fnmatch(k, g) for k in keys)), None)
     return resolve
 
 
@@ -185,12 +187,12 @@ def make_tasks(args: argparse.Namespace) -> tuple[list[BagTask], list[dict[str, 
     resolve = params_resolver(args.params_file)
     tasks, unmatched = [], []
     for b, name in zip(bags, bag_names(bags), strict=True):
-        pf = resolve(b, given[b.resolve()])
-        if pf is None:
+        hit = resolve(b, given[b.resolve()])
+        if hit is None:
             unmatched.append({"bag": name, "path": str(b), "error": f"no glob of {args.params_file} matches it"})
             continue
-        tasks.append(BagTask(name, str(b.resolve()), str(Path(pf).resolve()), str((out / name).resolve()),
-                             args.node_name, not args.no_report))
+        tasks.append(BagTask(name, str(b.resolve()), str(Path(hit[0]).resolve()), str((out / name).resolve()),
+                             args.node_name, not args.no_report, hit[1]))
     _check_params({t.params_file for t in tasks}, args.node_name)
     return tasks, unmatched
 
@@ -203,7 +205,8 @@ def run_bag(task: BagTask) -> dict[str, Any]:
     import io
 
     t_start = time.monotonic()
-    res: dict[str, Any] = {"name": task.name, "bag": task.bag, "params_file": task.params_file, "ok": False}
+    res: dict[str, Any] = {"name": task.name, "bag": task.bag, "params_file": task.params_file,
+                           "machine": task.machine or task.params_file, "ok": False}
     err = io.StringIO()
     try:
         from .diagnose import diagnose_bag
@@ -351,8 +354,9 @@ def start_client(scheduler: str | None, workers: int | None) -> tuple[Any, Any]:
         except (OSError, TimeoutError) as exc:
             raise ArgError(f"--scheduler {scheduler}: cannot connect ({_line(exc)})") from None
     n = workers or default_workers()
+    # no dashboard; the scheduler's HTTP endpoint on a free port (8787 may belong to another cluster)
     cluster = LocalCluster(n_workers=n, threads_per_worker=1, processes=True, dashboard_address=None,
-                           silence_logs=logging.ERROR)
+                           scheduler_kwargs={"dashboard_address": ":0"}, silence_logs=logging.ERROR)
     return Client(cluster), cluster
 
 
@@ -442,17 +446,19 @@ def machine_trend(bags: Sequence[dict[str, Any]], alpha: float) -> dict[str, Any
     findings = [{"mode": t.mode, "quantity": t.quantity, "direction": t.direction,
                  "first_bag": bags[t.first_index]["name"], "change_percent": round(t.change_percent, 6)}
                 for t in tests if t.flagged and t.first_index is not None]
-    return {"params_file": bags[0]["params_file"], "K": k, "alpha": alpha, "min_change": ref["min_change"],
+    return {"machine": bags[0]["machine"], "params_file": bags[0]["params_file"], "K": k,
+            "alpha": alpha, "min_change": ref["min_change"],
             "spread_factor": ref["spread_factor"], "bags": rows, "tests": [t.to_dict() for t in tests],
             "findings": findings}
 
 
 def fleet_summary(results: Sequence[dict[str, Any]], alpha: float) -> dict[str, Any]:
-    """Per machine (params file) the recordings in order of their first sample's time and their drift tests."""
+    """Per machine (params file, or mapping glob) the recordings in order of their first sample's time and their
+    drift tests."""
     ok = sorted((r for r in results if r["ok"]), key=lambda r: (r["start_time_ns"], r["name"]))
     machines: dict[str, list[dict[str, Any]]] = {}
     for r in ok:
-        machines.setdefault(r["params_file"], []).append(r)
+        machines.setdefault(r["machine"], []).append(r)
     groups = [machine_trend(bags, alpha) for bags in machines.values()]
     return {"machines": groups, "findings": [f for g in groups for f in g["findings"]],
             "failures": [{"bag": r["name"], "path": r["bag"], "error": r["error"]} for r in results if not r["ok"]]}
@@ -503,7 +509,7 @@ def print_findings(summary: dict[str, Any], stdout: TextIO) -> None:
     """The drift findings (or that there are none) and the excluded bags, on stdout."""
     for g in summary["machines"]:
         used = sum(b["used"] for b in g["bags"])
-        print(f"machine {g['params_file']}: {len(g['bags'])} recording(s), {used} in the drift test", file=stdout)
+        print(f"machine {g['machine']}: {len(g['bags'])} recording(s), {used} in the drift test", file=stdout)
         for b in g["bags"]:
             if not b["used"]:
                 print(f"  not in the drift test: {b['bag']}: {b['exclusion']}", file=stdout)
