@@ -102,6 +102,12 @@ def _utc(t: float) -> str:
     return datetime.fromtimestamp(t, UTC).strftime("%Y-%m-%d %H:%M:%S UTC")
 
 
+def _use_text(b: Mapping[str, Any]) -> str:
+    if not b["used"]:
+        return f"no: {b['exclusion']}"
+    return f"yes ({b['note']})" if b.get("note") else "yes"
+
+
 def _machine_html(g: Mapping[str, Any]) -> list[str]:
     esc = html.escape
     parts = [f"<h2>Machine: {esc(str(g['machine']))}</h2>", f"<p class='note'>params file {esc(g['params_file'])}</p>"]
@@ -112,8 +118,7 @@ def _machine_html(g: Mapping[str, Any]) -> list[str]:
     else:
         parts.append("<p class='ok'>No drift across the recordings.</p>")
     rows = [[str(j + 1), esc(b["bag"]), esc(_utc(b["start_time_s"])), esc(b["verdict"]), str(b["events"]),
-             _num_td(_n(b["level_s"], ".3g")), "yes" if b["used"] else esc(f"no: {b['exclusion']}")]
-            for j, b in enumerate(g["bags"])]
+             _num_td(_n(b["level_s"], ".3g")), esc(_use_text(b))] for j, b in enumerate(g["bags"])]
     parts += ["<h3>Recordings (by first sample time)</h3>",
               _table(["#", "bag", "first sample", "verdict", "events", "level over [s]", "in the drift test"], rows),
               "<h3>Trend of each mode across recordings</h3>",

@@ -437,8 +437,11 @@ def machine_trend(bags: Sequence[dict[str, Any]], alpha: float) -> dict[str, Any
             lv = BagLevel(np.array([m["value"] for m in b["modes"]], float), np.array([m["std"] for m in b["modes"]],
                           float), float(b["level_s"]), np.ones(k))
         levels.append(lv)
+        note = (f"{b['verdict']}: levels from the {b['level_s']:.3g} s the fault tests ran only"
+                if why is None and b["verdict"] == "DEGRADED" else None)
         rows.append({"bag": b["name"], "start_time_s": b["start_time_ns"] / 1e9, "verdict": b["verdict"],
-                     "events": b["events"], "used": why is None, "exclusion": why, "level_s": b["level_s"],
+                     "events": b["events"], "used": why is None, "exclusion": why, "note": note,
+                     "level_s": b["level_s"],
                      "monitored_s": b["monitored_s"], "value": [m["value"] for m in b["modes"]],
                      "std": [m["std"] for m in b["modes"]], "baseline": [m["baseline"] for m in b["modes"]]})
     ref = next((b for b in bags if b["exclusion"] is None), bags[0])
@@ -513,6 +516,8 @@ def print_findings(summary: dict[str, Any], stdout: TextIO) -> None:
         for b in g["bags"]:
             if not b["used"]:
                 print(f"  not in the drift test: {b['bag']}: {b['exclusion']}", file=stdout)
+            elif b["note"]:
+                print(f"  in the drift test in part: {b['bag']}: {b['note']}", file=stdout)
         for f in g["findings"]:
             print(f"  DRIFT: mode {f['mode']} {f['quantity'].replace('_', ' ')} {f['direction']} "
                   f"{f['change_percent']:+.2f} % across the recordings (threshold reached at {f['first_bag']})",
