@@ -5,7 +5,7 @@
 
 The bags are simulated recordings of one machine (additive_rsrivc_ros.fleetsim: open loop, 1 kHz, 2 modes); each
 task is the full ``rsrivc_diagnose`` of one bag (report included unless --no-report). The figure comes from
-:func:`additive_rsrivc_ros.cli.fleet.bench_throughput` (``rsrivc_bench --json`` key ``fleet``). Run it with
+:func:`additive_rsrivc_ros.cli.fleet.throughput` (``rsrivc_bench --json`` key ``fleet``). Run it with
 ``scripts/env.sh`` sourced (one BLAS thread per worker, the shared numba cache).
 """
 
@@ -14,7 +14,7 @@ from __future__ import annotations
 import argparse
 import json
 
-from additive_rsrivc_ros.cli.fleet import bench_throughput
+from additive_rsrivc_ros.cli.fleet import throughput
 
 
 def main() -> None:
@@ -25,7 +25,7 @@ def main() -> None:
     p.add_argument("--no-report", action="store_true", help="per-bag CSV/JSON only (no report.html)")
     p.add_argument("--json", action="store_true", help="print the rsrivc_bench 'fleet' object only")
     a = p.parse_args()
-    res = bench_throughput(a.bags, a.duration, a.workers, report=not a.no_report)
+    res = throughput(a.bags, a.duration, a.workers, report=not a.no_report)
     if a.json:
         print(json.dumps({"fleet": res}))
         return

@@ -623,7 +623,7 @@ if __name__ == "__main__":
 
 
 # ------------------------------------------------------------------------------------------------- benchmark
-def bench_throughput(n_bags: int = 8, duration_s: float = 10.0, workers: int | None = None,
+def throughput(n_bags: int = 8, duration_s: float = 10.0, workers: int | None = None,
                      report: bool = True) -> dict[str, float | int]:
     """Fleet throughput: bags per minute with 1 worker and with ``workers`` (default: all CPUs available) on the
     same ``n_bags`` simulated recordings (:mod:`..fleetsim`, ``duration_s`` each, per-bag report included unless
