@@ -72,6 +72,7 @@ setup(
             "rsrivc_bench = additive_rsrivc_ros.cli.bench:main",
             "rsrivc_evaluate = additive_rsrivc_ros.cli.evaluate:main",
             "rsrivc_warmup = additive_rsrivc_ros.warmup:main",
+            "rsrivc_fleet = additive_rsrivc_ros.cli.fleet:main",
         ],
     },
 )

@@ -13,7 +13,7 @@ import pytest
 REPO = Path(__file__).resolve().parents[1]
 PKG = "additive_rsrivc_ros"
 EXECUTABLES = ["rsrivc_monitor", "rsrivc_diagnose", "rsrivc_simulate", "rsrivc_replay", "rsrivc_identify",
-               "rsrivc_bench"]
+               "rsrivc_bench", "rsrivc_fleet", "rsrivc_warmup"]
 
 # import name -> (package.xml key, pip distribution name or None for ROS packages)
 THIRD_PARTY = {
@@ -22,7 +22,7 @@ THIRD_PARTY = {
     "rosbags": ("python3-rosbags-pip", "rosbags"),
 }
 # optional imports (setup.py extra, requirements.txt; no rosdep key): import name -> pip distribution
-OPTIONAL = {"mcap": "mcap"}
+OPTIONAL = {"mcap": "mcap", "dask": "dask"}   # import name -> distribution of a setup.py extra
 ROS_PACKAGES = {"rclpy", "std_msgs", "sensor_msgs", "diagnostic_msgs", "std_srvs", "lifecycle_msgs",
                 "rosgraph_msgs", "builtin_interfaces", "rcl_interfaces"}
 LAUNCH_IMPORTS = {"launch", "launch_ros", "ament_index_python"}
@@ -84,7 +84,8 @@ def test_every_third_party_import_is_declared():
         if name in ROS_PACKAGES:
             assert name in exec_deps, f"ROS package {name} is imported but not an exec_depend in package.xml"
         elif name in OPTIONAL:
-            assert re.search(rf"extras_require=.*\"{OPTIONAL[name]}\"", setup_py), f"{name}: not a setup.py extra"
+            assert re.search(rf'extras_require=\{{[^}}]*"{re.escape(OPTIONAL[name])}[\["]', setup_py, re.S), \
+                f"{name}: not a setup.py extra"
         else:
             key, dist = THIRD_PARTY[name]
             assert key in exec_deps, f"{name}: add <exec_depend>{key}</exec_depend> to package.xml"

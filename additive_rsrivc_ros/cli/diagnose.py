@@ -319,6 +319,7 @@ def diagnose(args: argparse.Namespace, stdout: TextIO, stderr: TextIO, state: di
     out = _out_dir(bag, args.out)
     check_replaceable(out, OUTPUT_FILES)            # fail before the long work, not after it
     sig = read_signals(bag, cfg)
+    state["t0_ns"] = int(sig.t0_ns)                 # the first sample's absolute time (rsrivc_fleet orders by it)
     t_read = time.monotonic()
     _warn_bad_samples(sig, stderr)
     n = sig.t.size
@@ -398,6 +399,28 @@ def diagnose(args: argparse.Namespace, stdout: TextIO, stderr: TextIO, state: di
         print(f"wrote {out}/: estimates.csv ({n_rows} rows), events.csv ({len(events)} events), summary.json"
               f"{'' if args.no_report else ', report.html, modes.png'}", file=stdout)
     return 3 if (args.fail_on_fault and events) else 0
+
+
+def diagnose_bag(bag: str | Path, params_file: str | Path, out_dir: str | Path, *, node_name: str | None = None,
+                 report: bool = True, stdout: TextIO | None = None, stderr: TextIO | None = None) -> dict[str, Any]:
+    """``rsrivc_diagnose BAG --params-file P --out DIR --no-progress`` as a function (``rsrivc_fleet``'s task):
+    the same code and the same files; returns summary.json's content plus ``start_time_ns`` (the first sample,
+    Unix ns). Raises the tool's one-line errors (BagError, ParamError, PipelineError, OSError, ValueError)."""
+    import io
+
+    argv = ["--params-file", str(params_file), "--out", str(out_dir), "--no-progress", "--quiet"]
+    argv += ["--node-name", node_name] if node_name else []
+    argv += [] if report else ["--no-report"]
+    args = _parser().parse_args([*argv, "--", str(bag)])
+    state: dict[str, Any] = {}
+    try:
+        diagnose(args, stdout or io.StringIO(), stderr or io.StringIO(), state)
+    finally:
+        if state.get("out") is not None:
+            state["out"].discard()
+    summary = json.loads((Path(out_dir) / "summary.json").read_text(encoding="utf-8"))
+    summary["start_time_ns"] = state["t0_ns"]
+    return summary
 
 
 def _alignment_summary(last: Any) -> dict[str, Any]:
