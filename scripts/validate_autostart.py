@@ -101,7 +101,8 @@ def run_plant(seed: int) -> dict:
             + ("" if np.isfinite(row.validation_error) else f" ({row.message[:60]})") for row in res.table)
             + "; candidates " + ", ".join(f"{c.natural_frequency_hz:.4g}" for c in res.candidates))
     else:
-        for m, truth in zip(res.modal, modes, strict=True):
+        found = sorted(res.modal, key=lambda m: m[0])          # compare in frequency order (labels are arbitrary)
+        for m, truth in zip(found, sorted(modes, key=lambda p: p.natural_frequency_hz), strict=True):
             ef = m[0] / truth.natural_frequency_hz - 1.0
             ez = m[1] / truth.damping_ratio - 1.0
             if abs(ef) >= 0.01 or abs(ez) >= 0.15:
