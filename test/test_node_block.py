@@ -259,7 +259,7 @@ class _BlockClient(Client):
 
 
 CLOCK_S = 1000
-BLOCK_ARGS = ("block.topic:=block", "use_sim_time:=true", "stale_timeout_s:=30.0")
+BLOCK_ARGS = ("block.topic:=block", "use_sim_time:=true", "stale_timeout_s:=30.0", "qos_depth:=30000")
 
 
 def _wait_block_matched(cli: _BlockClient) -> None:
