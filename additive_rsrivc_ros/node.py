@@ -107,6 +107,7 @@ example:
 ALLOWED_EXTRA_PARAMS = ("use_sim_time", "start_type_description_service")
 REQUIRED_PARAMS = ("loop_rate_hz",)     # no usable default: absent means the params file did not reach the node
 STALL_NS = 250_000_000     # the executor or the worker not running for this long is a stall of the node itself
+BLOCK_IDLE_S = 0.02          # block input: longest worker sleep without a new block (reorder timeouts, rate checks)
 MODES_QUEUE = 10_000        # ~/modes messages the publisher may fall behind before the oldest are coalesced (counted)
 
 
@@ -672,7 +673,8 @@ def make_node_class() -> type:
             self._clock_pts: list[tuple[int, float]] = []
 
         def _run_worker(self) -> None:
-            while not self._stop.wait(self._block_period_s):
+            wake = getattr(self.sync, "wake", None)   # block input: woken per message, not polled every period
+            while not (self._stop.wait(self._block_period_s) if wake is None else self._wait_block(wake)):
                 try:
                     self.step()
                 except Exception as exc:  # noqa: BLE001 - the node must keep running; the error is reported
@@ -683,6 +685,14 @@ def make_node_class() -> type:
                     self._last_error = msg
                 finally:
                     self._push_started_ns = 0
+
+        def _wait_block(self, wake: threading.Event) -> bool:
+            """Block input: sleep until a block arrives (or ``BLOCK_IDLE_S`` for timeouts, rates, the graph check);
+            True when the worker is to stop. A few blocks a second need no 500 Hz polling (measured: 0.05 core
+            idle)."""
+            wake.wait(BLOCK_IDLE_S)
+            wake.clear()
+            return self._stop.is_set()
 
         def _ros_now_s(self) -> float:
             return self.get_clock().now().nanoseconds * 1e-9
