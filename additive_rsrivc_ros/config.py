@@ -133,6 +133,9 @@ SIGNAL_PARAMS += [
           read_only=True),
     Param("block.reorder_s", "double", 0.05, "Block input: rows after a missing index wait this long (arrival "
           "time) for a late block that fills the hole before the hole is a data gap.", 0.0, 10.0, True),
+    Param("block.batch_s", "double", 0.05, "Block input: the estimation worker feeds the estimator at most this "
+          "often, all blocks that arrived since in one call (each call has a fixed cost; scripts/bench_node.py); adds "
+          "up to this much delay. 0: every block at once.", 0.0, 1.0, True),
 ]
 
 # Verified stream alignment (core/alignment.py): the controller invariant u = C_d(q)(r - y) re-pairs r, u, y.
