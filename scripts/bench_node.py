@@ -195,7 +195,7 @@ def run_once(bag: Path, speed: float, domain: int, env: dict, extra: list[str] |
             print(out)
     p0, p1 = play_window(rep.stdout, w_r)
     return {"est": est, "modes": modes, "cpu_cores": (cpu1 - cpu0) / (w1 - w0), "wall_s": w1 - w0,
-            "cpu_play": sampler.cores(p0, p1), "wall_play_s": p1 - p0,
+            "cpu_play": sampler.cores(p0, p1), "wall_play_s": p1 - p0, "cpu_late": sampler.cores(0.5 * (p0 + p1), p1),
             "cpu_replay": (cpu_r - cpu0) / (w_r - w0), "wall_replay_s": w_r - w0,
             "replay": rep.stdout.strip() + rep.stderr.strip(), "alive": alive, "rc": node.returncode, "log": out}
 
@@ -269,7 +269,9 @@ def report_block(bag: Path, n: int, domain: int, env: dict, extra: list[str], ar
           f"{b['rc']}")
     print(f"node CPU while the bag played: block input {b['cpu_play']:.3f} cores ({b['wall_play_s']:.1f} s), "
           f"per-sample Float64 x 3 topics {per_sample['cpu_play']:.3f} cores ({per_sample['wall_play_s']:.1f} s), "
-          "same bag, same run")
+          f"same bag, same run; second half of the playback (after the offline initialization): block "
+          f"{b['cpu_late']:.3f}, per-sample {per_sample['cpu_late']:.3f} cores; load average "
+          f"{os.getloadavg()[0]:.2f} on {os.cpu_count()} CPUs")
     if b["modes"] is not None and per_sample["modes"] is not None:
         d = np.abs(b["modes"][:, :3] - per_sample["modes"][:, :3]) / np.abs(per_sample["modes"][:, :3])
         print(f"last ~/modes, block vs per-sample input: max relative difference {np.max(d):.2g} (the last reports "
