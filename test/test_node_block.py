@@ -97,6 +97,13 @@ def test_lost_block_is_a_counted_gap_and_late_block_within_window_is_reordered()
     assert _feed(s, [d], 90 * MS) is None and s.block["late_samples"] == 10
 
 
+def test_block_older_than_the_first_one_is_late_not_a_restart():
+    s = _sync()
+    assert len(_feed(s, [_blk(10, 10)], 1 * MS)) == 10
+    assert _feed(s, [_blk(0, 10)], 2 * MS) is None
+    assert s.block["late_samples"] == 10 and s.block["restarts"] == 0
+
+
 def test_rows_missing_inside_a_block_are_a_gap_at_once():
     s = _sync()
     rows = _rows(_blk(0, 10))

@@ -16,13 +16,14 @@ by :func:`..ros.convert.block_rows`; this module checks the index and turns rows
   estimator's filters, holds the fault tests, is counted in ``gaps`` and noted on health).
 * **Out of order**: rows after a hole wait up to ``block.reorder_s`` (arrival time) for the late block that fills
   it; reliable DDS delivers one writer's blocks in order, so this only costs latency when a block is really lost.
-  A block that arrives after its hole was declared a gap is dropped (``block_late_samples``).
+  A block that arrives after its hole was declared a gap (or, at the start, a block older than the first one) is
+  dropped (``block_late_samples``).
 * **Duplicates**: rows whose index was already released (a retransmitted or overlapping block) are compared with
   the released values (the last ``DUPLICATE_MEMORY_S``): equal rows are dropped (``block_duplicate_samples``).
 * **Controller restart**: a block whose rows contradict released rows (same index, other values) or lie before
-  the duplicate memory (the counter went back by a lot) starts a new index run: rows held after a hole are
-  released first, then the time jumps by at least ``RESTART_GAP_S`` so the estimator is re-primed; counted
-  (``block_restarts``) and logged. Estimation continues on the new run.
+  the duplicate memory's span (the counter went back by more than ``DUPLICATE_MEMORY_S``) starts a new index
+  run: rows held after a hole are released first, then the time jumps by at least ``RESTART_GAP_S`` so the
+  estimator is re-primed; counted (``block_restarts``) and logged. Estimation continues on the new run.
 * **Malformed** blocks (layout, length, non-finite, non-integer or non-increasing index): dropped, counted
   (``block_malformed``) and logged at most once per ``LOG_EVERY_S`` (with the count since the last line).
 * **Consistency (closed loop)**: the controller invariant ``u = C_d(q)(r - y)`` (000 eq. 10,
@@ -233,8 +234,9 @@ class BlockSync(InputSync):
     def _classify_behind(self, k: np.ndarray, vals: np.ndarray) -> tuple[int, int, int, int]:
         """Rows below the next expected index: (duplicates, conflicting, late, unknown) counts.
 
-        Duplicate: the index was released with the same values; conflicting: released with other values; late: it
-        lies in a declared gap; unknown: older than the duplicate memory (or never seen)."""
+        Duplicate: the index was released with the same values; conflicting: released with other values; late: never
+        released but within the duplicate memory's span (a declared gap, or before the first released row); unknown:
+        before that span (the counter went back by a lot)."""
         order = np.argsort(self.mem_k)
         mk = self.mem_k[order]
         j = np.clip(np.searchsorted(mk, k), 0, mk.size - 1)
@@ -247,8 +249,8 @@ class BlockSync(InputSync):
         in_gap = np.zeros(k.size, dtype=bool)
         for lo, hi in self.skipped:
             in_gap |= (k >= lo) & (k <= hi)
-        late = ~seen & in_gap
-        return (int(same.sum()), int((seen & ~same).sum()), int(late.sum()), int((~seen & ~in_gap).sum()))
+        late = ~seen & (in_gap | (k >= self.next_k - self.mem_k.size))
+        return (int(same.sum()), int((seen & ~same).sum()), int(late.sum()), int((~seen & ~late).sum()))
 
     def _hold(self, k: np.ndarray, vals: np.ndarray, arrival_ns: int) -> None:
         """Insert rows at or after the next expected index into the held list (sorted, no index twice)."""
