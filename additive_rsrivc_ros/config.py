@@ -13,7 +13,7 @@ from __future__ import annotations
 
 import math
 from collections.abc import Mapping
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 from pathlib import Path
 from typing import Any
 
@@ -124,6 +124,19 @@ for _sig, _topic in (("reference", "reference"), ("input", "plant_input"), ("out
         Param(f"{_sig}.field", "string", "position", f"JointState field of the {_sig} signal.", read_only=True,
               choices=("position", "velocity", "effort")),
     ]
+
+SIGNAL_PARAMS += [
+    Param("block.topic", "string", "", "Block input instead of the three per-sample topics: topic of "
+          "std_msgs/msg/Float64MultiArray blocks, dim[0] 'sample' (N rows), dim[1] 'signal' (4), row-major columns "
+          "index, reference, input, output (index = the controller's sample counter; open loop: reference ignored). "
+          "Relative names resolve in the node's namespace. Empty: off (reference/input/output topics are used).",
+          read_only=True),
+    Param("block.reorder_s", "double", 0.05, "Block input: rows after a missing index wait this long (arrival "
+          "time) for a late block that fills the hole before the hole is a data gap.", 0.0, 10.0, True),
+    Param("block.batch_s", "double", 0.05, "Block input: the estimation worker feeds the estimator at most this "
+          "often, all blocks that arrived since in one call (each call has a fixed cost; scripts/bench_node.py); adds "
+          "up to this much delay. 0: every block at once.", 0.0, 1.0, True),
+]
 
 # Verified stream alignment (core/alignment.py): the controller invariant u = C_d(q)(r - y) re-pairs r, u, y.
 ALIGN_PARAMS: list[Param] = [
@@ -462,6 +475,21 @@ class MonitorConfig:
             signals=signals, params=dict(p), mode_count=auto[0], max_mode_count=auto[1],
             frequency_range_hz=auto[2],
         )
+
+    @property
+    def block_input(self) -> bool:
+        """The node reads block messages (``block.topic`` set) instead of the three per-sample topics."""
+        return bool(self.params.get("block.topic", ""))
+
+    def with_block_input(self) -> MonitorConfig:
+        """The node's view of a block-input configuration: one more signal ``block`` of type Float64MultiArray.
+
+        Its rows are paired by the controller's index, so the pipeline's stream aligner (per-sample Float64 topics
+        only, core/alignment.py) does not re-pair them. Offline tools keep the per-sample view: a bag of the three
+        topics is still verified by the aligner."""
+        sig = dict(self.signals)
+        sig["block"] = SignalConfig(str(self.params["block.topic"]), "std_msgs/msg/Float64MultiArray")
+        return replace(self, signals=sig)
 
     @property
     def auto_modes(self) -> bool:

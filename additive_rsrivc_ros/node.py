@@ -13,9 +13,13 @@ JointState topics by header stamp (exact: unmatched or out-of-order stamps are d
 :mod:`.ros.sync` for pauses, count mismatches and resynchronization. Limitation: Float64 carries no
 sequence information, so a single message lost on one topic while all topics keep streaming is only
 detected at the next moment all topics go quiet (``sync.quiet_s``) or when the imbalance lasts; use
-JointState (stamped) inputs when that matters, and give the controller's publishers a RELIABLE history deep
-enough for the longest expected stall (a KEEP_LAST writer silently overwrites unacknowledged samples;
+JointState (stamped) inputs or block input when that matters, and give the controller's publishers a RELIABLE
+history deep enough for the longest expected stall (a KEEP_LAST writer silently overwrites unacknowledged samples;
 DDS reports no "message lost" event for that, measured).
+
+Block input (``block.topic``, issue 14): one ``Float64MultiArray`` of N rows ``index, reference, input, output``
+per message instead of the three topics; rows are paired by the controller's index, and missing, repeated, late or
+restarted indices are handled by :mod:`.ros.blocks` (the pipeline's stream aligner is not used on them).
 
 Outputs: ``/diagnostics`` (one ``<node>: mode <i>`` status per mode with exactly the CONTRACT keys, one
 ``<node>: estimator`` status with counters, condition numbers, real-time factor, CPU, and the delay from a
@@ -88,7 +92,8 @@ USAGE = """usage: rsrivc_monitor [-h] [--ros-args [--params-file FILE.yaml] [-p 
 
 ROS 2 lifecycle node: online closed-loop additive recursive SRIVC of mechanical resonances with fault
 diagnosis. Subscribes reference, plant_input, plant_output (relative names: /reference ... in the root
-namespace, /<ns>/reference ... under -r __ns:=/<ns>; std_msgs/msg/Float64 or sensor_msgs/msg/JointState),
+namespace, /<ns>/reference ... under -r __ns:=/<ns>; std_msgs/msg/Float64 or sensor_msgs/msg/JointState) or,
+with -p block.topic:=block, Float64MultiArray blocks of rows index, reference, input, output,
 publishes /diagnostics and ~/modes, serves ~/reset, ~/rebaseline, ~/save_state (std_srvs/srv/Trigger).
 Default node name: additive_rsrivc_monitor. Parameters: see config/template.yaml (the YAML key must match
 the node's full name: additive_rsrivc_monitor, /**/additive_rsrivc_monitor, /<ns>/additive_rsrivc_monitor or
@@ -103,6 +108,7 @@ example:
 ALLOWED_EXTRA_PARAMS = ("use_sim_time", "start_type_description_service")
 REQUIRED_PARAMS = ("loop_rate_hz",)     # no usable default: absent means the params file did not reach the node
 STALL_NS = 250_000_000     # the executor or the worker not running for this long is a stall of the node itself
+BLOCK_IDLE_S = 0.05          # block input: longest worker sleep without a new block (reorder timeouts, rate checks)
 MODES_QUEUE = 10_000        # ~/modes messages the publisher may fall behind before the oldest are coalesced (counted)
 
 
@@ -230,6 +236,7 @@ def make_node_class() -> type:
     from .config import DEFAULT_NODE_NAME, MonitorConfig, ParamError, all_params, param_table, validate_params
     from .core.faults import FaultSettings, Level
     from .core.pipeline import MonitorPipeline, PipelineError
+    from .ros.blocks import BlockSync
     from .ros.sync import InputSync
 
     def _check_sync_params(v: dict[str, Any]) -> None:
@@ -361,6 +368,8 @@ def make_node_class() -> type:
                 self.config_error = str(exc)
                 self.get_logger().error(f"configuration rejected: {exc}")
                 return TransitionCallbackReturn.FAILURE
+            if cfg.block_input:       # block rows are paired by index: the pipeline's stream aligner stays off
+                cfg = cfg.with_block_input()
             self.cfg = cfg
             v = values
             pipeline = self._restore(cfg, v["state_file"])
@@ -370,7 +379,8 @@ def make_node_class() -> type:
                 self.config_error = str(exc)
                 self.get_logger().error(f"configuration rejected: {exc}")
                 return TransitionCallbackReturn.FAILURE
-            self.signals = ("reference", "input", "output") if cfg.closed_loop else ("input", "output")
+            self.signals = ("block",) if cfg.block_input else \
+                ("reference", "input", "output") if cfg.closed_loop else ("input", "output")
             try:
                 self.topics = self._resolve_topics(cfg)
             except ParamError as exc:
@@ -378,7 +388,7 @@ def make_node_class() -> type:
                 self.get_logger().error(f"configuration rejected: {exc}")
                 return TransitionCallbackReturn.FAILURE
             types = [cfg.signals[s].type for s in self.signals]
-            self.sync = InputSync(
+            self.sync = self._block_sync(cfg, v) if cfg.block_input else InputSync(
                 self.signals, cfg.loop_rate_hz, stamped=all(t == "sensor_msgs/msg/JointState" for t in types),
                 max_backlog=self._backlog_samples(v["sync.max_backlog_s"]),
                 quiet_s=v["sync.quiet_s"], gap_s=self._gap_s(v["sync.gap_s"]), hold_s=v["sync.hold_s"],
@@ -392,6 +402,7 @@ def make_node_class() -> type:
             self._publish_period_s = 1.0 / cfg.publish_rate_hz
             self._diag_period_s = v["diagnostics_period_s"]
             self._block_period_s = v["block_period_s"]
+            self._block_batch_s, self._block_step_due = v["block.batch_s"], 0.0
             self._reset_stats()
             try:
                 qos_text = self._subscribe(cfg, v)
@@ -408,9 +419,18 @@ def make_node_class() -> type:
             self.get_logger().info(
                 f"configured: K={cfg.K}, {cfg.loop_rate_hz:g} Hz, {'closed' if cfg.closed_loop else 'open'} loop, "
                 f"inputs {', '.join(self.topics[s] for s in self.signals)} "
-                f"({'stamped' if self.sync.stamped else 'arrival order'}), QoS {qos_text}, input queues "
+                f"({getattr(self.sync, 'pairing', 'stamped' if self.sync.stamped else 'arrival order')}), "
+                f"QoS {qos_text}, input queues "
                 f"bounded at {self.sync.max_queue} samples per topic (<= {self.sync.queue_bytes() / 1e6:.3g} MB)")
             return TransitionCallbackReturn.SUCCESS
+
+        def _block_sync(self, cfg: Any, v: dict[str, Any]) -> Any:
+            """The input stage of block input (``block.topic``; ros/blocks.py)."""
+            return BlockSync(cfg.loop_rate_hz, closed_loop=cfg.closed_loop, label=self.topics["block"],
+                             convert=cv.block_rows, reorder_s=v["block.reorder_s"], controller=cfg.controller,
+                             gap_s=self._gap_s(v["sync.gap_s"]), silent_s=v["stale_timeout_s"],
+                             max_queue=self._queue_samples(v), rate_window_s=v["sync.rate_window_s"],
+                             rate_tolerance=v["sync.rate_tolerance"])
 
         def _resolve_topics(self, cfg: Any) -> dict[str, str]:
             """The configured signal topics expanded in the node's namespace and remapped (``-r from:=to``), as
@@ -436,10 +456,11 @@ def make_node_class() -> type:
                                  reliability=ReliabilityPolicy.RELIABLE if v["qos_reliable"]
                                  else ReliabilityPolicy.BEST_EFFORT, durability=DurabilityPolicy.VOLATILE)
                 joint = sc.type == "sensor_msgs/msg/JointState"
-                cb = self._joint_cb(i, s, sc) if joint else self._float_cb(i)
+                block = s == "block"
+                cb = self._block_cb() if block else self._joint_cb(i, s, sc) if joint else self._float_cb(i)
+                kind = Float64MultiArray if block else JointState if joint else Float64
                 try:
-                    sub = self.create_subscription(JointState if joint else Float64, self.topics[s], cb, qos,
-                                                   qos_overriding_options=opts)
+                    sub = self.create_subscription(kind, self.topics[s], cb, qos, qos_overriding_options=opts)
                 except Exception as exc:  # noqa: BLE001 - rclpy raises several types for a bad override value
                     raise ParamError(f"QoS override for {self.topics[s]} rejected: "
                                      f"{str(exc).splitlines()[0] if str(exc) else type(exc).__name__}") from None
@@ -561,6 +582,14 @@ def make_node_class() -> type:
                     q.append((msg.data, mono()))
             return cb
 
+        def _block_cb(self) -> Any:
+            enqueue, mono = self.sync.enqueue, time.monotonic_ns
+
+            def cb(msg: Any) -> None:
+                if self._active:
+                    enqueue(msg, mono())
+            return cb
+
         def _joint_cb(self, i: int, sig: str, sc: Any) -> Any:
             q = self.sync.queues[i]
             over, cap = self.sync.overflow, self.sync.max_queue
@@ -646,7 +675,8 @@ def make_node_class() -> type:
             self._clock_pts: list[tuple[int, float]] = []
 
         def _run_worker(self) -> None:
-            while not self._stop.wait(self._block_period_s):
+            wake = getattr(self.sync, "wake", None)   # block input: woken per message, not polled every period
+            while not (self._stop.wait(self._block_period_s) if wake is None else self._wait_block(wake)):
                 try:
                     self.step()
                 except Exception as exc:  # noqa: BLE001 - the node must keep running; the error is reported
@@ -657,6 +687,18 @@ def make_node_class() -> type:
                     self._last_error = msg
                 finally:
                     self._push_started_ns = 0
+
+        def _wait_block(self, wake: threading.Event) -> bool:
+            """Block input: sleep until a block arrives (or ``BLOCK_IDLE_S`` for timeouts, rates, the graph check),
+            but step at most once per ``block.batch_s`` so that several blocks share one pipeline call; True when the
+            worker is to stop. (Polling every 2 ms cost 0.05 core idle; each pipeline call has a fixed cost.)"""
+            rest = self._block_step_due - time.monotonic()
+            if rest > 0.0 and self._stop.wait(rest):
+                return True
+            wake.wait(BLOCK_IDLE_S)
+            wake.clear()
+            self._block_step_due = time.monotonic() + self._block_batch_s
+            return self._stop.is_set()
 
         def _ros_now_s(self) -> float:
             return self.get_clock().now().nanoseconds * 1e-9
@@ -913,11 +955,13 @@ def make_node_class() -> type:
                 "internal_errors": self._errors,
                 "silent_topics": " ".join(self.topics[s] for s in silent),
                 "wrong_types": "; ".join(self._wrong_types),
+                **(sync.extra_values() if hasattr(sync, "extra_values") else {}),
             }
 
         def _input_reasons(self, sync: Any) -> list[str]:
             """Open input problems that last (rate mismatch, queue overflow, a busy estimator): WARN reasons."""
             out = [sync.rate_reason(lb, r, sync.expected_rate) for lb, r in list(sync.rate_mismatch.items())]
+            out += sync.lasting_reasons() if hasattr(sync, "lasting_reasons") else []
             out += [f"queue of {lb} full: dropping the oldest messages ({n} so far)"
                     for lb, n, ov in zip(sync.labels, sync.counters.queue_dropped, sync._overflowing, strict=True)
                     if ov]

@@ -13,20 +13,27 @@ publishing keep up with 4096 Hz x 3 inputs?); ``--rss-absent SECONDS`` instead r
 /plant_output (looped; /reference absent) and prints the node's RSS every ``--rss-every`` seconds with the growth
 rate extrapolated to one hour.
 
-    python scripts/bench_node.py [--duration 60] [--speedups 2 4 8] [--speedup-duration 10] [--hog 2]
-                                 [--publish-rate 1000] [--rss-absent 180 --rss-every 10]
+Issue 14 item 7: ``--block N`` (default 100; 0 skips it) then replays the same bag as block input (``rsrivc_replay
+--block N``, node ``block.topic``) into a fresh node and prints its samples lost, gaps and node CPU next to the
+per-sample Float64 figure of the same run. Node CPU is process CPU time over wall time while the bag plays (from
+/proc, sampled every 0.1 s; the replay's own start-up, reading the bag, is left out).
+
+    python scripts/bench_node.py [--duration 60] [--block 100] [--speedups 2 4 8] [--speedup-duration 10]
+                                 [--hog 2] [--publish-rate 1000] [--rss-absent 180 --rss-every 10]
 """
 
 from __future__ import annotations
 
 import argparse
 import os
+import re
 import subprocess
 import sys
 import tempfile
 import threading
 import time
 from pathlib import Path
+from typing import Any
 
 import numpy as np
 
@@ -105,6 +112,43 @@ def rss_mb(pid: int) -> float:
     return float("nan")
 
 
+class CpuSampler:
+    """(monotonic, CPU seconds) of a process every ``period`` s in a thread; CPU cores over any window."""
+
+    def __init__(self, pid: int, period: float = 0.1) -> None:
+        self.pid, self.period = pid, period
+        self.pts: list[tuple[float, float]] = []
+        self.stop = threading.Event()
+        self.th = threading.Thread(target=self._run, daemon=True)
+        self.th.start()
+
+    def _run(self) -> None:
+        while not self.stop.is_set():
+            try:
+                self.pts.append((time.monotonic(), proc_cpu_s(self.pid)))
+            except OSError:
+                return
+            self.stop.wait(self.period)
+
+    def close(self) -> None:
+        self.stop.set()
+        self.th.join(2.0)
+
+    def cores(self, t0: float, t1: float) -> float:
+        """CPU cores used between ``t0`` and ``t1`` (linear interpolation of the samples)."""
+        if len(self.pts) < 2 or not t1 > t0:
+            return float("nan")
+        ts, cs = np.array(self.pts).T
+        return float((np.interp(t1, ts, cs) - np.interp(t0, ts, cs)) / (t1 - t0))
+
+
+def play_window(replay_stdout: str, t_end: float) -> tuple[float, float]:
+    """Wall-clock window of the playback itself: ``rsrivc_replay --stats`` prints its duration; it ended at most a
+    moment before the process exited at ``t_end``."""
+    m = re.search(r"published \d+ messages in ([0-9.]+) s", replay_stdout)
+    return (t_end - float(m.group(1)), t_end) if m else (float("nan"), t_end)
+
+
 def node_cmd(extra: list[str]) -> list[str]:
     cmd = ["rsrivc_monitor", "--ros-args", "--params-file", str(PARAMS)]
     for p in extra:
@@ -113,19 +157,22 @@ def node_cmd(extra: list[str]) -> list[str]:
 
 
 def run_once(bag: Path, speed: float, domain: int, env: dict, extra: list[str] | None = None,
-             hogs: int = 0) -> dict:
-    """Start a fresh node, replay ``bag`` at ``speed`` (with ``hogs`` busy loops beside), return the figures."""
-    node = subprocess.Popen(node_cmd(extra or []), env=env, stdout=subprocess.PIPE, stderr=subprocess.STDOUT,
-                            text=True)
+             hogs: int = 0, block: int = 0) -> dict:
+    """Start a fresh node, replay ``bag`` at ``speed`` (with ``hogs`` busy loops beside; ``block``: as blocks of that
+    many rows into the node's block input), return the figures."""
+    extra = [*(extra or []), *(["block.topic:=/block"] if block else [])]
+    node = subprocess.Popen(node_cmd(extra), env=env, stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True)
     lis = Listener(domain)
+    sampler = CpuSampler(node.pid)
     hog = []
+    signals = ["--block", str(block)] if block else ["--topics", *SIGNALS]
     try:
         t_wait = time.monotonic()
         while not lis.est and time.monotonic() - t_wait < 60:
             time.sleep(0.1)
         hog = start_hogs(hogs)
         cpu0, w0 = proc_cpu_s(node.pid), time.monotonic()
-        rep = subprocess.run(["rsrivc_replay", str(bag), "--rate", str(speed), "--topics", *SIGNALS,
+        rep = subprocess.run(["rsrivc_replay", str(bag), "--rate", str(speed), *signals,
                               "--wait-for-subscribers", "60", "--stats"], env=env, capture_output=True, text=True)
         cpu_r, w_r = proc_cpu_s(node.pid), time.monotonic()
         stop_hogs(hog)
@@ -141,11 +188,14 @@ def run_once(bag: Path, speed: float, domain: int, env: dict, extra: list[str] |
     finally:
         stop_hogs(hog)
         lis.close()
+        sampler.close()
         node.terminate()
         out, _ = node.communicate(timeout=30)
         if os.environ.get("BENCH_NODE_LOG"):
             print(out)
+    p0, p1 = play_window(rep.stdout, w_r)
     return {"est": est, "modes": modes, "cpu_cores": (cpu1 - cpu0) / (w1 - w0), "wall_s": w1 - w0,
+            "cpu_play": sampler.cores(p0, p1), "wall_play_s": p1 - p0, "cpu_late": sampler.cores(0.5 * (p0 + p1), p1),
             "cpu_replay": (cpu_r - cpu0) / (w_r - w0), "wall_replay_s": w_r - w0,
             "replay": rep.stdout.strip() + rep.stderr.strip(), "alive": alive, "rc": node.returncode, "log": out}
 
@@ -204,6 +254,30 @@ def rss_absent(bag: Path, domain: int, env: dict, extra: list[str], seconds: flo
     return 0
 
 
+def report_block(bag: Path, n: int, domain: int, env: dict, extra: list[str], args: Any, per_sample: dict) -> None:
+    """Block input (issue 14 item 7): the same bag as blocks of ``args.block`` rows into a fresh node."""
+    b = run_once(bag, 1.0, domain, env, extra, args.hog, block=args.block)
+    e = b["est"]
+    aligned = int(e.get("samples_aligned", 0))
+    n_blocks = -(-n // args.block)
+    print(f"block input, {args.block} rows per message ({n_blocks} messages): node received "
+          f"{e.get('samples_received')} samples in {e.get('block_messages')} messages, samples lost {n - aligned} of "
+          f"{n}; index gaps {e.get('block_gaps')} ({e.get('block_missing_samples')} samples), duplicates "
+          f"{e.get('block_duplicate_samples')}, malformed {e.get('malformed_messages')}, queue drops "
+          f"{e.get('queue_dropped')}, pipeline gaps {e.get('gaps')}; invariant relative residual "
+          f"{e.get('block_invariant_relative_residual')}; phase {e.get('phase')}; node alive {b['alive']}, exit "
+          f"{b['rc']}")
+    print(f"node CPU while the bag played: block input {b['cpu_play']:.3f} cores ({b['wall_play_s']:.1f} s), "
+          f"per-sample Float64 x 3 topics {per_sample['cpu_play']:.3f} cores ({per_sample['wall_play_s']:.1f} s), "
+          f"same bag, same run; second half of the playback (after the offline initialization): block "
+          f"{b['cpu_late']:.3f}, per-sample {per_sample['cpu_late']:.3f} cores; load average "
+          f"{os.getloadavg()[0]:.2f} on {os.cpu_count()} CPUs")
+    if b["modes"] is not None and per_sample["modes"] is not None:
+        d = np.abs(b["modes"][:, :3] - per_sample["modes"][:, :3]) / np.abs(per_sample["modes"][:, :3])
+        print(f"last ~/modes, block vs per-sample input: max relative difference {np.max(d):.2g} (the last reports "
+              "of the two runs need not fall on the same sample)")
+
+
 def main() -> int:
     ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     ap.add_argument("--duration", type=float, default=60.0, help="seconds of beam data (default 60)")
@@ -211,6 +285,8 @@ def main() -> int:
                     "highest loss-free loop rate, e.g. 2 4 8")
     ap.add_argument("--speedup-duration", type=float, default=10.0, help="seconds of bag per speed-up run")
     ap.add_argument("--hog", type=int, default=0, help="busy-loop subprocesses running beside the node")
+    ap.add_argument("--block", type=int, default=100, help="rows per block message of the block-input run (issue 14; "
+                    "default 100; 0: no block run)")
     ap.add_argument("--publish-rate", type=float, default=0.0, help="publish_rate_hz of the node (default: the "
                     "params file's)")
     ap.add_argument("--rss-absent", type=float, default=0.0, help="instead: seconds of RSS measurement with "
@@ -245,7 +321,8 @@ def main() -> int:
         print(f"samples aligned: {aligned} of {n}; misaligned events: {e.get('misaligned_events')}, dropped: "
               f"{e.get('samples_dropped')}, input pauses: {e.get('input_pauses')}, gaps: {e.get('gaps')}, "
               f"rate mismatches: {e.get('rate_mismatches')}")
-        print(f"node CPU: {r['cpu_replay']:.3f} cores during the replay ({r['wall_replay_s']:.1f} s), "
+        print(f"node CPU: {r['cpu_play']:.3f} cores while the bag played ({r['wall_play_s']:.1f} s); "
+              f"{r['cpu_replay']:.3f} cores over the whole replay process ({r['wall_replay_s']:.1f} s), "
               f"{r['cpu_cores']:.3f} cores including 2 s of draining")
         print(f"delay arrival -> estimate: median {float(e.get('delay_median_ms', 'nan')):.2f} ms, p95 "
               f"{float(e.get('delay_p95_ms', 'nan')):.2f} ms, max {float(e.get('delay_max_ms', 'nan')):.2f} ms")
@@ -262,6 +339,8 @@ def main() -> int:
                 m = r["modes"][i]
                 print(f"mode {i + 1}: f {m[0]:.4f} Hz (truth {truth[i, 0]:.4f}, std {m[3]:.2g}), zeta {m[1]:.4f} "
                       f"(truth {truth[i, 1]:.4f}), gain {m[2]:.4g} (truth {truth[i, 2]:.4g})")
+        if args.block:
+            report_block(bag, n, domain, env, extra, args, r)
         best = sc.rate_hz if recv == 3 * n and aligned == n else 0.0
         for s in args.speedups:
             m = int(args.speedup_duration * sc.rate_hz)

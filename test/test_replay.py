@@ -186,3 +186,95 @@ def test_sigterm_stops_cleanly(tmp_path: Path, ros_env: dict) -> None:
     out, err = proc.communicate(timeout=15)
     assert proc.returncode == 0, err
     assert "Traceback" not in err and "stopped after" in err
+
+
+def write_float_bag_skipping(path: Path, rate_hz: float, n: int, skip: range, topics=TOPICS) -> None:
+    """Like :func:`write_float_bag` (message k of topic j carries 10 k + j) without the samples in ``skip`` on every
+    topic (a pause of the recording)."""
+    from rosbags.rosbag2 import StoragePlugin, Writer
+    from rosbags.typesys import Stores, get_typestore
+
+    ts = get_typestore(Stores.ROS2_JAZZY)
+    f64 = ts.types["std_msgs/msg/Float64"]
+    with Writer(path, version=9, storage_plugin=StoragePlugin.MCAP) as w:
+        conns = [w.add_connection(t, f64.__msgtype__, typestore=ts) for t in topics]
+        for k in range(n):
+            if k in skip:
+                continue
+            for c in conns:
+                w.write(c, T0_NS + int(round(k * 1e9 / rate_hz)),
+                        ts.serialize_cdr(f64(data=float(10 * k + TOPICS.index(c.topic))), f64.__msgtype__))
+
+
+def test_block_plan_index_from_the_sample_grid(tmp_path: Path) -> None:
+    """--block: the index is the position on the bag's grid (a pause is an index gap); open loop gives NaN r."""
+    bag = tmp_path / "paused"
+    write_float_bag_skipping(bag, 1000.0, 600, range(200, 300))
+    bp = replay.plan_blocks(replay.inspect_bag(bag), None)
+    k = np.r_[0:200, 300:600].astype(float)
+    np.testing.assert_array_equal(bp.index, k)
+    np.testing.assert_array_equal(bp.r, 10 * k)
+    np.testing.assert_array_equal(bp.u, 10 * k + 1)
+    np.testing.assert_array_equal(bp.y, 10 * k + 2)
+    assert bp.rate_hz == pytest.approx(1000.0, rel=1e-9)
+    ol = tmp_path / "open"
+    write_float_bag_skipping(ol, 1000.0, 100, range(0), topics=TOPICS[1:])
+    bo = replay.plan_blocks(replay.inspect_bag(ol), None)
+    assert np.all(np.isnan(bo.r)) and np.array_equal(bo.u, 10 * np.arange(100.0) + 1)
+    msgs = list(replay.iter_blocks(bo, 30, "/block")())
+    assert [m.layout.dim[0].size for _, _, m in msgs] == [30, 30, 30, 10]
+    assert [t for _, t, _ in msgs] == [T0_NS + k * 1_000_000 for k in (29, 59, 89, 99)]   # the last row's time
+    with pytest.raises(replay.ReplayError):
+        replay.plan_blocks(replay.inspect_bag(ol), ["/plant_output"])
+
+
+def test_replay_block_into_subscriber(tmp_path: Path, ros_env: dict) -> None:
+    """``rsrivc_replay --block 64`` over DDS: every sample arrives once, in order, in the contract layout."""
+    import rclpy
+    from rclpy.qos import QoSProfile, ReliabilityPolicy
+    from std_msgs.msg import Float64MultiArray
+
+    from additive_rsrivc_ros.ros.convert import block_rows
+
+    rate = 1000.0
+    bag = tmp_path / "bag"
+    n = write_float_bag(bag, rate, 0.5)
+    ctx = rclpy.Context()
+    rclpy.init(context=ctx, domain_id=int(ros_env["ROS_DOMAIN_ID"]))
+    got: list[np.ndarray] = []
+    errors: list[str] = []
+    try:
+        node = rclpy.create_node("replay_block_sub", context=ctx)
+
+        def cb(m) -> None:
+            rows, err = block_rows(m)
+            (got.append(rows) if rows is not None else errors.append(err))
+        node.create_subscription(Float64MultiArray, "/block", cb, QoSProfile(depth=1000,
+                                                                             reliability=ReliabilityPolicy.RELIABLE))
+        done = threading.Event()
+
+        def spin() -> None:
+            from rclpy.executors import SingleThreadedExecutor
+            ex = SingleThreadedExecutor(context=ctx)
+            ex.add_node(node)
+            while not done.is_set():
+                ex.spin_once(timeout_sec=0.05)
+
+        th = threading.Thread(target=spin, daemon=True)
+        th.start()
+        res = _run([str(bag), "--block", "64", "--stats", "--wait-for-subscribers", "20"], ros_env)
+        assert res.returncode == 0, res.stderr
+        deadline = time.monotonic() + 10.0
+        while time.monotonic() < deadline and sum(len(g) for g in got) < n:
+            time.sleep(0.05)
+        done.set()
+        th.join(5.0)
+        node.destroy_node()
+    finally:
+        rclpy.shutdown(context=ctx)
+    assert not errors
+    assert [len(g) for g in got] == [64] * (n // 64) + ([n % 64] if n % 64 else [])
+    rows = np.vstack(got)
+    k = np.arange(n, dtype=float)
+    np.testing.assert_array_equal(rows, np.column_stack([k, 10 * k, 10 * k + 1, 10 * k + 2]))
+    assert "/block: 8" in res.stdout and "as blocks of 64 rows" in res.stderr

@@ -12,6 +12,15 @@ deadline (at least ``--min-sleep``), so sleep overshoot never accumulates into d
 with ``use_sim_time`` follow the bag. With ``--loop`` the bag time keeps increasing over passes (the
 clock never jumps back); message contents (e.g. header stamps) are replayed unchanged.
 
+``--block N`` (issue 14): instead of the recorded messages, publish the bag's r, u, y as
+``std_msgs/msg/Float64MultiArray`` blocks of N rows on ``--block-topic`` in the monitor's block-input layout
+(../shared/CONTRACT.md: dim[0] ``sample``, dim[1] ``signal`` = 4, columns ``index, reference, input, output``). The
+samples are read and paired like ``rsrivc_diagnose`` reads them (:func:`..bagio.read_signals`: by order, or by log
+time when a topic lost a message, which leaves NaN on the kept grid); ``index`` is the sample's position on the bag's
+sample grid, ``round(t / h)`` with ``h`` the mean sample spacing, so a pause in the recording is an index gap. Each
+block goes out at the log time of its last row. Without ``/reference`` (open loop) the reference column is NaN. With
+``--loop`` the index keeps counting over passes (no controller restart is faked).
+
 Ctrl-C and SIGTERM stop playback cleanly (exit status 0, a one-line note on stderr).
 """
 
@@ -26,7 +35,10 @@ import time
 from collections.abc import Callable, Iterable, Iterator
 from dataclasses import dataclass, field
 from pathlib import Path
+from types import SimpleNamespace
 from typing import Any
+
+import numpy as np
 
 PROG = "rsrivc_replay"
 
@@ -226,6 +238,80 @@ def play(
     return stats
 
 
+BLOCK_SIGNAL_TOPICS = ("/reference", "/plant_input", "/plant_output")
+
+
+@dataclass
+class BlockPlan:
+    """The bag's samples on its grid for ``--block``: index, r (NaN in open loop), u, y, log times (ns)."""
+
+    index: np.ndarray
+    r: np.ndarray
+    u: np.ndarray
+    y: np.ndarray
+    log_ns: np.ndarray
+    rate_hz: float
+
+    @property
+    def n(self) -> int:
+        return int(self.index.size)
+
+
+def plan_blocks(plan: BagPlan, topics: list[str] | None) -> BlockPlan:
+    """Read r, u, y of the bag for ``--block`` (one-line :class:`ReplayError` on failure); see the module docstring.
+
+    ``topics``: ``[reference,] input, output`` topics (default ``/reference`` when the bag has it, ``/plant_input``,
+    ``/plant_output``)."""
+    from ..bagio import FLOAT64, BagError, mean_sample_spacing, read_signals
+    from ..config import SignalConfig
+
+    names = list(topics) if topics else [t for t in BLOCK_SIGNAL_TOPICS if t in plan.topics or t != "/reference"]
+    if len(names) not in (2, 3):
+        raise ReplayError(f"--block needs 2 (input, output) or 3 (reference, input, output) topics, got {len(names)}")
+    closed = len(names) == 3
+    sig_names = ("reference", "input", "output") if closed else ("input", "output")
+    missing = [t for t in names if t not in plan.topics]
+    if missing:
+        raise ReplayError(f"topic(s) not in bag {plan.path}: {', '.join(missing)}")
+    n_out = plan.counts[names[-1]]
+    if n_out < 2 or plan.end_ns <= plan.start_ns:
+        raise ReplayError(f"bag {plan.path}: {names[-1]} has {n_out} message(s): no sample grid for --block")
+    out_ns = np.fromiter((stamp for _, stamp, _ in iter_bag(BagPlan(plan.path, {names[-1]: ""}, {}, 0, 0))),
+                         dtype=np.int64)
+    view = SimpleNamespace(closed_loop=closed, loop_rate_hz=1.0 / mean_sample_spacing(out_ns),
+                           signals={s: SignalConfig(t, FLOAT64) for s, t in zip(sig_names, names, strict=True)})
+    try:
+        sig = read_signals(plan.path, view)
+    except BagError as exc:
+        raise ReplayError(str(exc)) from None
+    t = np.asarray(sig.t, dtype=np.float64)
+    h = 1.0 / view.loop_rate_hz
+    index = np.rint(t / h) if h > 0 else np.full(t.size, np.nan)
+    if not (np.all(np.isfinite(index)) and np.all(np.diff(index) > 0) and np.all(np.abs(t - index * h) < 0.5 * h)):
+        raise ReplayError(f"bag {plan.path}: the samples do not lie on a uniform grid (jitter above half a sample "
+                          "period, or repeated times): no index for --block")
+    r = np.full(t.size, np.nan) if sig.r is None else np.asarray(sig.r, dtype=np.float64)
+    log_ns = int(sig.t0_ns) + np.rint(t * 1e9).astype(np.int64)
+    return BlockPlan(index, r, np.asarray(sig.u, float), np.asarray(sig.y, float), log_ns, 1.0 / h)
+
+
+def iter_blocks(bp: BlockPlan, rows: int, topic: str) -> Callable[[], Iterator[tuple[str, int, Any]]]:
+    """A ``messages`` source for :func:`play`: blocks of ``rows`` rows at the log time of their last row; each pass
+    (``--loop``) continues the index where the previous one ended."""
+    from ..ros.convert import block_message
+
+    passes = [0]
+
+    def gen() -> Iterator[tuple[str, int, Any]]:
+        shift = passes[0] * (int(bp.index[-1]) + 1)
+        passes[0] += 1
+        for j in range(0, bp.n, rows):
+            sl = slice(j, min(j + rows, bp.n))
+            yield topic, int(bp.log_ns[sl.stop - 1]), block_message(bp.index[sl] + shift, bp.r[sl], bp.u[sl],
+                                                                     bp.y[sl])
+    return gen
+
+
 def _msg_class(msgtype: str) -> Any:
     """Import the rclpy message class of ``pkg/msg/Name``."""
     parts = msgtype.split("/")
@@ -252,6 +338,10 @@ def _parser() -> argparse.ArgumentParser:
     ap.add_argument("--delay", type=float, default=0.0, help="seconds to wait after creating publishers")
     ap.add_argument("--wait-for-subscribers", type=float, default=None, metavar="TIMEOUT_S", const=30.0,
                     nargs="?", help="before playing, wait until every topic has a subscriber (default 30 s)")
+    ap.add_argument("--block", type=int, default=0, metavar="N", help="publish the bag's r, u, y as "
+                    "Float64MultiArray blocks of N rows (columns index, reference, input, output; the monitor's "
+                    "block.topic input) instead of the recorded topics; --topics then names [reference] input output")
+    ap.add_argument("--block-topic", default="/block", help="topic of --block (default /block)")
     ap.add_argument("--stats", action="store_true", help="print achieved message rate and lateness")
     ap.add_argument("--node-name", default="rsrivc_replay", help="ROS node name")
     return ap
@@ -275,8 +365,13 @@ def main(argv: list[str] | None = None) -> int:
             raise ReplayError(f"--clock rate must be > 0 Hz, got {args.clock}")
         if args.qos_depth < 1:
             raise ReplayError(f"--qos-depth must be >= 1, got {args.qos_depth}")
-        plan = inspect_bag(args.bag, args.topics)
+        if args.block < 0:
+            raise ReplayError(f"--block must be >= 1 rows, got {args.block}")
+        plan = inspect_bag(args.bag, None if args.block else args.topics)
+        block = plan_blocks(plan, args.topics) if args.block else None
         classes = {t: _msg_class(m) for t, m in plan.topics.items()}
+        if block is not None:
+            classes = {args.block_topic: _msg_class("std_msgs/msg/Float64MultiArray")}
     except ReplayError as exc:
         print(f"{PROG}: error: {exc}", file=sys.stderr)
         return 2
@@ -295,7 +390,7 @@ def main(argv: list[str] | None = None) -> int:
         node = rclpy.create_node(args.node_name, context=context)
         qos = QoSProfile(history=HistoryPolicy.KEEP_LAST, depth=args.qos_depth,
                          reliability=ReliabilityPolicy.RELIABLE, durability=DurabilityPolicy.VOLATILE)
-        pubs = {t: node.create_publisher(classes[t], t, qos) for t in plan.topics}
+        pubs = {t: node.create_publisher(classes[t], t, qos) for t in classes}
         clock_cb = None
         if args.clock is not None:
             from builtin_interfaces.msg import Time
@@ -323,10 +418,15 @@ def main(argv: list[str] | None = None) -> int:
             pubs[topic].publish(raw)
 
         print(f"{PROG}: playing {plan.path} ({plan.n_messages} messages on {len(plan.topics)} topic(s), "
-              f"{plan.duration_s:.3f} s) at rate {args.rate:g}{', looping' if args.loop else ''}", file=sys.stderr)
+              f"{plan.duration_s:.3f} s) at rate {args.rate:g}{', looping' if args.loop else ''}" + (
+                  f" as blocks of {args.block} rows on {args.block_topic} ({block.n} samples, "
+                  f"{-(-block.n // args.block)} blocks per pass)" if block is not None else ""), file=sys.stderr)
         period_ns = int(round((plan.end_ns - plan.start_ns) / max(plan.n_messages / len(plan.topics) - 1, 1)))
+        source = (lambda: iter_bag(plan)) if block is None else iter_blocks(block, args.block, args.block_topic)
+        if block is not None:
+            period_ns = int(round(args.block * 1e9 / block.rate_hz))
         try:
-            stats = play(lambda: iter_bag(plan), publish, rate=args.rate, loop=args.loop, loop_period_ns=period_ns,
+            stats = play(source, publish, rate=args.rate, loop=args.loop, loop_period_ns=period_ns,
                          stop=stop, clock=clock_cb, clock_period_s=1.0 / args.clock if args.clock else 0.01)
         except ReplayError as exc:
             print(f"{PROG}: error: {exc}", file=sys.stderr)
@@ -336,7 +436,8 @@ def main(argv: list[str] | None = None) -> int:
         if stats.interrupted:
             print(f"{PROG}: stopped after {stats.published} messages", file=sys.stderr)
         if args.stats:
-            expected = plan.n_messages / plan.duration_s * args.rate if plan.duration_s > 0 else float("nan")
+            n_msgs = plan.n_messages if block is None else -(-block.n // args.block)
+            expected = n_msgs / plan.duration_s * args.rate if plan.duration_s > 0 else float("nan")
             print(f"published {stats.published} messages in {stats.wall_s:.3f} s: {stats.msgs_per_s:.0f} msg/s "
                   f"(recorded rate x {args.rate:g}: {expected:.0f} msg/s), realtime factor "
                   f"{stats.realtime_factor:.4f} (target {args.rate:g}), {stats.batches} sleeps, "

@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import array
 import math
 import sys
 from typing import Any
@@ -108,4 +109,54 @@ def modes_array(modal: Any) -> Float64MultiArray:
                       MultiArrayDimension(label="field", size=6, stride=6)]
     msg.layout.data_offset = 0
     msg.data = [x for row in rows for x in row]
+    return msg
+
+
+BLOCK_TYPE = "std_msgs/msg/Float64MultiArray"
+BLOCK_COLUMNS = ("index", "reference", "input", "output")
+
+
+def block_rows(msg: Any) -> tuple[Any, str]:
+    """A block message (../shared/CONTRACT.md "Signals in") as an ``(N, 4)`` float64 array of rows ``index,
+    reference, input, output``, or ``(None, reason)``.
+
+    Strict: exactly two dimensions labelled ``sample`` (size N >= 1) and ``signal`` (size 4), strides row-major
+    (``4 N`` and ``4``; 0 = not set is accepted), ``len(data) - data_offset == 4 N``. A column-major or transposed
+    block is refused, never read with its columns mixed up. The index column is checked by
+    :func:`..ros.blocks.index_problem`."""
+    import numpy as np
+
+    dims = list(msg.layout.dim)
+    if len(dims) != 2:
+        return None, f"layout has {len(dims)} dimensions, expected 2 (sample, signal)"
+    d0, d1 = dims
+    if d0.label != "sample" or d1.label != "signal":
+        return None, f"dimension labels {d0.label!r}, {d1.label!r}, expected 'sample', 'signal'"
+    n, off = int(d0.size), int(msg.layout.data_offset)
+    if int(d1.size) != len(BLOCK_COLUMNS):
+        return None, f"dimension 'signal' has size {d1.size}, expected 4 (index, reference, input, output)"
+    if n < 1:
+        return None, "no rows (dimension 'sample' has size 0)"
+    if int(d0.stride) not in (0, 4 * n) or int(d1.stride) not in (0, 4):
+        return None, f"strides {d0.stride}, {d1.stride} are not row-major ({4 * n}, 4)"
+    size = len(msg.data)
+    if size - off != 4 * n:
+        return None, f"data holds {size - off} values after data_offset {off}, expected {4 * n} (N = {n} rows x 4)"
+    data = np.frombuffer(msg.data, dtype=np.float64) if size else np.empty(0)
+    return data[off:off + 4 * n].reshape(n, 4).copy(), ""
+
+
+def block_message(index: Any, r: Any, u: Any, y: Any) -> Float64MultiArray:
+    """A block message in the contract layout from equal-length columns (``rsrivc_replay --block``, tests)."""
+    import numpy as np
+
+    rows = np.column_stack([np.asarray(c, dtype=np.float64) for c in (index, r, u, y)])
+    n = rows.shape[0]
+    msg = Float64MultiArray()
+    msg.layout.dim = [MultiArrayDimension(label="sample", size=n, stride=4 * n),
+                      MultiArrayDimension(label="signal", size=4, stride=4)]
+    msg.layout.data_offset = 0
+    data = array.array("d")
+    data.frombytes(np.ascontiguousarray(rows).tobytes())
+    msg.data = data
     return msg
