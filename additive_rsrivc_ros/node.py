@@ -353,6 +353,16 @@ def make_node_class() -> type:
             return s if s > 0.0 else max(0.1, 10.0 / self.cfg.loop_rate_hz)
 
         # ------------------------------------------------------------------------------------ lifecycle
+        def _load_kernels(self) -> None:
+            """numba's one-time start (1-2 s, or a compilation without the cache) before any data, not mid-stream."""
+            from .warmup import is_warm, load_kernels
+
+            if not is_warm():
+                self.get_logger().warning("the numba kernels of this version are not cached yet: compiling them now "
+                                          "(once, about a minute; run rsrivc_warmup after installing to avoid this)")
+            seconds = load_kernels()
+            self.get_logger().info(f"kernels loaded in {seconds:.2f} s")
+
         def on_configure(self, state: Any) -> Any:
             unknown, foreign = split_unknown(self._parameter_overrides, self._table)
             if foreign:
@@ -372,6 +382,7 @@ def make_node_class() -> type:
                 cfg = cfg.with_block_input()
             self.cfg = cfg
             v = values
+            self._load_kernels()
             pipeline = self._restore(cfg, v["state_file"])
             try:
                 self.pipeline = pipeline or MonitorPipeline(cfg)

@@ -31,6 +31,24 @@ CASES = (
 MARKER = ".warm"
 
 
+def load_kernels() -> float:
+    """Load the compiled kernels into this process now; return the seconds it took.
+
+    A process's first numba call initializes numba's target context (about 1-2 s, holding the GIL); each further
+    kernel's first call then loads it from the cache in milliseconds. The node does this while configuring, before
+    it subscribes: paid in the middle of a 4 kHz stream it stalls the executor and the input pauses. Without a warm
+    cache this compiles (tens of seconds), once.
+    """
+    import numpy as np
+
+    from .core import zoh
+
+    t0 = time.monotonic()
+    phi, gam = np.zeros((2, 2)), np.zeros(2)
+    zoh.second_order_zoh(0.01, 1e-4, 1e-3, phi, gam)    # the first call starts numba (the rest load in ms each)
+    return time.monotonic() - t0
+
+
 def kernel_dispatchers() -> dict[str, object]:
     """Every numba dispatcher defined in the package's modules, by ``module.name``."""
     import importlib
