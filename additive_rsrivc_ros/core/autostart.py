@@ -10,7 +10,8 @@ samples, which the pipeline then gives to the estimator exactly as the guess pat
 A window without usable excitation (constant reference or input, no resonance in the valid FRF band, no order that
 fits) or with less than :data:`MIN_CONTIGUOUS_S` of contiguous valid samples is a failed attempt: one line says why,
 and the search starts again on new data. A window that was excited but showed no mode (too short to resolve a low or
-lightly excited mode) makes the next window twice as long, up to :data:`MAX_GROWTH` x; the others are retried at once
+lightly excited mode, or a mode outside the band the window excites) makes the next window twice as long, up to
+:data:`MAX_GROWTH` x (where such a mode is accepted, flagged in the message); the others are retried at once
 for the first :data:`FAST_RETRIES` failures, then after waiting ``window x 2^(failures - FAST_RETRIES)`` of data, at
 most :data:`MAX_WAIT_S` (bounded cost on a loop left idle for hours; a start at most ``MAX_WAIT_S`` + one window after
 the excitation begins). Nothing is estimated meanwhile; the estimator's offline initialization always uses the first
@@ -60,7 +61,7 @@ class FoundModes:
         modes = ", ".join(f"{m[0]:.5g} Hz" if m[0] > 0 else f"rigid body b0/p^{ell}"
                           for m, ell in zip(self.modal, self.integrators, strict=True))
         a, b = self.window_s
-        where = f"the first {b - a:.4g} s" if a <= 0.0 else f"t={a:.1f}–{b:.1f} s"
+        where = f"the first {b - a:.4g} s" if abs(a) < 1e-6 else f"t={a:.1f}–{b:.1f} s"
         return f"found {len(self.integrators)} mode(s) on {where} ({modes}; {self.message})"
 
     def to_dict(self) -> dict[str, Any]:
@@ -145,6 +146,10 @@ class ModeSearch:
             try:
                 from .modefind import autostart_config
                 new, res = autostart_config(self.cfg, r if closed else None, u, y)
+                if not all(res.identifiable) and self.growth < MAX_GROWTH:
+                    bad = ", ".join(f"{m[0]:.4g} Hz" for m, ok in zip(res.modal, res.identifiable, strict=True)
+                                    if not ok)
+                    new, problem = None, f"mode(s) outside the band the window excites ({bad}): window too short"
             except Exception as exc:  # noqa: BLE001 - a failed search is a health line, never a crash
                 text = str(exc).strip().splitlines()
                 problem = text[0] if text else type(exc).__name__
