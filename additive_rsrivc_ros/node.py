@@ -693,13 +693,16 @@ def make_node_class() -> type:
                     self._data_s += len(blk) / self.cfg.loop_rate_hz
                     if was_init and pipe.initialized:
                         self.delays_ms.extend((time.monotonic_ns() - blk.arrival_ns) * 1e-6)
-                    for note in (n for r in reports for n in r.notices):   # automatic start: found / failed
-                        (self.get_logger().info if pipe.K else self.get_logger().warning)(note)
                     if reports:
                         self._reports_made += len(reports)
                         self._modes_queue.extend(r.modal for r in reports if r.K)   # ~/modes once K is known
                         self._latest_report = reports[-1]
                         self._snapshot = (reports[-1], reports[-1].modal)
+                    for note in (n for r in reports for n in r.notices):   # automatic start: found / failed
+                        if pipe.K:
+                            self.get_logger().info(note)
+                        else:
+                            self.get_logger().warning(note)
                 if now >= self._next_graph_ns:
                     self._once_per_second(now, sync)
                 self._log_events(sync, n_ev)

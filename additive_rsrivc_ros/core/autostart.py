@@ -113,7 +113,7 @@ class ModeSearch:
     def add(self, r: np.ndarray, u: np.ndarray, y: np.ndarray, valid: np.ndarray, t_end: float,
             t_end_rel: float) -> None:
         if self.n == 0:
-            self.t_start_s = t_end_rel - (u.size - 1) / self.rate
+            self.t_start_s = max(t_end_rel - (u.size - 1) / self.rate, 0.0)   # times count from the first sample
         self.blocks.append(_Block(r.copy(), u.copy(), y.copy(), valid.copy(), t_end))
         self.n += u.size
 
