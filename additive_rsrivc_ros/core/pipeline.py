@@ -16,6 +16,12 @@ The one object the node (``rsrivc_monitor``) and the offline tool (``rsrivc_diag
    of the shortest modelled period) is filled with invalid samples, a longer one re-primes the estimator's
    filters (``mark_gap``, 000 Algorithm 2 step 1), as does the end of a stuck-sensor episode (an output constant
    for ``faults.health.stuck_s``; samples withheld). Garbage never reaches the estimator as data.
+1b. **Automatic start** (no mode guesses, ``cfg.auto_modes``; :mod:`.autostart`): the first
+   ``max(init_duration_s, 2 s)`` of samples that passed steps 0-1 are searched for modes
+   (:func:`.modefind.autostart_config`); until modes are found there is no estimator, reports have K = 0, phase
+   ``finding modes`` and say so on health (a failed window: why, and a retry on new data). The estimator and the
+   fault and health monitors are then built for the K found and the buffered samples go through step 2 as they
+   would have with those modes as guesses.
 2. **Initialization**: the first ``init_duration_s`` of valid contiguous data go to the estimator's
    offline initialization (000 Algorithm 2 step 1, 001 eq. 29); then samples are fed in blocks. A model is
    valid only if it is finite and, in closed loop, ``C_d`` (with the input delay) stabilizes it (checked after
