@@ -428,7 +428,8 @@ def make_node_class() -> type:
                           self.create_service(Trigger, "~/rebaseline", self._srv_rebaseline),
                           self.create_service(Trigger, "~/save_state", self._srv_save)]
             self.get_logger().info(
-                f"configured: K={cfg.K}, {cfg.loop_rate_hz:g} Hz, {'closed' if cfg.closed_loop else 'open'} loop, "
+                f"configured: K={cfg.K or 'from the data'}, {cfg.loop_rate_hz:g} Hz, "
+                f"{'closed' if cfg.closed_loop else 'open'} loop, "
                 f"inputs {', '.join(self.topics[s] for s in self.signals)} "
                 f"({getattr(self.sync, 'pairing', 'stamped' if self.sync.stamped else 'arrival order')}), "
                 f"QoS {qos_text}, input queues "
@@ -747,9 +748,14 @@ def make_node_class() -> type:
                         self.delays_ms.extend((time.monotonic_ns() - blk.arrival_ns) * 1e-6)
                     if reports:
                         self._reports_made += len(reports)
-                        self._modes_queue.extend(r.modal for r in reports)
+                        self._modes_queue.extend(r.modal for r in reports if r.K)   # ~/modes once K is known
                         self._latest_report = reports[-1]
                         self._snapshot = (reports[-1], reports[-1].modal)
+                    for note in (n for r in reports for n in r.notices):   # automatic start: found / failed
+                        if pipe.K:
+                            self.get_logger().info(note)
+                        else:
+                            self.get_logger().warning(note)
                 if now >= self._next_graph_ns:
                     self._once_per_second(now, sync)
                 self._log_events(sync, n_ev)
@@ -871,11 +877,12 @@ def make_node_class() -> type:
             name, hw = self.status_prefix(), self.get_fully_qualified_name()
             arr = DiagnosticArray()
             arr.header.stamp = self.get_clock().now().to_msg()
-            for i in range(self.cfg.K):
+            n_modes = self.cfg.K if modal is None else len(modal)   # 0 while the modes are being found
+            for i in range(n_modes):
                 vals = {f: math.nan for f in cv.MODE_FIELDS} if modal is None else \
                     {f: float(modal[i, j]) for j, f in enumerate(cv.MODE_FIELDS)}
                 level, msg = int(Level.STALE), "initializing" if self.looking_since_ns else "starting"
-                if rep is not None:
+                if rep is not None and rep.K == n_modes:
                     md = rep.mode_dict(i)
                     vals.update({k: md[k] for k in (*cv.BASELINE_FIELDS, *cv.FLAG_FIELDS)})
                     level, msg = int(rep.mode_levels[i]), self._mode_message(rep, i)

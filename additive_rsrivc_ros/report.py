@@ -77,9 +77,10 @@ class DiagnosisSeries:
                   hold=np.zeros(n, bool), issues=[])
         for j, rep in enumerate(reports):
             out.time_s[j] = rep.time_s
-            out.modal[j] = np.asarray(rep.modal, float).reshape(K, 6)
-            out.baseline[j] = np.asarray(rep.baseline, float).reshape(K, 3)
-            out.flags[j] = np.asarray(rep.flags, bool).reshape(K, 3)
+            if np.size(rep.modal) == 6 * K:   # else a report before the automatic start found the modes (K = 0)
+                out.modal[j] = np.asarray(rep.modal, float).reshape(K, 6)
+                out.baseline[j] = np.asarray(rep.baseline, float).reshape(K, 3)
+                out.flags[j] = np.asarray(rep.flags, bool).reshape(K, 3)
             out.estimating[j] = bool(rep.estimating)
             h = rep.health or {}
             out.health_level[j] = int(h.get("level", 0))
@@ -313,6 +314,13 @@ def modes_figure(inp: ReportInput) -> Any:
     """K x 3 grid: estimate +-2 sigma, baseline, truth, initialization and fault intervals over time."""
     s = inp.series
     K = s.K
+    if K == 0:   # no guesses and the automatic start found no mode (health says why)
+        fig = _figure(13.0, 1.5)
+        ax = fig.subplots()
+        ax.axis("off")
+        ax.text(0.5, 0.5, "no modes: the automatic start found none in this record (see the estimator health)",
+                ha="center", va="center")
+        return fig
     fig = _figure(13.0, 2.3 * K + 1.0, top_in=0.75, wspace=0.22)
     axes = np.atleast_2d(fig.subplots(K, 3, sharex=True, squeeze=False))
     t = s.time_s

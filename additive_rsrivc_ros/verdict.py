@@ -29,6 +29,7 @@ from typing import Any
 
 LEVELS = ("OK", "FAULT", "DEGRADED", "NO ESTIMATE")
 STARTUP_ISSUES = ("initializing",)       # health issue kinds of a normal start (not a disruption)
+STARTUP_REASONS = ("initializing", "starting: finding modes", "no mode guesses: found")   # their reasons
 ADVISORY_ISSUES = ("residual_jump", "projection_storm")   # = core.faults.HealthMonitor.ADVISORY_KINDS: never hold
 ADVISORY_REASONS = ("residual variance jumped", "projection storm")   # their reason texts (when no 'issues')
 _SUFFIX = re.compile(r"\s*\((recovering|hold-off)[^)]*\)\s*$")
@@ -87,7 +88,7 @@ def _disruption(health: Mapping[str, Any]) -> list[str]:
     if holding is not None and not holding:
         return []
     reasons = [_clean(r) for r in health.get("reasons", [])]
-    reasons = [r for r in reasons if not r.startswith(STARTUP_ISSUES + ADVISORY_REASONS)]
+    reasons = [r for r in reasons if not r.startswith(STARTUP_REASONS + ADVISORY_REASONS)]
     return reasons or [", ".join(holding or ["health hold"])]
 
 
@@ -106,7 +107,7 @@ def _state(rep: Any, seen: dict[str, bool]) -> tuple[str, str]:
     if phase in ("settling", "waiting", "initializing"):
         if seen["baseline_window"] or bad:
             # the cause: what held the tests, else what the health reports (e.g. a residual jump restarted it)
-            cause = bad or [r for r in map(_clean, health.get("reasons", [])) if not r.startswith(STARTUP_ISSUES)]
+            cause = bad or [r for r in map(_clean, health.get("reasons", [])) if not r.startswith(STARTUP_REASONS)]
             return "settling", f"baseline window restarted after: {cause[0]}" if cause else "baseline window restarted"
         return "settling", "settling: estimator converging before the baseline is learned"
     if phase == "learning":
@@ -244,7 +245,8 @@ def assess(reports: Sequence[Any], duration_s: float,
     disrupted = [b for b in blind if not b.startup]
     spans = _span_text(blind)
     if not any(r.estimating for r in reports):
-        why = blind[-1].reason if blind else "no data"
+        last = next((d for r in reversed(reports) if (d := _disruption(r.health or {}))), None)
+        why = last[0] if last else (blind[-1].reason if blind else "no data")   # e.g. why no modes were found
         return Verdict("NO ESTIMATE", f"the estimator never had an accepted model in {duration_s:.1f} s of data "
                        f"({why}); fault tests did not run.", duration_s, 0.0, None, blind)
     if events:

@@ -107,20 +107,18 @@ def test_diagnose_without_guesses_starts_from_the_data(bag, tmp_path, capsys):
 
 
 def test_pipeline_with_empty_guesses_tracks_the_right_modes(bag):
-    """The core path the node and rsrivc_diagnose share: autostart_config on the init data, then the pipeline."""
+    """The core path the node and rsrivc_diagnose share: the pipeline without guesses finds the modes on the init
+    data itself (core/autostart.py), then tracks them."""
     from additive_rsrivc_ros.bagio import read_signals
-    from additive_rsrivc_ros.core.modefind import autostart_config
     from additive_rsrivc_ros.core.pipeline import MonitorPipeline
 
     cfg = load_config(bag[1])
     sig = read_signals(bag[0], cfg)
-    n0 = int(cfg.init_duration_s * cfg.loop_rate_hz)
-    full, found = autostart_config(cfg, sig.r[:n0], sig.u[:n0], sig.y[:n0])
-    assert found.K == 2 and full.K == 2 and [m.memory_s for m in full.modes] == [5.0, 5.0]
-    pipe = MonitorPipeline(full)
+    pipe = MonitorPipeline(cfg)
     step = int(cfg.loop_rate_hz)
     for a in range(0, sig.t.size, step):
         pipe.push(sig.t[a:a + step], sig.r[a:a + step], sig.u[a:a + step], sig.y[a:a + step])
+    assert pipe.K == 2 and [m.memory_s for m in pipe.cfg.modes] == [5.0, 5.0]
     modal = pipe.modal()
     for m, truth in zip(modal, MODES, strict=True):
         assert abs(m[0] / truth.natural_frequency_hz - 1.0) < 0.01

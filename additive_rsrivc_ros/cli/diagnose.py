@@ -96,23 +96,24 @@ class Progress:
 
 
 # ------------------------------------------------------------------------------------------------- running
-def _automatic_start(cfg: Any, sig: Any, stderr: Any) -> Any:
-    """Modes found on the first ``init_duration_s`` (at least 2 s) of the bag when the params give no guesses."""
-    from ..core.modefind import autostart_config
+NOTICES_SHOWN = 5   # automatic-start lines printed (a long record without excitation retries many times)
 
-    n = max(int(round(max(cfg.init_duration_s, 2.0) * cfg.loop_rate_hz)), 1)
-    r = sig.r[:n] if cfg.closed_loop and sig.r is not None else None
-    new, found = autostart_config(cfg, r, sig.u[:n], sig.y[:n])
-    modes = ", ".join(f"{m[0]:.5g} Hz" if m[0] > 0 else f"rigid body b0/p^{s.integrators}"
-                      for m, s in zip(found.modal, found.structures, strict=True))
-    print(f"{PROG}: no mode guesses: found {found.K} mode(s) on the first {n / cfg.loop_rate_hz:.4g} s ({modes}; "
-          f"{found.message})", file=stderr)
-    return new
+
+def _print_notices(reports: Sequence[Any], stderr: TextIO) -> None:
+    """The pipeline's automatic-start lines (modes found; windows without modes) on stderr."""
+    notes = [n for rep in reports for n in getattr(rep, "notices", [])]
+    for note in notes[:NOTICES_SHOWN]:
+        print(f"{PROG}: {'' if note.startswith('no mode guesses') else 'warning: '}{note}", file=stderr)
+    if len(notes) > NOTICES_SHOWN:
+        print(f"{PROG}: warning: {len(notes) - NOTICES_SHOWN} more automatic-start line(s) in summary.json health",
+              file=stderr)
 
 
 def run_pipeline(sig: Any, cfg: Any, *, chunk_s: float = 1.0, progress: Progress | None = None,
-                 ) -> tuple[list[Any], list[Any]]:
-    """Feed the bag's samples through a fresh :class:`MonitorPipeline`; return ``(reports, events)``.
+                 pipeline: Any = None) -> tuple[list[Any], list[Any]]:
+    """Feed the bag's samples through a fresh :class:`MonitorPipeline` (or ``pipeline``); return
+    ``(reports, events)``. Without mode guesses the pipeline finds the modes first (``core/autostart.py``);
+    ``pipeline.cfg`` then holds the modes found.
 
     Events are collected from the reports' ``events_opened``/``events_closed`` (as the node sees them),
     keyed by (mode, quantity, alarm time), in order of onset.
@@ -120,7 +121,7 @@ def run_pipeline(sig: Any, cfg: Any, *, chunk_s: float = 1.0, progress: Progress
     from ..core.pipeline import MonitorPipeline
     from .atomic import raise_if_interrupted
 
-    pipe = MonitorPipeline(cfg)
+    pipe = pipeline if pipeline is not None else MonitorPipeline(cfg)
     n = sig.t.size
     step = max(1, int(round(chunk_s * cfg.loop_rate_hz)))
     reports: list[Any] = []
@@ -307,6 +308,7 @@ def diagnose(args: argparse.Namespace, stdout: TextIO, stderr: TextIO, state: di
     from .. import report as rp
     from ..bagio import read_signals
     from ..config import DEFAULT_NODE_NAME, load_config, param_table
+    from ..core.pipeline import MonitorPipeline
     from ..verdict import assess
     from .atomic import AtomicDir, check_replaceable
 
@@ -323,13 +325,14 @@ def diagnose(args: argparse.Namespace, stdout: TextIO, stderr: TextIO, state: di
     t_read = time.monotonic()
     _warn_bad_samples(sig, stderr)
     n = sig.t.size
-    if cfg.auto_modes:  # no guesses: the automatic start on the first init_duration_s (core/modefind.py)
-        cfg = _automatic_start(cfg, sig, stderr)
     duration = float(sig.t[-1]) + 1.0 / cfg.loop_rate_hz if n else 0.0
     show = args.progress if args.progress is not None else stderr.isatty()
     bar = Progress(float(sig.t[-1]) if n else 0.0, stderr, bool(show))
-    reports, ev_objs = run_pipeline(sig, cfg, chunk_s=args.chunk_s, progress=bar)
+    pipe = MonitorPipeline(cfg)   # no guesses: it finds the modes on the first max(init_duration_s, 2 s) itself
+    reports, ev_objs = run_pipeline(sig, cfg, chunk_s=args.chunk_s, progress=bar, pipeline=pipe)
     bar.close()
+    _print_notices(reports, stderr)
+    cfg = pipe.cfg                # with the modes found by the automatic start
     t_est = time.monotonic()
     events = [event_dict(e) for e in ev_objs]
     verdict = assess(reports, duration, events)

@@ -16,6 +16,12 @@ The one object the node (``rsrivc_monitor``) and the offline tool (``rsrivc_diag
    of the shortest modelled period) is filled with invalid samples, a longer one re-primes the estimator's
    filters (``mark_gap``, 000 Algorithm 2 step 1), as does the end of a stuck-sensor episode (an output constant
    for ``faults.health.stuck_s``; samples withheld). Garbage never reaches the estimator as data.
+1b. **Automatic start** (no mode guesses, ``cfg.auto_modes``; :mod:`.autostart`): the first
+   ``max(init_duration_s, 2 s)`` of samples that passed steps 0-1 are searched for modes
+   (:func:`.modefind.autostart_config`); until modes are found there is no estimator, reports have K = 0, phase
+   ``finding modes`` and say so on health (a failed window: why, and a retry on new data). The estimator and the
+   fault and health monitors are then built for the K found and the buffered samples go through step 2 as they
+   would have with those modes as guesses.
 2. **Initialization**: the first ``init_duration_s`` of valid contiguous data go to the estimator's
    offline initialization (000 Algorithm 2 step 1, 001 eq. 29); then samples are fed in blocks. A model is
    valid only if it is finite and, in closed loop, ``C_d`` (with the input delay) stabilizes it (checked after
@@ -35,12 +41,13 @@ from __future__ import annotations
 
 import math
 from collections.abc import Callable, Mapping
-from dataclasses import dataclass
+from dataclasses import dataclass, field, replace
 from typing import Any
 
 import numpy as np
 
 from .alignment import AlignedBlock, InvariantAligner
+from .autostart import FoundModes, ModeSearch
 from .faults import (
     BASELINE_KEYS,
     QUANTITIES,
@@ -73,8 +80,10 @@ class Report:
     events_opened: list[FaultEvent]
     events_closed: list[FaultEvent]
     health: dict[str, Any]            # level, ok, hold, reasons, counters, ...
-    phase: str                        # initializing | settling | learning | monitoring
+    phase: str                        # finding modes | initializing | settling | learning | monitoring
     estimating: bool                  # False before the first initialization (modal is NaN)
+    notices: list[str] = field(default_factory=list)   # one-line news since the last report (modes found, a failed
+                                                        # automatic start) for the node's log / the CLI's stderr
 
     @property
     def K(self) -> int:
@@ -209,16 +218,19 @@ class MonitorPipeline:
 
     def __init__(self, cfg: Any, *, state: Mapping[str, Any] | None = None,
                  estimator_factory: EstimatorFactory | None = None) -> None:
-        self.cfg = cfg
-        self.K = cfg.K
+        self.cfg_given = cfg                  # as configured (no guesses: the modes are found from the data)
+        self.cfg = cfg                        # with the modes the estimator uses (found ones after an automatic start)
         self.rate = float(cfg.loop_rate_hz)
         self.h = 1.0 / self.rate
         self._factory = estimator_factory or _default_factory
         self.settings = FaultSettings.from_params(cfg.params)
-        self.settings.check(self.K)
-        self.memory_s = np.array([m.memory_s for m in cfg.modes], dtype=float)
+        self.settings.check(cfg.K or cfg.mode_count or None)
+        if cfg.auto_modes and self.settings.has_given_baseline and not cfg.mode_count:
+            raise PipelineError("faults.baseline.* is given but the modes are to be found from the data with "
+                                "modes.count 0: give the mode guesses, or modes.count")
         self.publish_period = 1.0 / float(cfg.publish_rate_hz)
         self.init_samples = max(2, int(round(float(cfg.init_duration_s) * self.rate)))
+        self._fault_changes: dict[str, Any] = {}   # runtime faults.* changes (kept across reset)
         self._new_run()
         if state is not None:
             self.set_state(state)
@@ -230,11 +242,31 @@ class MonitorPipeline:
             est.set_memory(self.memory_s)
         return est
 
-    def _new_run(self) -> None:
+    @property
+    def finding_modes(self) -> bool:
+        """No guesses and the automatic start has not found the modes yet (K = 0, nothing is estimated)."""
+        return self.search is not None and self.search.found is None
+
+    def _set_modes(self, cfg: Any) -> None:
+        """Estimator, fault and health monitors for the modes of ``cfg`` (none while the modes are searched)."""
+        self.cfg = cfg
+        self.K = cfg.K
+        self.memory_s = np.array([m.memory_s for m in cfg.modes], dtype=float)
+        if self.K == 0:                       # automatic start pending: a health monitor for the notes only
+            mem = [float(v) for v in cfg.params.get("modes.memory_s", [])] or [10.0]
+            self.est, self.faults = None, None
+            self.health = HealthMonitor([max(mem)], self.settings, rate_hz=self.rate)
+            return
+        self.settings.check(self.K)
         self.est = self._new_estimator()
-        self.faults = FaultMonitor(self.memory_s, self.settings, structures=self.cfg.structures)
-        self.health = HealthMonitor(self.memory_s, self.settings, structures=self.cfg.structures, rate_hz=self.rate)
+        self.faults = FaultMonitor(self.memory_s, self.settings, structures=cfg.structures)
+        self.health = HealthMonitor(self.memory_s, self.settings, structures=cfg.structures, rate_hz=self.rate)
+
+    def _new_run(self) -> None:
+        self.search = ModeSearch(self.cfg_given) if self.cfg_given.auto_modes else None
+        self._set_modes(self.cfg_given)
         self.counters = _Counters()
+        self.notices: list[str] = []
         self.t0: float | None = None          # absolute time of the first sample
         self.t_last: float | None = None      # absolute time of the last accepted sample
         self.t_stamp_last: float | None = None  # last stamp accepted by step 1 (the aligner may hold samples back)
@@ -263,11 +295,14 @@ class MonitorPipeline:
         self._blind_since: float | None = None
 
     def reset(self) -> None:
-        """Start over: new estimator (initialized from the next data), no baseline, counters zeroed."""
+        """Start over: new estimator (initialized from the next data), no baseline, counters zeroed; without
+        guesses the modes are found again on the next data."""
         self._new_run()
 
     def rebaseline(self) -> list[FaultEvent]:
         """Learn a new baseline from the next healthy window; open events are closed now (and returned)."""
+        if self.faults is None:               # modes not found yet: the baseline is learned after the start anyway
+            return []
         t = self._rel(self.t_last) if self.t_last is not None else 0.0
         closed = self.faults.rebaseline(t)
         self.pending_closed += closed
@@ -275,6 +310,8 @@ class MonitorPipeline:
 
     @property
     def phase(self) -> str:
+        if self.finding_modes:
+            return "finding modes"
         return "initializing" if not self.initialized else self.faults.phase
 
     # ------------------------------------------------------------------------------------------- runtime params
@@ -286,12 +323,20 @@ class MonitorPipeline:
         fp = {k: v for k, v in params.items() if k.startswith("faults.")}
         if fp:
             try:
-                self.faults.update_settings(fp)
+                if self.faults is None:       # modes not found yet: the settings the fault monitor will start with
+                    new = FaultSettings.from_params({**self.cfg_given.params, **self._fault_changes, **fp})
+                    new.check(self.cfg_given.mode_count or None)
+                    self.settings = new
+                else:
+                    self.faults.update_settings(fp)
+                    self.settings = self.faults.settings
             except ValueError as exc:
                 raise PipelineError(str(exc)) from None
-            self.settings = self.faults.settings
+            self._fault_changes.update(fp)
             self.health.settings = self.settings
-        if "modes.memory_s" in params:
+        if "modes.memory_s" in params and self.K == 0:
+            self._set_memory_param(params["modes.memory_s"])
+        elif "modes.memory_s" in params:
             mem = np.asarray(params["modes.memory_s"], dtype=float).ravel()
             if mem.size == 1:                 # one value for all modes, as in the params file
                 mem = np.full(self.K, float(mem[0]))
@@ -306,6 +351,15 @@ class MonitorPipeline:
             if not (rate > 0 and math.isfinite(rate)):
                 raise PipelineError("publish_rate_hz must be > 0")
             self.publish_period = 1.0 / rate
+
+    def _set_memory_param(self, value: Any) -> None:
+        """``modes.memory_s`` changed before the modes are known: the memories the found modes will get."""
+        mem = [float(v) for v in np.atleast_1d(np.asarray(value, dtype=float))]
+        if not mem or not all(m * self.rate >= 2.0 for m in mem):
+            raise PipelineError("modes.memory_s must list memories of at least two samples")
+        self.cfg_given = replace(self.cfg_given, params={**self.cfg_given.params, "modes.memory_s": mem})
+        if self.search is not None:
+            self.search.cfg = self.cfg_given
 
     # ------------------------------------------------------------------------------------------- data path
     def _rel(self, t_abs: float) -> float:
@@ -542,6 +596,8 @@ class MonitorPipeline:
             self._marked_gaps += 1
         else:
             self._init_buf, self._init_n = [], 0
+            if self.finding_modes:           # the search needs contiguous data too: its window starts again
+                self.search.clear()
 
     def _advance(self, ta, ra, ua, ya, valid, a: int, b: int, *, feed: bool, reports: list[Report]) -> None:
         """Feed samples ``[a, b)`` (or only pass their time when ``feed`` is False), reporting on the way.
@@ -553,7 +609,7 @@ class MonitorPipeline:
             t_next = self.t0 + self.next_publish
             j = a + int(np.searchsorted(ta[a:b], t_next, side="left"))
             if feed and not self.initialized:
-                j = min(j, a + self.init_samples - self._init_n)
+                j = min(j, a + (self.search.need() if self.finding_modes else self.init_samples - self._init_n))
             if j > a:
                 if feed:
                     self._consume(ra[a:j], ua[a:j], ya[a:j], valid[a:j], float(ta[j - 1]))
@@ -567,16 +623,59 @@ class MonitorPipeline:
         c.samples_processed += n
         c.samples_skipped += int((~valid).sum())
         self._win_n += n
-        if self.initialized:
-            self.est.update(r, u, y, valid)
+        if self.finding_modes:
+            self._search_modes(r, u, y, valid, t_end)
+        else:
+            self._feed(r, u, y, valid, t_end)
+
+    def _feed(self, r: np.ndarray, u: np.ndarray, y: np.ndarray, valid: np.ndarray, t_end: float) -> None:
+        """Samples to the estimator: the first ``init_duration_s`` to the offline initialization, then updates."""
+        a, n = 0, u.size
+        while a < n:
+            if self.initialized:
+                self.est.update(r[a:], u[a:], y[a:], valid[a:])
+                return
+            b = min(n, a + self.init_samples - self._init_n)
+            yv = np.where(valid[a:b], y[a:b], np.nan)   # invalid samples are NaN for the offline init (it skips them)
+            self._init_buf.append((r[a:b].copy(), u[a:b].copy(), yv))
+            self._init_n += b - a
+            a = b
+            if self._init_n >= self.init_samples:
+                rb, ub, yb = (np.concatenate([blk[q] for blk in self._init_buf]) for q in range(3))
+                self._init_buf, self._init_n = [], 0
+                self._initialize(rb, ub, yb, t_end)
+
+    def _search_modes(self, r: np.ndarray, u: np.ndarray, y: np.ndarray, valid: np.ndarray, t_end: float) -> None:
+        """Automatic start (no guesses; :mod:`.autostart`): buffer the window, search it when full; once the modes
+        are found the estimator gets the buffered samples as the guess path would have given them."""
+        search, t_rel = self.search, self._rel(t_end)
+        if search.waiting(t_rel):         # back-off after repeated failures: these samples are not searched
             return
-        yv = np.where(valid, y, np.nan)   # invalid samples are NaN for the offline init (it skips them)
-        self._init_buf.append((r.copy(), u.copy(), yv))
-        self._init_n += n
-        if self._init_n >= self.init_samples:
-            rb, ub, yb = (np.concatenate([blk[q] for blk in self._init_buf]) for q in range(3))
-            self._init_buf, self._init_n = [], 0
-            self._initialize(rb, ub, yb, t_end)
+        search.add(r, u, y, valid, t_end, t_rel)
+        if search.need() > 0:
+            return
+        new, line = search.run(t_rel)
+        self.notices.append(line)
+        if new is None:
+            search.clear()
+            self.health.note("no_modes", t_rel, line)
+            return
+        self._adopt_modes(new, t_rel)
+        for blk in search.take():
+            self._feed(blk.r, blk.u, blk.y, blk.valid, blk.t_end)
+
+    def _adopt_modes(self, cfg: Any, t_rel: float) -> None:
+        """Build estimator and monitors for the modes found; health notes so far are kept (the failed searches'
+        ones are closed)."""
+        old = self.health
+        self._set_modes(cfg)
+        for kind, (t_seen, msg) in old.active.items():
+            if kind not in ("no_modes", "initializing"):
+                self.health.note(kind, t_seen, msg, count=0)
+        self.health.counts.update(old.counts)
+        found = self.search.found
+        self.health.note("initializing", t_rel, f"no mode guesses: {found.describe()}; initializing the estimator")
+        self._marked_gaps = 0
 
     def _initialize(self, r: np.ndarray, u: np.ndarray, y: np.ndarray, t_end: float) -> None:
         """Offline initialization + filter priming on the buffered data (000 Algorithm 2 step 1)."""
@@ -664,6 +763,11 @@ class MonitorPipeline:
                 self.health.note("repriming", t_rep, "estimator filters re-priming after non-finite filter states"
                                  if auto else "estimator filters re-priming after a data break")
             status = self.health.assess(t_rep, modal, est_health)
+        elif self.finding_modes:
+            self.health.note("initializing", t_rep, self.search.status_line())
+            status = self.health.status(t_rep)
+            if set(status.values["issues"]) <= {"initializing"}:
+                status.level = Level.STALE    # no model yet, nothing wrong: as a status without data
         else:
             if self.no_model is not None:
                 self.health.note("no_valid_model", t_rep, self.no_model)
@@ -676,29 +780,39 @@ class MonitorPipeline:
             self.pending_opened += upd.opened
             self.pending_closed += upd.closed
         health = status.to_dict()
-        if self.faults.anomaly_since is not None:
+        if self.search is not None:
+            health["autostart"] = self.search.info()
+        if self.faults is not None and self.faults.anomaly_since is not None:
             health["reasons"].append(f"output anomaly since t={self.faults.anomaly_since:.1f} s (residual variance "
                                      "jump or projection storm): only a fault that began with it can be confirmed; "
                                      "later deviations wait until the estimates return to the baseline (or rebaseline)")
             health["level"] = max(int(health["level"]), int(Level.WARN))
             health["ok"] = False
         self._alignment_health(health, t_rep)
-        health["anomaly_since"] = self.faults.anomaly_since
+        health["anomaly_since"] = None if self.faults is None else self.faults.anomaly_since
         self._health_extras(health, status.hold, t_rep)
         health.update(self.counters.to_dict())
         health["estimator"] = {k: _jsonable(v) for k, v in est_health.items()}
         health["stuck"] = self.stuck
-        health["baseline_source"] = None if self.faults.baseline is None else self.faults.baseline.source
-        b, bs = self.faults.baseline_arrays()
-        rep = Report(time_s=t_rep, modal=modal, baseline=b, baseline_std=bs, flags=self.faults.flags,
-                     levels=self.faults.levels, directions=self.faults.directions,
-                     events_opened=self.pending_opened, events_closed=self.pending_closed, health=health,
-                     phase=self.phase, estimating=self.initialized)
+        health["baseline_source"] = None if self.faults is None or self.faults.baseline is None else \
+            self.faults.baseline.source
+        rep = Report(time_s=t_rep, modal=modal, **self._fault_fields(), events_opened=self.pending_opened,
+                     events_closed=self.pending_closed, health=health, phase=self.phase,
+                     estimating=self.initialized, notices=self.notices)
         reports.append(rep)
         self.last_report = rep
-        self.pending_opened, self.pending_closed = [], []
+        self.pending_opened, self.pending_closed, self.notices = [], [], []
         if self.initialized and "divergence" in status.values.get("new_issues", []):
             self._reinitialize(t_rep)
+
+    def _fault_fields(self) -> dict[str, Any]:
+        """Baseline, flags, levels and directions of a report ((0, 3) while the modes are not known)."""
+        if self.faults is None:
+            return {"baseline": np.zeros((0, 3)), "baseline_std": np.zeros((0, 3)),
+                    "flags": np.zeros((0, 3), dtype=bool), "levels": np.zeros((0, 3), dtype=int), "directions": []}
+        b, bs = self.faults.baseline_arrays()
+        return {"baseline": b, "baseline_std": bs, "flags": self.faults.flags, "levels": self.faults.levels,
+                "directions": self.faults.directions}
 
     def _alignment_health(self, health: dict[str, Any], t_rep: float) -> None:
         """What the stream aligner found since the last report (non-holding: corrected data are valid data)."""
@@ -735,8 +849,12 @@ class MonitorPipeline:
     def _health_extras(self, health: dict[str, Any], hold: bool, t_rep: float) -> None:
         """Model validity, blind time of the fault tests and baseline trust on the report's health."""
         health["model_valid"] = self.initialized
-        health["no_model_reason"] = None if self.initialized else (self.no_model or "not initialized yet")
+        health["no_model_reason"] = None if self.initialized else (
+            "finding modes (no guesses)" if self.finding_modes else (self.no_model or "not initialized yet"))
         health["closed_loop_max_pole"] = self.model_max_pole if self.initialized else math.nan
+        if self.faults is None:
+            health["blind_since"], health["baseline_trusted"], health["baseline_note"] = None, False, ""
+            return
         paused = self.faults.baseline is None and self.faults.learner.n > 0 and self.faults.learner.paused
         tests_on = self.initialized and (self.faults.phase in ("learning", "monitoring") or paused)
         if hold and tests_on:
@@ -769,16 +887,18 @@ class MonitorPipeline:
     def get_state(self) -> dict[str, Any]:
         """Estimator, baseline, fault tests, health and clock as JSON-serializable data.
 
-        A partially filled initialization buffer is not saved (initialization restarts on new data);
-        a restored running estimator re-primes on the first samples (they follow a gap).
+        A partially filled initialization buffer (or search window) is not saved (initialization restarts on new
+        data); a restored running estimator re-primes on the first samples (they follow a gap). Modes found by the
+        automatic start are saved (``found_modes``) and restored into a pipeline configured without guesses.
         """
         est = None
         if self.initialized:
             est = {k: _jsonable(v) for k, v in self.est.get_state().items()}
+        found = self.search.found if self.search is not None else None
         return {
             "version": STATE_VERSION, "K": self.K, "loop_rate_hz": self.rate, "model": self._model_record(),
-            "estimator": est,
-            "faults": self.faults.get_state(), "health": self.health.get_state(),
+            "estimator": est, "found_modes": None if found is None else found.to_dict(),
+            "faults": None if self.faults is None else self.faults.get_state(), "health": self.health.get_state(),
             "pipeline": {"t0": self.t0, "t_last": self.t_last, "next_publish": self.next_publish,
                          "counters": self.counters.to_dict(), "memory_s": self.memory_s.tolist(),
                          "stuck": self.stuck, "last_y": self.last_y, "run_len": self.run_len,
@@ -788,22 +908,23 @@ class MonitorPipeline:
                          "no_model": self.no_model},
         }
 
-    def _model_record(self) -> dict[str, Any]:
+    def _model_record(self, cfg: Any = None) -> dict[str, Any]:
         """What a saved estimate is only valid for: rate, loop structure, controller, delay, mode structures."""
-        c = getattr(self.cfg, "controller", None)
-        return {"loop_rate_hz": self.rate, "closed_loop": bool(getattr(self.cfg, "closed_loop", False)),
+        cfg = self.cfg if cfg is None else cfg
+        c = getattr(cfg, "controller", None)
+        return {"loop_rate_hz": self.rate, "closed_loop": bool(getattr(cfg, "closed_loop", False)),
                 "controller_numerator": None if c is None else [float(v) for v in c.numerator],
                 "controller_denominator": None if c is None else [float(v) for v in c.denominator],
-                "input_delay_samples": int(getattr(self.cfg, "input_delay_samples", 0)),
-                "integrators": [int(s.integrators) for s in self.cfg.structures],
-                "orders": [[int(s.n), int(s.m)] for s in self.cfg.structures]}
+                "input_delay_samples": int(getattr(cfg, "input_delay_samples", 0)),
+                "integrators": [int(s.integrators) for s in cfg.structures],
+                "orders": [[int(s.n), int(s.m)] for s in cfg.structures]}
 
-    def _check_model_record(self, saved: Any) -> None:
+    def _check_model_record(self, saved: Any, cfg: Any = None) -> None:
         """Refuse (one line) a state saved under another model: another controller, delay, loop or structures."""
         if not isinstance(saved, Mapping):
             raise PipelineError("saved state does not record its controller, input delay and mode structures "
                                 "(saved by an older version); not restored")
-        mine = self._model_record()
+        mine = self._model_record(cfg)
         names = {"loop_rate_hz": "loop_rate_hz", "closed_loop": "closed_loop",
                  "controller_numerator": "controller.numerator", "controller_denominator": "controller.denominator",
                  "input_delay_samples": "input_delay_samples", "integrators": "modes.integrators",
@@ -823,12 +944,19 @@ class MonitorPipeline:
         try:
             if int(state["version"]) != STATE_VERSION:
                 raise PipelineError(f"saved state version {state['version']} is not {STATE_VERSION}")
-            if int(state["K"]) != self.K or float(state["loop_rate_hz"]) != self.rate:
+            found = FoundModes.from_dict(state["found_modes"]) if state.get("found_modes") else None
+            target = self.cfg_given   # modes found by an earlier run's automatic start count as guesses
+            if found is not None and self.cfg_given.auto_modes:
+                target = self.cfg_given.with_modes(found.modal, found.integrators)
+            if int(state["K"]) != target.K or float(state["loop_rate_hz"]) != self.rate:
                 raise PipelineError(f"saved state is for K={state['K']} at {state['loop_rate_hz']} Hz, the "
-                                    f"configuration has K={self.K} at {self.rate} Hz")
-            self._check_model_record(state.get("model"))
+                                    f"configuration has K={target.K or 'from the data'} at {self.rate} Hz")
+            self._check_model_record(state.get("model"), target)
             p = state["pipeline"]
             self._new_run()
+            if target is not self.cfg_given:
+                self.search.found = found
+                self._set_modes(target)
             mem = np.asarray(p["memory_s"], dtype=float)
             if mem.shape == (self.K,) and not np.array_equal(mem, self.memory_s):
                 self.update_params({"modes.memory_s": mem.tolist()})
@@ -836,7 +964,8 @@ class MonitorPipeline:
                 self.est.set_state({k: np.asarray(v) for k, v in state["estimator"].items()})
                 self.initialized = True
                 self._marked_gaps = int(dict(getattr(self.est, "health", {}) or {}).get("reprimes", 0) or 0)
-            self.faults.set_state(state["faults"])
+            if self.faults is not None:
+                self.faults.set_state(state["faults"])
             self.health.set_state(state["health"])
             self.t0 = None if p["t0"] is None else float(p["t0"])
             self.t_last = None if p["t_last"] is None else float(p["t_last"])

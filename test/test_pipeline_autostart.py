@@ -1,0 +1,160 @@
+"""The automatic start inside MonitorPipeline (no mode guesses; core/autostart.py), on simulated closed loops with
+known modes (the plant, controller and excitation of test_frf / test_modefind).
+
+Accuracy of the modes found: the modefind tests' tolerance (1 % in frequency, 15 % in damping). Once found, the
+estimator must get the samples exactly as a pipeline started with the found modes as guesses would have: its
+estimates are compared with such a pipeline's to rounding (rtol 1e-12; the same arithmetic gives bit-identical
+numbers). Confidently-wrong cases: a window without excitation and a NaN burst in the window give no numbers, one
+health line that says why, and a start on a later window.
+"""
+
+from __future__ import annotations
+
+import json
+
+import numpy as np
+import pytest
+from test_frf import CONTROLLER, DELAY, FS, MODES
+
+from additive_rsrivc_ros.config import MonitorConfig, validate_params
+from additive_rsrivc_ros.core.faults import Level
+from additive_rsrivc_ros.core.pipeline import MonitorPipeline, PipelineError
+from additive_rsrivc_ros.core.simulate import simulate_modes, square_wave, white_noise
+
+PARAMS = {"loop_rate_hz": FS, "closed_loop": True, "controller.numerator": list(CONTROLLER.numerator),
+          "controller.denominator": list(CONTROLLER.denominator), "input_delay_samples": DELAY,
+          "modes.memory_s": [5.0], "init_duration_s": 5.0}
+BLOCK = int(0.25 * FS)
+
+
+def _cfg(**kw) -> MonitorConfig:
+    return MonitorConfig.from_params(validate_params({**PARAMS, **kw}))
+
+
+def _sim(seed: int, duration_s: float, flat_until_s: float = 0.0):
+    """Closed loop of test_modefind: 0.5 Hz square-wave setpoint plus white dither; constant before ``flat_until_s``."""
+    rng = np.random.default_rng(seed)
+    t = np.arange(int(duration_s * FS)) / FS
+    r = square_wave(t, 0.5, 1.0) + white_noise(t.size, 0.05, rng)
+    r[t < flat_until_s] = 0.3
+    sim = simulate_modes(MODES, FS, r=r, controller=CONTROLLER, input_delay=DELAY,
+                         noise=white_noise(t.size, 0.01, rng), rng=rng)
+    return t, sim.r, sim.u, sim.y.copy()
+
+
+def _run(cfg, t, r, u, y, start: int = 0):
+    pipe = MonitorPipeline(cfg)
+    reports = []
+    for a in range(start, t.size, BLOCK):
+        reports += pipe.push(t[a:a + BLOCK], r[a:a + BLOCK], u[a:a + BLOCK], y[a:a + BLOCK])
+    return pipe, reports
+
+
+def _check_found(pipe):
+    found = pipe.search.found
+    assert found is not None and pipe.K == len(MODES)
+    for m, truth in zip(found.modal, MODES, strict=True):
+        assert abs(m[0] / truth.natural_frequency_hz - 1.0) < 0.01
+        assert abs(m[1] / truth.damping_ratio - 1.0) < 0.15
+    return found
+
+
+def _same_estimates(auto_reports, guess_reports, after_s: float, guess_start_s: float = 0.0) -> int:
+    """Compare the estimates at the common report instants after ``after_s`` (the guess pipeline's times count from
+    its first sample, at ``guess_start_s``); return how many."""
+    guess = {round(rep.time_s + guess_start_s, 6): rep for rep in guess_reports if rep.estimating}
+    n = 0
+    for rep in auto_reports:
+        t = round(rep.time_s, 6)
+        if t >= after_s and t in guess:
+            assert rep.estimating
+            np.testing.assert_allclose(rep.modal, guess[t].modal, rtol=1e-12, atol=0.0)
+            n += 1
+    return n
+
+
+@pytest.fixture(scope="module")
+def clean():
+    return _sim(11, 15.0)
+
+
+def test_no_guesses_finds_the_modes_and_then_estimates_as_with_guesses(clean):
+    t, r, u, y = clean
+    cfg = _cfg()
+    assert cfg.auto_modes
+    pipe, reports = _run(cfg, t, r, u, y)
+    found = _check_found(pipe)
+    assert found.window_s == pytest.approx((0.0, 5.0))
+    before = [rep for rep in reports if rep.K == 0]
+    assert before and all(rep.time_s < 5.0 for rep in before)
+    for rep in before:   # no number without a model: K = 0, nothing estimated, health says what happens
+        assert not rep.estimating and rep.modal.shape == (0, 6) and rep.phase == "finding modes"
+        assert rep.health["reasons"][0].startswith("starting: finding modes")
+        assert rep.health["level"] == Level.STALE and rep.health["autostart"]["state"] == "finding"
+    notices = [n for rep in reports for n in rep.notices]
+    assert len(notices) == 1 and notices[0].startswith("no mode guesses: found 2 mode(s) on the first 5 s")
+    assert reports[-1].health["autostart"]["K"] == 2
+    # the same estimator as a pipeline started with the found modes as guesses: same init window, same updates
+    _, guess = _run(cfg.with_modes(found.modal, found.integrators), t, r, u, y)
+    first_auto = next(rep.time_s for rep in reports if rep.estimating)
+    first_guess = next(rep.time_s for rep in guess if rep.estimating)
+    assert first_auto == pytest.approx(first_guess)
+    assert _same_estimates(reports, guess, 0.0) == sum(rep.estimating for rep in guess) > 50
+
+
+def test_found_modes_survive_a_saved_state_and_reset_finds_them_again(clean):
+    t, r, u, y = clean
+    cfg = _cfg()
+    pipe, _ = _run(cfg, t[:8000], r, u, y)
+    state = json.loads(json.dumps(pipe.get_state()))
+    back = MonitorPipeline(cfg, state=state)          # the node restarting without guesses
+    assert back.K == 2 and back.initialized and not back.finding_modes
+    np.testing.assert_array_equal(back.modal(), pipe.modal())
+    assert back.push(t[8000:8100], r[8000:8100], u[8000:8100], y[8000:8100]) is not None
+    with pytest.raises(PipelineError, match="K=2"):   # a guess configuration of another K refuses it
+        MonitorPipeline(cfg.with_modes(np.array([[5.0, 0.05, 1.0]])), state=state)
+    pipe.reset()
+    assert pipe.finding_modes and pipe.K == 0 and not pipe.initialized
+
+
+def test_runtime_memory_before_the_modes_are_found_applies_to_them(clean):
+    t, r, u, y = clean
+    pipe = MonitorPipeline(_cfg())
+    pipe.update_params({"modes.memory_s": [7.0], "faults.min_change.natural_frequency": 0.05})
+    with pytest.raises(PipelineError):
+        pipe.update_params({"modes.memory_s": [1e-4]})
+    for a in range(0, 6000, BLOCK):
+        pipe.push(t[a:a + BLOCK], r[a:a + BLOCK], u[a:a + BLOCK], y[a:a + BLOCK])
+    assert pipe.K == 2 and pipe.memory_s.tolist() == [7.0, 7.0]
+    assert pipe.faults.settings.min_change[0] == 0.05
+
+
+def test_window_without_excitation_publishes_nothing_and_starts_when_excitation_begins():
+    t, r, u, y = _sim(5, 15.0, flat_until_s=5.0)
+    pipe, reports = _run(_cfg(), t, r, u, y)
+    fail = next(rep for rep in reports if rep.notices)
+    assert fail.time_s == pytest.approx(5.0, abs=0.11) and fail.K == 0 and not fail.estimating
+    assert "no excitation: the reference is constant" in fail.notices[0]
+    assert fail.health["level"] == Level.WARN and any("no modes found on t=0.0–5.0 s" in x
+                                                      for x in fail.health["reasons"])
+    assert all(rep.K == 0 and not rep.estimating for rep in reports if rep.time_s < 10.0 - 1e-9)
+    found = _check_found(pipe)        # recovered on the next window, once the setpoint moves
+    assert found.window_s == pytest.approx((5.0, 10.0)) and found.attempts == 2
+    after = [rep for rep in reports if rep.time_s > 10.5]
+    assert after and all(rep.estimating and rep.K == 2 for rep in after)
+    assert not any("no modes found" in x for x in after[-1].health["reasons"])   # the failure line is gone
+
+
+def test_nan_burst_in_the_window_is_a_retry_not_a_guess():
+    t, r, u, y = _sim(7, 18.0)
+    y[(t >= 1.0) & (t < 4.0)] = np.nan       # leaves 1 s of contiguous valid data in the first window
+    pipe, reports = _run(_cfg(), t, r, u, y)
+    notes = [n for rep in reports for n in rep.notices]
+    assert "contiguous valid samples" in notes[0] and notes[1].startswith("no mode guesses: found 2 mode(s)")
+    assert all(rep.K == 0 and np.all(~np.isfinite(rep.modal)) for rep in reports if rep.time_s < 10.0 - 1e-9)
+    found = _check_found(pipe)
+    assert found.window_s == pytest.approx((5.0, 10.0))
+    assert reports[-1].health["nonfinite"] == 3000
+    # from the window on, the estimator saw what a guess pipeline whose data began there sees
+    _, guess = _run(pipe.cfg_given.with_modes(found.modal, found.integrators), t, r, u, y, start=int(5.0 * FS))
+    assert _same_estimates(reports, guess, 10.0, guess_start_s=5.0) > 50
