@@ -158,3 +158,23 @@ def test_nan_burst_in_the_window_is_a_retry_not_a_guess():
     # from the window on, the estimator saw what a guess pipeline whose data began there sees
     _, guess = _run(pipe.cfg_given.with_modes(found.modal, found.integrators), t, r, u, y, start=int(5.0 * FS))
     assert _same_estimates(reports, guess, 10.0, guess_start_s=5.0) > 50
+
+
+def test_guesses_without_a_valid_model_are_replaced_by_modes_from_the_data(clean):
+    """Issue 12 item 4: log-spaced guesses (someone who knows nothing) give an initial model the controller does not
+    stabilize; the start then finds the K modes in the same window instead, says so on health, and tracks the
+    truth; a healthy plant raises no structural event on the way."""
+    t, r, u, y = clean
+    k = len(MODES)
+    cfg = _cfg(**{"modes.natural_frequency_hz": list(np.geomspace(1.0, 1000.0, k + 2)[1:-1]),
+                  "modes.damping_ratio": [0.1] * k, "modes.gain": [1.0] * k, "modes.memory_s": [5.0] * k})
+    pipe, reports = _run(cfg, t, r, u, y)
+    assert pipe.counters.invalid_models >= 1 and pipe.counters.data_starts == 1
+    said = [why for rep in reports for why in rep.health["reasons"] if "mode guesses gave no valid model" in why]
+    assert said, "the replacement of the guesses is not on health"
+    assert not any(rep.events_opened for rep in reports)
+    last = reports[-1]
+    assert last.estimating
+    for m, truth in zip(last.modal, MODES, strict=True):
+        assert abs(m[0] / truth.natural_frequency_hz - 1.0) < 0.01
+        assert abs(m[1] / truth.damping_ratio - 1.0) < 0.15

@@ -137,6 +137,7 @@ class _Counters:
     init_failures: int = 0
     invalid_models: int = 0           # initializations whose model the controller does not stabilize
     reinitializations: int = 0
+    data_starts: int = 0              # guesses that gave no valid model, replaced by modes found in the data
 
     def to_dict(self) -> dict[str, int]:
         return dict(self.__dict__)
@@ -272,6 +273,7 @@ class MonitorPipeline:
         self.t_stamp_last: float | None = None  # last stamp accepted by step 1 (the aligner may hold samples back)
         self.next_publish = 0.0               # time (since t0) of the next report
         self.initialized = False
+        self._data_start_tried = False        # guesses replaced by modes from the data (once per run)
         self.stuck = False
         self._init_buf: list[tuple[np.ndarray, ...]] = []
         self._init_n = 0
@@ -678,28 +680,75 @@ class MonitorPipeline:
         self._marked_gaps = 0
 
     def _initialize(self, r: np.ndarray, u: np.ndarray, y: np.ndarray, t_end: float) -> None:
-        """Offline initialization + filter priming on the buffered data (000 Algorithm 2 step 1)."""
-        try:
-            self.est.initialize(r, u, y)
-        except Exception as exc:  # noqa: BLE001 - any failure of the offline init is a health incident
-            self.counters.init_failures += 1
-            self.health.note("reinitializing", self._rel(t_end), "initialization failed "
-                             f"({type(exc).__name__}: {str(exc).splitlines()[0][:120] if str(exc) else ''}); "
-                             "retrying on the next data")
+        """Offline initialization + filter priming on the buffered data (000 Algorithm 2 step 1).
+
+        Guesses are a start, not the answer (issue 12 item 4): when they give no valid model (the fit fails, or
+        ``C_d`` does not stabilize it), the modes are found in the same window instead (:mod:`.modefind`, K and
+        ``modes.integrators`` as configured: the structure is knowledge, the numbers are guesses), once per run,
+        with a health note; a model from the data that fails too leaves the pipeline
+        without a model (nothing published) and it initializes again on new data."""
+        t_rel = self._rel(t_end)
+        failure = self._fit_initial(r, u, y)
+        if failure is not None and self.search is None and not self._data_start_tried:
+            self._data_start_tried = True
+            if self._start_from_data(r, u, y, t_rel, failure[1]):
+                failure = self._fit_initial(r, u, y)
+        if failure is not None:
+            kind, why = failure
+            if kind == "invalid":
+                self._no_valid_model(t_rel, why)
+                return
+            self.health.note("reinitializing", t_rel, f"initialization failed ({why}); retrying on the next data")
             self.est = self._new_estimator()
             self._marked_gaps = 0
-            return
-        self.counters.initializations += 1
-        problem = self._model_problem("initial model")
-        if problem is not None:
-            self.counters.invalid_models += 1
-            self._no_valid_model(self._rel(t_end), problem)
             return
         self.initialized = True
         self.no_model = None
         modal = self._modal()
         if self.health.reference_modal is None and np.all(np.isfinite(modal[:, :3])):
             self.health.clear_reference(modal)
+
+    def _fit_initial(self, r: np.ndarray, u: np.ndarray, y: np.ndarray) -> tuple[str, str] | None:
+        """Initialize the estimator on the window; ``None``, or ``("failed" | "invalid", why)``."""
+        try:
+            self.est.initialize(r, u, y)
+        except Exception as exc:  # noqa: BLE001 - any failure of the offline init is a health incident
+            self.counters.init_failures += 1
+            return "failed", f"{type(exc).__name__}: {str(exc).splitlines()[0][:120] if str(exc) else ''}"
+        self.counters.initializations += 1
+        problem = self._model_problem("initial model")
+        if problem is not None:
+            self.counters.invalid_models += 1
+            return "invalid", problem
+        return None
+
+    def _start_from_data(self, r: np.ndarray, u: np.ndarray, y: np.ndarray, t_rel: float, why: str) -> bool:
+        """Replace guesses that gave no valid model by the K modes found in this window; False if none are found."""
+        from .modefind import autostart_config
+
+        try:
+            new, found = autostart_config(self.cfg, r if self.cfg.closed_loop else None, u, y, count=self.K)
+        except ValueError as exc:
+            self.notices.append(f"the mode guesses gave no valid model ({why}); finding the modes in the data "
+                                f"failed too: {exc}")
+            return False
+        given = sorted(int(m.integrators) for m in self.cfg.modes)
+        if sorted(int(m.integrators) for m in new.modes) != given:   # the user's structure is knowledge, not a guess
+            self.notices.append(f"the mode guesses gave no valid model ({why}); the modes found in the data have "
+                                f"other integrators than modes.integrators {given}: not used")
+            return False
+        old = self.health
+        self._set_modes(new)
+        for kind, (t_seen, msg) in old.active.items():
+            self.health.note(kind, t_seen, msg, count=0)
+        self.health.counts.update(old.counts)
+        modes = ", ".join(f"{m[0]:.5g} Hz" if m[0] > 0 else "rigid body" for m in np.asarray(found.modal))
+        line = (f"the mode guesses gave no valid model ({why}); started from the {self.K} mode(s) found in the "
+                f"data instead ({modes})")
+        self.health.note("start_from_data", t_rel, line)
+        self.notices.append(line)
+        self.counters.data_starts += 1
+        return True
 
     def _model_problem(self, which: str) -> str | None:
         """Why the current model is no valid model, or None: it must be finite and, in closed loop, the controller
