@@ -183,6 +183,26 @@ def _propagate_mode(i: int, phi: np.ndarray, gam: np.ndarray, xs: np.ndarray, T:
 
 
 @njit(cache=True)
+def _sandwich_step(S: np.ndarray, i: int, full: bool, l2: float, z0: float, z1: float, z2: float) -> None:
+    """``S_i = lam^2 S_i + zeta zeta^T`` (symmetric; ``full``: 3 parameters, else the rigid body's ``b0`` only)."""
+    s00 = l2 * S[i, 0, 0] + z0 * z0
+    S[i, 0, 0] = s00
+    if not full:
+        return
+    s01 = l2 * S[i, 0, 1] + z0 * z1
+    s02 = l2 * S[i, 0, 2] + z0 * z2
+    s12 = l2 * S[i, 1, 2] + z1 * z2
+    S[i, 1, 1] = l2 * S[i, 1, 1] + z1 * z1
+    S[i, 2, 2] = l2 * S[i, 2, 2] + z2 * z2
+    S[i, 0, 1] = s01
+    S[i, 1, 0] = s01
+    S[i, 0, 2] = s02
+    S[i, 2, 0] = s02
+    S[i, 1, 2] = s12
+    S[i, 2, 1] = s12
+
+
+@njit(cache=True)
 def run_block(r: np.ndarray, u: np.ndarray, y: np.ndarray, valid: np.ndarray, allow_update: bool,
               kind: np.ndarray, lam: np.ndarray, muf: np.ndarray, cnum: np.ndarray, cden: np.ndarray,
               cfg_i: np.ndarray, cfg_f: np.ndarray, p0diag: np.ndarray,
@@ -460,12 +480,7 @@ def run_block(r: np.ndarray, u: np.ndarray, y: np.ndarray, valid: np.ndarray, al
                     for c in range(NT):
                         P[i, a, c] = P_it[i, a, c]
                 if lz[i] > 0.0:   # S follows P: lam^2 S + zeta zeta^T (IV sandwich, see the module docstring)
-                    l2 = lz[i] * lz[i]
-                    for a in range(ntk[i]):
-                        for c in range(a, ntk[i]):
-                            v = l2 * S[i, a, c] + zl[i, a] * zl[i, c]
-                            S[i, a, c] = v
-                            S[i, c, a] = v
+                    _sandwich_step(S, i, kind[i] == 0, lz[i] * lz[i], zl[i, 0], zl[i, 1], zl[i, 2])
                 for a in range(2):
                     gam[i, a] = gam_it[i, a]
                     for c in range(2):
