@@ -476,7 +476,8 @@ class RecursiveAdditiveSRIVC:
         for i, s in enumerate(self.structures):
             nt = s.n_theta
             p = self._s["P"][i, :nt, :nt]
-            c = p @ self._s["S"][i, :nt, :nt] @ p.T
+            with np.errstate(over="ignore", invalid="ignore"):   # a broken P: non-finite, flagged in modal()
+                c = p @ self._s["S"][i, :nt, :nt] @ p.T
             out.append(sig2 * 0.5 * (c + c.T))
         return out
 
