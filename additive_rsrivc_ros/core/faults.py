@@ -249,7 +249,7 @@ class BaselineLearner:
         self.n += 1
         self.sum += x
         self.sumsq += x * x
-        self.sum_var += s * s
+        self.sum_var += np.where(np.isfinite(s), s * s, 0.0)   # a NaN std (flagged block): the empirical spread
         self.t_last = t
 
     def finish(self, memory_s: np.ndarray, duration_s: float) -> Baseline:
@@ -643,7 +643,7 @@ class FaultMonitor:
             return out
         s = self.settings
         base = self.baseline
-        sx = np.maximum(modal[:, 3:6], base.spread)
+        sx = np.fmax(modal[:, 3:6], base.spread)     # fmax: a NaN std (flagged covariance) falls back to the spread
         sigma = np.maximum(np.sqrt(sx * sx + base.std ** 2), 1e-9 * np.abs(base.value))
         with np.errstate(divide="ignore", invalid="ignore"):
             # relevant change: the user's minimum, and well above the estimate's own healthy fluctuation (a mode
@@ -788,7 +788,7 @@ class FaultMonitor:
         with np.errstate(divide="ignore", invalid="ignore"):
             rho = np.maximum(np.asarray(s.min_change)[None, :],
                              s.relevance_spread_factor * part.spread / np.abs(part.value))
-            sx = np.maximum(modal[:, 3:6], part.spread)
+            sx = np.fmax(modal[:, 3:6], part.spread)
             sigma = np.sqrt(sx * sx + part.std ** 2)
             dev = modal[:, :3] - part.value
             rel = dev / np.abs(part.value)
@@ -1038,15 +1038,25 @@ class HealthMonitor:
                 i = int(np.argwhere(bad)[0][0])
                 self.note("divergence", t, f"divergence: mode {i + 1} moved by more than a factor "
                           f"{s.health_max_parameter_ratio:g} from its reference")
-        # loss of excitation: reported relative std of frequency / gain (P_bar winds up without excitation)
+        # loss of excitation: relative std of frequency / gain from sigma^2 P_bar (it winds up without excitation;
+        # the published IV-sandwich std does not, core/recursive.py covariances); the reported std if not given
         with np.errstate(divide="ignore", invalid="ignore"):
             rel_std = np.abs(modal[:, 3:6] / modal[:, :3])
         rel = np.array([[rel_std[i, 0] if self.structures[i].n == 2 else 0.0, rel_std[i, 2]] for i in range(self.K)])
+        info_rel = est.get("information_relative_std")
+        if info_rel is not None and np.shape(info_rel) == (self.K,):
+            rel = np.asarray(info_rel, dtype=float)[:, None]
         values["max_relative_std"] = float(np.nanmax(rel)) if np.any(np.isfinite(rel)) else math.nan
         if np.any(rel > s.health_max_relative_std):
             i = int(np.argwhere(rel > s.health_max_relative_std)[0][0])
             self.note("loss_of_excitation", t, f"loss of excitation: mode {i + 1} relative std "
                       f"{np.nanmax(rel[i]):.2g} > {s.health_max_relative_std:g}")
+        # published std unavailable: a non-finite or indefinite covariance block reports NaN, never 0 (issue 17)
+        problems = est.get("covariance_problems") or []
+        bad_cov = [f"mode {i + 1} {p}" for i, p in enumerate(problems) if p]
+        if bad_cov:
+            self.note("invalid_uncertainty", t, "no valid uncertainty (std NaN): covariance block "
+                      + ", ".join(bad_cov))
         cond = _first(est, ("condition", "cond", "condition_number", "iv_condition"))
         if cond is not None:
             c = float(np.nanmax(np.atleast_1d(np.asarray(cond, float))))

@@ -38,6 +38,13 @@ IV-RLS (Algorithm 2 lines 7-9, Appendix B eqs. B.5-B.7; NOTES erratum 2, no fact
     P = (P_bar - K phi^T P_bar) / lam
 
 every iterate (sweep l, refinement s) restarts from ``theta_bar(t_{k-1})``, ``P_bar(t_{k-1})``.
+
+IV sandwich accumulator (issue 17 item 4, ``core/recursive.py`` ``covariances``): per mode
+``S = lam^2 S + zeta zeta^T`` with the instrument ``zeta = phi^`` of the accepted iterate, i.e.
+``S_i(t_N) = sum_k lam^(2(N-k)) zeta_i zeta_i^T`` (+ the decayed ``S_i(0)``). With ``P_bar = (sum_k lam^(N-k)
+zeta phi^T)^-1`` the first-order error of the IV-RLS estimate is ``P_bar sum_k lam^(N-k) zeta_k v_k``, so its
+covariance for white ``v`` is ``sigma^2 P_bar S P_bar^T``. Updated only when ``P_bar`` is (same ``lam``; a
+capped update uses ``lam = 1`` for both).
 Stability projection (000 §4.7) reflects right-half-plane roots of ``A_i`` in closed form.
 
 Safeguards (counted, never silent): an update is rejected (theta, P, filter model and its ``Phi, Gamma`` keep the
@@ -176,10 +183,30 @@ def _propagate_mode(i: int, phi: np.ndarray, gam: np.ndarray, xs: np.ndarray, T:
 
 
 @njit(cache=True)
+def _sandwich_step(S: np.ndarray, i: int, full: bool, l2: float, z0: float, z1: float, z2: float) -> None:
+    """``S_i = lam^2 S_i + zeta zeta^T`` (symmetric; ``full``: 3 parameters, else the rigid body's ``b0`` only)."""
+    s00 = l2 * S[i, 0, 0] + z0 * z0
+    S[i, 0, 0] = s00
+    if not full:
+        return
+    s01 = l2 * S[i, 0, 1] + z0 * z1
+    s02 = l2 * S[i, 0, 2] + z0 * z2
+    s12 = l2 * S[i, 1, 2] + z1 * z2
+    S[i, 1, 1] = l2 * S[i, 1, 1] + z1 * z1
+    S[i, 2, 2] = l2 * S[i, 2, 2] + z2 * z2
+    S[i, 0, 1] = s01
+    S[i, 1, 0] = s01
+    S[i, 0, 2] = s02
+    S[i, 2, 0] = s02
+    S[i, 1, 2] = s12
+    S[i, 2, 1] = s12
+
+
+@njit(cache=True)
 def run_block(r: np.ndarray, u: np.ndarray, y: np.ndarray, valid: np.ndarray, allow_update: bool,
               kind: np.ndarray, lam: np.ndarray, muf: np.ndarray, cnum: np.ndarray, cden: np.ndarray,
               cfg_i: np.ndarray, cfg_f: np.ndarray, p0diag: np.ndarray,
-              theta: np.ndarray, thf: np.ndarray, P: np.ndarray, xs: np.ndarray, vin: np.ndarray,
+              theta: np.ndarray, thf: np.ndarray, P: np.ndarray, S: np.ndarray, xs: np.ndarray, vin: np.ndarray,
               phi: np.ndarray,
               gam: np.ndarray, ubuf: np.ndarray, zbuf: np.ndarray, ce: np.ndarray, cz: np.ndarray,
               ist: np.ndarray, fst: np.ndarray, proj: np.ndarray, rej: np.ndarray, rejr: np.ndarray,
@@ -227,6 +254,8 @@ def run_block(r: np.ndarray, u: np.ndarray, y: np.ndarray, valid: np.ndarray, al
     gmn = np.empty(2)
     zoh_ok = np.empty(K, dtype=np.bool_)
     Pn = np.zeros((NT, NT))
+    zl = np.zeros((K, NT))             # instrument of each mode's accepted iterate (IV sandwich accumulator S)
+    lz = np.ones(K)                    # its forgetting factor (1 when capped); 0 = no accepted iterate
     ib0 = np.empty(K, dtype=np.int64)
     ntk = np.empty(K, dtype=np.int64)
     for i in range(K):
@@ -321,6 +350,7 @@ def run_block(r: np.ndarray, u: np.ndarray, y: np.ndarray, valid: np.ndarray, al
                     gam_it[i, a] = gam[i, a]
                     for c in range(2):
                         phi_it[i, a, c] = phi[i, a, c]
+                lz[i] = 0.0
             for _l in range(sweeps):
                 for i in range(K):
                     nt = ntk[i]
@@ -424,7 +454,9 @@ def run_block(r: np.ndarray, u: np.ndarray, y: np.ndarray, valid: np.ndarray, al
                                 continue
                         if capped:
                             ist[I_CAPPED] += 1
+                        lz[i] = lam_eff
                         for a in range(nt):
+                            zl[i, a] = phh[a]
                             th_it[i, a] = thn[a]
                             if kind[i] != 0 or a == 2:
                                 tf_it[i, a] = thn[a]
@@ -447,6 +479,8 @@ def run_block(r: np.ndarray, u: np.ndarray, y: np.ndarray, valid: np.ndarray, al
                     thf[i, a] = tf_it[i, a]
                     for c in range(NT):
                         P[i, a, c] = P_it[i, a, c]
+                if lz[i] > 0.0:   # S follows P: lam^2 S + zeta zeta^T (IV sandwich, see the module docstring)
+                    _sandwich_step(S, i, kind[i] == 0, lz[i] * lz[i], zl[i, 0], zl[i, 1], zl[i, 2])
                 for a in range(2):
                     gam[i, a] = gam_it[i, a]
                     for c in range(2):

@@ -122,10 +122,16 @@ def modal_jacobian(theta: np.ndarray, s: SubmodelStructure = SubmodelStructure()
 
 
 def modal_std(theta: np.ndarray, cov: np.ndarray, s: SubmodelStructure = SubmodelStructure()) -> np.ndarray:
-    """Standard deviations of ``[f_hz, zeta, gain]`` by the delta method: ``sqrt(diag(J C J^T))``."""
+    """Standard deviations of ``[f_hz, zeta, gain]`` by the delta method: ``sqrt(diag(J C J^T))``.
+
+    A negative variance (an indefinite ``C``) gives NaN, never a silent 0 (issue 17 item 4). For a second-order
+    mode ``J`` has ``df/da2 = -(1/(4 pi)) a2^-3/2``, ``dzeta/da1 = 1/(2 sqrt a2)``, ``dzeta/da2 = -a1/(4 a2^3/2)``,
+    ``dgain/db0 = 1`` (:func:`modal_jacobian`); first order, so valid while the relative std is small.
+    """
     jac = modal_jacobian(theta, s)
     var = np.einsum("ij,jk,ik->i", jac, np.asarray(cov, dtype=float), jac)
-    return np.sqrt(np.maximum(var, 0.0))
+    with np.errstate(invalid="ignore"):
+        return np.where(var >= 0.0, np.sqrt(np.abs(var)), np.nan)
 
 
 def frequency_response(

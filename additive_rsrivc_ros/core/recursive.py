@@ -32,12 +32,14 @@ import numpy as np
 from . import kernel as kn
 from .model import SubmodelStructure, modal_from_theta, modal_std
 
-STATE_KEYS = ("kind", "lam", "muf", "cnum", "cden", "cfg_i", "cfg_f", "p0diag", "theta", "thf", "P", "xs", "vin", "phi",
+STATE_KEYS = ("kind", "lam", "muf", "cnum", "cden", "cfg_i", "cfg_f", "p0diag", "theta", "thf", "P", "S", "xs", "vin",
+              "phi",
               "gam", "ubuf", "zbuf", "ce", "cz", "ist", "fst", "proj", "rej", "rejr")
 _INT_KEYS = ("kind", "cfg_i", "ist", "proj", "rej", "rejr")
 # 2: filter model "thf", "muf"; version-1 snapshots load with thf = theta, muf = 0 (Algorithm 2)
 # 3: rejections per reason "rejr" and the non-finite instrument counter in "ist"; older snapshots load with zeros
-STATE_VERSION = 3
+# 4: IV sandwich accumulator "S" (issue 17 item 4); older snapshots load with S = P^-1 / (1 + lambda) (stationary)
+STATE_VERSION = 4
 FILTER_PERIODS = 1.0  # default filter-model time constant in periods of each mode (set_filter_memory)
 # "auto" filter policy: smooth the prefilter denominator of a mode only where the slow-variation approximation of
 # 000 Remark 4.4 fails, i.e. where the forgetting memory is shorter than this many decay times 1/(zeta omega)
@@ -86,6 +88,54 @@ def p0_diagonal(theta: np.ndarray, kind: int, p0_relative: tuple[float, float]) 
     else:
         out[0] = rb * th[0] ** 2
     return out
+
+
+def covariance_problem(cov: np.ndarray, rel_tol: float = 1e-9) -> str:
+    """``""`` for a usable covariance block, else ``"non-finite"`` or ``"indefinite"`` (an eigenvalue below
+    ``-rel_tol`` times the largest magnitude; ``sqrt(max(var, 0))`` would turn it into a silent std of 0)."""
+    c = np.asarray(cov, dtype=float)
+    if not np.all(np.isfinite(c)):
+        return "non-finite"
+    if c.size == 0:
+        return ""
+    ev = np.linalg.eigvalsh(0.5 * (c + c.T))
+    if ev[0] < -rel_tol * max(float(np.max(np.abs(ev))), 1e-300):
+        return "indefinite"
+    return ""
+
+
+def stationary_sandwich(p: np.ndarray, lam: float) -> np.ndarray:
+    """``S`` that makes ``P S P^T = P/(1 + lam)``: ``S = P^-1/(1 + lam)`` (symmetrized). For stationary signals
+    ``P ~ (1 - lam) Rbar^-1`` and ``S ~ Rbar/(1 - lam^2)`` (``RecursiveAdditiveSRIVC.covariances``), so this is the
+    sandwich of an estimator already in its stationary regime: the start of the accumulator when ``P(0)`` is not
+    an information (parameter-scaled diagonal) or a snapshot predates it. Zeros if ``P`` is not invertible."""
+    p = np.asarray(p, dtype=float)
+    try:
+        s = np.linalg.inv(p) / (1.0 + lam)
+    except np.linalg.LinAlgError:
+        return np.zeros_like(p)
+    if not np.all(np.isfinite(s)):
+        return np.zeros_like(p)
+    return 0.5 * (s + s.T)
+
+
+def sandwich_from_offline(p0: np.ndarray, cov0: np.ndarray, sigma2_0: float) -> np.ndarray | None:
+    """``S_i(0) = P_i(0)^-1 C_0 P_i(0)^-T / sigma_0^2``: the recursion starts at the offline estimate, whose error
+    covariance ``C_0`` is the offline IV sandwich (001 Theorem 1, its block of the joint matrix, so the coupling of
+    the modes in the start record is in it); with it ``sigma^2 P S P^T`` equals ``C_0`` at the start and the
+    ``lam^(2N) S(0)`` term forgets it like the recursion forgets ``theta_bar(0)``. ``None`` if not usable."""
+    try:
+        pinv = np.linalg.inv(np.asarray(p0, dtype=float))
+    except np.linalg.LinAlgError:
+        return None
+    c0 = np.asarray(cov0, dtype=float)
+    if not (np.isfinite(sigma2_0) and sigma2_0 > 0.0) or c0.shape != pinv.shape:
+        return None
+    s = pinv @ c0 @ pinv.T / sigma2_0
+    s = 0.5 * (s + s.T)
+    if not np.all(np.isfinite(s)) or covariance_problem(s):
+        return None
+    return s
 
 
 def closed_loop_matrix(kinds: Sequence[int], thetas: Sequence[np.ndarray], rate_hz: float, controller: Any,
@@ -287,6 +337,7 @@ class RecursiveAdditiveSRIVC:
             "theta": theta,
             "thf": theta.copy(),
             "P": np.zeros((K, kn.NT, kn.NT)),
+            "S": np.zeros((K, kn.NT, kn.NT)),
             "xs": np.zeros((K, kn.N_BANKS, 2)),
             "vin": np.zeros((K, 2)),
             "phi": np.zeros((K, 2, 2)),
@@ -356,6 +407,9 @@ class RecursiveAdditiveSRIVC:
             diag = p0_diagonal(s["theta"][i], int(s["kind"][i]), self.p0_relative)
             s["p0diag"][i] = diag
             s["P"][i] = np.diag(diag)
+            nt = kn.NT if s["kind"][i] == 0 else 1
+            s["S"][i] = 0.0
+            s["S"][i][:nt, :nt] = stationary_sandwich(s["P"][i][:nt, :nt], float(s["lam"][i]))
 
     def _refresh_filters(self) -> None:
         """Cache ``Phi, Gamma`` of the current filter model (the kernel keeps them in step afterwards)."""
@@ -398,21 +452,75 @@ class RecursiveAdditiveSRIVC:
 
     @property
     def covariances(self) -> list[np.ndarray]:
-        """``sigma^2 P_bar_i`` per mode (000 §4.2: P_bar is an approximate covariance up to sigma^2)."""
+        """Covariance of ``theta_bar_i`` per mode: the IV sandwich ``sigma^2 P_bar_i S_i P_bar_i^T`` (issue 17 item 4).
+
+        000 eqs. 30-32 give ``theta_bar(t_N) - theta = P_bar(t_N) [lam^N P_bar(0)^-1 (theta_bar(0) - theta) + sum_k
+        lam^(N-k) zeta_k v_k]`` to first order (``P_bar^-1 = sum lam^(N-k) zeta phi^T``, the regression error ``v``
+        white with variance ``sigma^2``), hence ``Cov = sigma^2 P_bar S P_bar^T`` with ``S = sum_k lam^(2(N-k)) zeta
+        zeta^T + lam^(2N) S(0)`` (kernel accumulator; 000 §4.2 calls ``P_bar`` "an approximate covariance", which
+        this replaces). It differs from ``sigma^2 P_bar`` by (i) the forgetting factor: for stationary signals ``P_bar ~
+        (1 - lam) Rbar^-1`` and ``S ~ Rbar_zz/(1 - lam^2)``, so ``Cov ~ sigma^2 P_bar/(1 + lam)`` (``sigma^2 P_bar``
+        overstated the variance twice, the std by ``sqrt 2``); (ii) the IV sandwich ``Rbar^-1 Rbar_zz Rbar^-T``: it
+        collapses to ``Rbar^-1`` only when the instrument is the noise-free part of the regressor (refined/optimal
+        IV with a white OE error, 000 §4.5); (iii) non-stationary excitation and the start (``S(0)``, exact sums).
+
+        Cross-mode coupling: the block-coordinate recursion updates mode i with the block-diagonal gain ``G_i =
+        P_bar_i ~ (1 - lam_i) Rbar_ii^-1``; its error obeys ``d_k = (I - G zeta psi^T) d_(k-1) + G zeta v``, whose
+        stationary covariance solves ``G Rbar C + C Rbar G = sigma^2 G Rbar G`` to first order in ``1 - lam``, i.e.
+        ``C = sigma^2 G/2`` -- block-diagonal. The coupling of the modes slows the recursion in the weakly
+        excited joint directions instead of inflating its stationary variance, so no cross term is added (it
+        matters in transients only: the offline start's coupled covariance enters through ``S(0)``).
+        """
         sig2 = self.residual_variance
         out = []
         for i, s in enumerate(self.structures):
-            p = self._s["P"][i, :s.n_theta, :s.n_theta]
-            out.append(sig2 * 0.5 * (p + p.T))
+            nt = s.n_theta
+            p = self._s["P"][i, :nt, :nt]
+            with np.errstate(over="ignore", invalid="ignore"):   # a broken P: non-finite, flagged in modal()
+                c = p @ self._s["S"][i, :nt, :nt] @ p.T
+            out.append(sig2 * 0.5 * (c + c.T))
+        return out
+
+    @property
+    def information_covariances(self) -> list[np.ndarray]:
+        """``sigma^2 P_bar_i`` (the adaptation gain's scale, 000 §4.2): it winds up without excitation, the sandwich
+        :attr:`covariances` does not (an estimate that stops moving keeps its error), so loss of excitation is
+        judged on this one."""
+        sig2 = self.residual_variance
+        return [sig2 * 0.5 * (p + p.T) for p in
+                (self._s["P"][i, :s.n_theta, :s.n_theta] for i, s in enumerate(self.structures))]
+
+    def covariance_problems(self) -> list[str]:
+        """Per mode ``""`` or why its covariance block gives no std: ``"non-finite"`` or ``"indefinite"`` (smallest
+        eigenvalue below ``-1e-9`` times the largest magnitude). Such a mode reports NaN std, never 0."""
+        out = []
+        for cov in self.covariances:
+            out.append(covariance_problem(cov))
         return out
 
     def modal(self) -> np.ndarray:
-        """(K, 6): ``f_hz, zeta, gain, f_std, zeta_std, gain_std`` (delta method, model.modal_std)."""
+        """(K, 6): ``f_hz, zeta, gain, f_std, zeta_std, gain_std`` (delta method, model.modal_std, on the IV sandwich
+        :attr:`covariances`). A mode whose covariance block is non-finite or indefinite reports NaN std (see
+        :meth:`covariance_problems` and ``health["covariance_problems"]``)."""
         out = np.full((self.K, 6), np.nan)
         for i, (th, cov, s) in enumerate(zip(self.thetas, self.covariances, self.structures, strict=True)):
             out[i, :3] = modal_from_theta(th, s)
-            if np.all(np.isfinite(cov)):
+            if not covariance_problem(cov):
                 out[i, 3:] = modal_std(th, cov, s)
+        return out
+
+    def information_relative_std(self) -> np.ndarray:
+        """Per mode the largest relative std of (f, gain) from :attr:`information_covariances` (loss of excitation:
+        ``P_bar`` winds up)."""
+        out = np.full(self.K, np.nan)
+        for i, (th, cov, s) in enumerate(zip(self.thetas, self.information_covariances, self.structures,
+                                             strict=True)):
+            if covariance_problem(cov):
+                continue
+            m, sd = modal_from_theta(th, s), modal_std(th, cov, s)
+            with np.errstate(divide="ignore", invalid="ignore"):
+                rel = np.abs(sd / m)
+            out[i] = float(np.nanmax([rel[0] if s.n == 2 else 0.0, rel[2]]))
         return out
 
     def closed_loop_max_pole(self) -> float:
@@ -460,6 +568,10 @@ class RecursiveAdditiveSRIVC:
             "rejected_nonfinite_or_step": [int(v) for v in self._s["rejr"][:, kn.R_STEP]],
             "nonfinite_instrument": int(ist[kn.I_NONFINITE_Z]),
             "cond": [float(v) for v in self.iv_condition()],
+            # per mode "" or why the std is NaN (non-finite / indefinite covariance block; never reported as 0)
+            "covariance_problems": self.covariance_problems(),
+            # relative std of (f, gain) from sigma^2 P_bar: winds up without excitation (the sandwich std does not)
+            "information_relative_std": [float(v) for v in self.information_relative_std()],
             "residual_var": self.residual_variance,
             "init_message": self.init_message,
         }
@@ -589,9 +701,9 @@ class RecursiveAdditiveSRIVC:
              trace: np.ndarray) -> None:
         s = self._s
         kn.run_block(r, u, y, valid, allow_update, s["kind"], s["lam"], s["muf"], s["cnum"], s["cden"], s["cfg_i"],
-                     s["cfg_f"], s["p0diag"], s["theta"], s["thf"], s["P"], s["xs"], s["vin"], s["phi"], s["gam"],
-                     s["ubuf"], s["zbuf"], s["ce"], s["cz"], s["ist"], s["fst"], s["proj"], s["rej"], s["rejr"],
-                     trace)
+                     s["cfg_f"], s["p0diag"], s["theta"], s["thf"], s["P"], s["S"], s["xs"], s["vin"], s["phi"],
+                     s["gam"], s["ubuf"], s["zbuf"], s["ce"], s["cz"], s["ist"], s["fst"], s["proj"], s["rej"],
+                     s["rejr"], trace)
 
     def update(self, r: Any, u: Any, y: Any, valid: Any = None, *, trace: bool = False) -> np.ndarray | None:
         """Process any number of samples (000 Algorithm 2 lines 2-16 per sample).
@@ -714,6 +826,11 @@ class RecursiveAdditiveSRIVC:
             s["P"][i][:nt, :nt] = p0
             s["p0diag"][i][...] = 0.0
             s["p0diag"][i][:nt] = np.diag(p0)
+            covs = getattr(result, "covariances", None) or []
+            s0 = sandwich_from_offline(p0, covs[i], float(getattr(result, "residual_variance", math.nan))) \
+                if i < len(covs) else None
+            s["S"][i][...] = 0.0
+            s["S"][i][:nt, :nt] = s0 if s0 is not None else stationary_sandwich(p0, float(s["lam"][i]))
             used += 1
         self.init_message += f"; P(0) from the offline information for {used} of {self.K} modes"
 
@@ -734,6 +851,12 @@ class RecursiveAdditiveSRIVC:
             state["thf"] = np.asarray(state["theta"], dtype=float).copy()
         if "muf" not in state and "lam" in state:
             state["muf"] = np.zeros(np.asarray(state["lam"]).shape)
+        if "S" not in state and "P" in state:   # version <= 3: no IV sandwich accumulator, start it stationary
+            lam = np.broadcast_to(np.asarray(state.get("lam", self._s["lam"]), dtype=float), (self.K,))
+            state["S"] = np.zeros(np.asarray(state["P"]).shape)
+            for i, p in enumerate(np.asarray(state["P"], dtype=float)):
+                nt = kn.NT if int(np.asarray(state["kind"])[i]) == 0 else 1
+                state["S"][i][:nt, :nt] = stationary_sandwich(p[:nt, :nt], float(lam[i]))
         if "rejr" not in state:   # version <= 2: no per-reason counts, shorter int state
             state["rejr"] = np.zeros_like(self._s["rejr"])
         if "ist" in state and np.asarray(state["ist"]).shape[0] < kn.N_IST:
