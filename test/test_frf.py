@@ -20,6 +20,22 @@ DELAY = 2
 CONTROLLER = DiscreteController((0.5 + 2.0 / FS, -0.5), (1.0, -1.0))  # PI: kp 0.5, ki 2
 
 
+def no_guess_params_yaml(extra: str = "") -> str:
+    """The node's params file for this loop without mode guesses (the automatic start); ``extra``: more lines."""
+    return f"""additive_rsrivc_monitor:
+  ros__parameters:
+    loop_rate_hz: {FS}
+    closed_loop: true
+    controller:
+      numerator: {list(CONTROLLER.numerator)}
+      denominator: {list(CONTROLLER.denominator)}
+    input_delay_samples: {DELAY}
+    modes:
+      memory_s: [5.0]
+    init_duration_s: 5.0
+{extra}"""
+
+
 def _truth(freqs: np.ndarray) -> np.ndarray:
     thetas = [np.array([2 * m.damping_ratio / (2 * np.pi * m.natural_frequency_hz),
                         1 / (2 * np.pi * m.natural_frequency_hz) ** 2, m.gain]) for m in MODES]

@@ -7,25 +7,14 @@ import json
 
 import numpy as np
 import pytest
-from test_frf import CONTROLLER, DELAY, FS, MODES
+from test_frf import CONTROLLER, DELAY, FS, MODES, no_guess_params_yaml
 
 from additive_rsrivc_ros.bagio import write_bag
 from additive_rsrivc_ros.cli import diagnose, identify
 from additive_rsrivc_ros.config import load_config, load_params_file
 from additive_rsrivc_ros.core.simulate import simulate_modes, square_wave, white_noise
 
-PARAMS = f"""additive_rsrivc_monitor:
-  ros__parameters:
-    loop_rate_hz: {FS}
-    closed_loop: true
-    controller:
-      numerator: {list(CONTROLLER.numerator)}
-      denominator: {list(CONTROLLER.denominator)}
-    input_delay_samples: {DELAY}
-    modes:
-      memory_s: [5.0]
-    init_duration_s: 5.0
-"""
+PARAMS = no_guess_params_yaml()
 
 
 @pytest.fixture(scope="module")

@@ -13,7 +13,7 @@ from pathlib import Path
 
 import numpy as np
 from sensor_msgs.msg import JointState
-from test_frf import CONTROLLER, DELAY, FS, MODES
+from test_frf import CONTROLLER, DELAY, FS, MODES, no_guess_params_yaml
 
 from additive_rsrivc_ros.core.simulate import simulate_modes, square_wave, white_noise
 
@@ -21,19 +21,7 @@ sys.path.insert(0, str(Path(__file__).resolve().parent))
 from test_node_helpers import Client, start_node, stop_node  # noqa: E402
 
 STAMPED = [f"{s}.type:=sensor_msgs/msg/JointState" for s in ("reference", "input", "output")]
-PARAMS = f"""additive_rsrivc_monitor:
-  ros__parameters:
-    loop_rate_hz: {FS}
-    closed_loop: true
-    controller:
-      numerator: {list(CONTROLLER.numerator)}
-      denominator: {list(CONTROLLER.denominator)}
-    input_delay_samples: {DELAY}
-    modes:
-      memory_s: [5.0]
-    init_duration_s: 5.0
-    qos_depth: 20000
-"""
+PARAMS = no_guess_params_yaml("    qos_depth: 20000\n")
 FLAT_S, DURATION_S = 5.0, 12.0
 
 
