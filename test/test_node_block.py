@@ -17,7 +17,6 @@ from __future__ import annotations
 import math
 import sys
 import threading
-import time
 from pathlib import Path
 
 import numpy as np
@@ -272,7 +271,10 @@ BLOCK_ARGS = ("block.topic:=block", "use_sim_time:=true", "stale_timeout_s:=30.0
 def _wait_block_matched(cli: _BlockClient) -> None:
     cli.wait_for(lambda: cli.block.get_subscription_count() > 0 and cli.clock.get_subscription_count() > 0, 30,
                  "the node's /block and /clock subscriptions")
-    time.sleep(0.5)      # a few /clock messages: the node's time is the constant clock before the first block
+    # the node's time must be the constant clock before the first block (a block stamped at ROS time 0 and the next
+    # at the clock would be a time jump): its /diagnostics carry the node's time in their stamps
+    cli.wait_for(lambda: any(d.header.stamp.sec == cli._msg.clock.sec for d in list(cli.diags)), 30,
+                 "the node's clock at the constant /clock (its /diagnostics stamps)")
 
 
 def _est(cli: Client) -> dict:
