@@ -482,6 +482,11 @@ def frf_figure(inp: ReportInput) -> Any | None:
         g = model_frf(th, inp.structures, f, inp.rate_hz, inp.input_delay_samples)
         ax_m.semilogx(f, 20 * np.log10(np.abs(g)), color=col, lw=1.6, label=f"model at {s.time_s[j]:.3g} s ({lab})")
         ax_p.semilogx(f, np.degrees(np.angle(g)), color=col, lw=1.2)
+    for i, fm in enumerate(s.modal[i0, :, 0]):      # each mode where the model starts (found or guessed)
+        if math.isfinite(fm) and fmin < fm < fmax:
+            ax_m.axvline(fm, color="0.4", ls=":", lw=0.9)
+            ax_m.annotate(f"mode {i + 1}", (fm, 1.0), xycoords=("data", "axes fraction"), xytext=(2, -10),
+                          textcoords="offset points", fontsize=8, color="0.3")
     tr = inp.truth
     if tr.has_modes:
         for j, ls, lab in ((0, "--", "start"), (-1, ":", "end")):

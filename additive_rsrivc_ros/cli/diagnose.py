@@ -350,6 +350,10 @@ def diagnose(args: argparse.Namespace, stdout: TextIO, stderr: TextIO, state: di
             "non-finite samples": sig.nonfinite, "unmatched messages left out": sum(sig.unmatched_by_signal.values()),
             **{k.replace("additive_rsrivc.", "bag "): v for k, v in sig.metadata.items()
                if k != "additive_rsrivc.parameters"}}
+    if pipe.search is not None and pipe.search.found is not None:   # the evidence of the automatic start
+        info["modes found from the data"] = pipe.search.found.describe()
+    if pipe.counters.data_starts:
+        info["start"] = "the mode guesses gave no valid model: started from the modes found in the data"
     inp = rp.ReportInput(title=_out_dir(bag, None).name, series=series, events=events, structures=cfg.structures,
                          rate_hz=cfg.loop_rate_hz, closed_loop=cfg.closed_loop,
                          input_delay_samples=cfg.input_delay_samples, duration_s=duration, params=dict(cfg.params),
