@@ -214,7 +214,9 @@ def line_spectrum(S_xx: np.ndarray, prominence: float = 100.0, margin: float = 1
     leakage = S_xx < margin * leak
     amp = np.sqrt(np.maximum(S_xx, 0.0))
     for k in np.flatnonzero(line):
-        left = amp[k - 1] if k > 0 else 0.0
+        if k < 2:                                    # the left neighbour is the (mean-removed) DC bin: no interpolation
+            continue
+        left = amp[k - 1]
         right = amp[k + 1] if k + 1 < n else 0.0
         sign, ratio = (1.0, right / amp[k]) if right >= left else (-1.0, left / amp[k])
         offset[k] = sign * max(0.0, (2.0 * ratio - 1.0) / (ratio + 1.0))
