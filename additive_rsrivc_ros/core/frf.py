@@ -245,4 +245,5 @@ def discrete_model_frf(thetas: Sequence[np.ndarray], structures: Sequence[Submod
     phi, gam, c = discrete_plant(list(thetas), list(structures), rate_hz, input_delay)
     zs = np.exp(2j * np.pi * np.asarray(freqs_hz, dtype=float) / rate_hz)
     eye = np.eye(phi.shape[0])
-    return np.array([c @ np.linalg.solve(z * eye - phi, gam) for z in zs])
+    x = np.linalg.solve(zs[:, None, None] * eye - phi, np.broadcast_to(gam, (zs.size, gam.size))[..., None])
+    return x[..., 0] @ c                            # c (zI - Phi)^-1 Gamma at every z in one batched solve
