@@ -82,11 +82,13 @@ def raise_if_interrupted() -> None:
 
 
 @contextmanager
-def interrupts() -> Iterator[None]:
+def interrupts(final: bool = False) -> Iterator[None]:
     """SIGINT and SIGTERM raise :class:`Interrupted` inside the block (main thread only); old handlers restored.
 
     Where the signal lands inside a C callback, the exception cannot propagate; it is kept (no traceback) and
-    raised by the next :func:`raise_if_interrupted`."""
+    raised by the next :func:`raise_if_interrupted`. ``final`` (a console script's whole run): afterwards the
+    signals are ignored instead -- the run is over and its exit status is the result; a signal during the
+    interpreter's shutdown must not turn a complete run into a death by signal."""
     old: dict[int, Callable | int | None] = {}
     hook = sys.unraisablehook
     _swallowed.clear()
@@ -102,7 +104,7 @@ def interrupts() -> Iterator[None]:
     finally:
         sys.unraisablehook = hook
         for s, h in old.items():
-            signal.signal(s, h if h is not None else signal.SIG_DFL)
+            signal.signal(s, signal.SIG_IGN if final else h if h is not None else signal.SIG_DFL)
 
 
 @contextmanager

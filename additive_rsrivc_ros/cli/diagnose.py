@@ -448,7 +448,7 @@ def main(argv: list[str] | None = None) -> int:
     from .atomic import exit_code, interrupts
 
     state: dict[str, Any] = {}
-    with interrupts():
+    with interrupts(final=argv is None):   # a console script's run: no death by signal after it
         try:
             return _run(argv, state)
         except KeyboardInterrupt as exc:

@@ -587,7 +587,7 @@ def main(argv: list[str] | None = None) -> int:
     from .atomic import exit_code, interrupts
 
     state: dict[str, Any] = {}
-    with interrupts():
+    with interrupts(final=argv is None):   # a console script's run: no death by signal after it
         try:
             args = _parser().parse_args(argv)
             return fleet(args, sys.stdout, sys.stderr, state)

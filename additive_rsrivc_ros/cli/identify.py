@@ -296,7 +296,7 @@ def _error(exc: Exception) -> int:
 def main(argv: list[str] | None = None) -> int:
     """0 on success, 2 with a one-line reason on bad input, 1 on an internal error, 130/143 on SIGINT/SIGTERM
     (one line; the output file is then left as it was)."""
-    with interrupts():
+    with interrupts(final=argv is None):   # a console script's run: no death by signal after it
         try:
             args = _parser().parse_args(argv)
             doc = run(args.bag, args.params_file, args.out, args.method, args.max_iterations, args.tol,
