@@ -224,31 +224,18 @@ def model_frf(thetas: Sequence[np.ndarray], structures: Sequence[SubmodelStructu
     return discrete_model_frf(thetas, structures, rate_hz, np.asarray(freqs_hz, float), delay_samples)
 
 
-def _longest_finite(*xs: np.ndarray) -> slice:
-    """The longest stretch where every signal is finite (a window with invalid samples uses that)."""
-    ok = np.logical_and.reduce([np.isfinite(x) for x in xs])
-    if ok.all():
-        return slice(0, ok.size)
-    edges = np.flatnonzero(np.diff(np.concatenate(([0], ok.astype(int), [0]))))
-    starts, ends = edges[::2], edges[1::2]
-    if not starts.size:
-        return slice(0, 0)
-    j = int(np.argmax(ends - starts))
-    return slice(int(starts[j]), int(ends[j]))
-
-
 def nonparametric_frf(u: np.ndarray, y: np.ndarray, rate_hz: float, r: np.ndarray | None = None,
                       t_start_s: float = 0.0, nperseg: int | None = None) -> FrfEstimate:
     """The data's FRF for the report: :func:`..core.frf.estimate_frf` (the one estimate in the code; closed loop
     ``G = S_yr / S_ur`` through the reference, open loop ``S_yu / S_uu``) on the longest finite stretch of the
     window, restricted to its valid bins (excited, coherent, informative) that are not a periodic excitation's
     leakage (there ``G`` leans towards a neighbouring line's value beyond the stated uncertainty)."""
-    from .core.frf import estimate_frf
+    from .core.frf import estimate_frf, longest_finite
 
     u = np.asarray(u, float)
     y = np.asarray(y, float)
     x = None if r is None else np.asarray(r, float)
-    sl = _longest_finite(u, y) if x is None else _longest_finite(x, u, y)
+    sl = longest_finite(x, u, y)
     n = sl.stop - sl.start
     if n < 64:
         raise ValueError(f"window too short for a spectral estimate ({n} finite samples)")

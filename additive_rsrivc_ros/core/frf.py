@@ -103,6 +103,20 @@ class FRFEstimate:
                 "n_valid": int(np.sum(self.valid))}
 
 
+def longest_finite(*signals: np.ndarray | None) -> slice:
+    """The longest stretch where every given signal (``None``: absent) is finite; the second sets the length."""
+    ok = np.ones(signals[1].size, dtype=bool)
+    for s in signals:
+        if s is not None:
+            ok &= np.isfinite(s)
+    edges = np.flatnonzero(np.diff(np.concatenate(([0], ok.astype(int), [0]))))
+    if edges.size == 0:
+        return slice(0, 0)
+    starts, ends = edges[::2], edges[1::2]
+    j = int(np.argmax(ends - starts))
+    return slice(int(starts[j]), int(ends[j]))
+
+
 def _segments(x: np.ndarray, nperseg: int) -> np.ndarray:
     """Hann-windowed, mean-removed segments with 50 % overlap, as rows of their FFT (one-sided)."""
     step = nperseg // 2

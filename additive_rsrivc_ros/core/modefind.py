@@ -33,7 +33,7 @@ from typing import Any
 
 import numpy as np
 
-from .frf import FRFEstimate, estimate_frf
+from .frf import FRFEstimate, estimate_frf, longest_finite
 from .model import TWO_PI, SubmodelStructure, guess_structure, guess_theta, modal_from_theta
 
 MIN_PROMINENCE_DECADES = 0.1  # 2 dB
@@ -421,19 +421,6 @@ def find_modes(u, y, rate_hz: float, *, r=None, controller=None, input_delay: in
                           frf, candidates, res, message)
 
 
-def _longest_finite(*signals: np.ndarray | None) -> slice:
-    ok = np.ones(signals[1].size, dtype=bool)
-    for s in signals:
-        if s is not None:
-            ok &= np.isfinite(s)
-    edges = np.flatnonzero(np.diff(np.concatenate(([0], ok.astype(int), [0]))))
-    if edges.size == 0:
-        return slice(0, 0)
-    starts, ends = edges[::2], edges[1::2]
-    j = int(np.argmax(ends - starts))
-    return slice(int(starts[j]), int(ends[j]))
-
-
 def autostart_config(cfg: Any, r, u, y, count: int | None = None) -> tuple[Any, ModeFindResult]:
     """The automatic start of a :class:`config.MonitorConfig` without guesses (issue 12): modes found on the given
     data (the longest finite stretch; ``count`` None: ``modes.count``), returned as the configuration with those
@@ -441,7 +428,7 @@ def autostart_config(cfg: Any, r, u, y, count: int | None = None) -> tuple[Any, 
     closed = bool(cfg.closed_loop)
     r = np.asarray(r, dtype=float) if closed and r is not None else None
     u, y = np.asarray(u, dtype=float), np.asarray(y, dtype=float)
-    seg = _longest_finite(r, u, y)
+    seg = longest_finite(r, u, y)
     k = cfg.mode_count if count is None else int(count)
     res = find_modes(u[seg], y[seg], cfg.loop_rate_hz, r=None if r is None else r[seg],
                      controller=cfg.controller if closed else None, input_delay=cfg.input_delay_samples, count=k,

@@ -263,6 +263,16 @@ class MonitorPipeline:
         self.faults = FaultMonitor(self.memory_s, self.settings, structures=cfg.structures)
         self.health = HealthMonitor(self.memory_s, self.settings, structures=cfg.structures, rate_hz=self.rate)
 
+    def _switch_modes(self, cfg: Any, closed: tuple[str, ...] = ()) -> None:
+        """:meth:`_set_modes` for new modes in the middle of a run: the health notes so far are kept (except the
+        ``closed`` kinds), and their counts."""
+        old = self.health
+        self._set_modes(cfg)
+        for kind, (t_seen, msg) in old.active.items():
+            if kind not in closed:
+                self.health.note(kind, t_seen, msg, count=0)
+        self.health.counts.update(old.counts)
+
     def _new_run(self) -> None:
         self.search = ModeSearch(self.cfg_given) if self.cfg_given.auto_modes else None
         self._set_modes(self.cfg_given)
@@ -669,12 +679,7 @@ class MonitorPipeline:
     def _adopt_modes(self, cfg: Any, t_rel: float) -> None:
         """Build estimator and monitors for the modes found; health notes so far are kept (the failed searches'
         ones are closed)."""
-        old = self.health
-        self._set_modes(cfg)
-        for kind, (t_seen, msg) in old.active.items():
-            if kind not in ("no_modes", "initializing"):
-                self.health.note(kind, t_seen, msg, count=0)
-        self.health.counts.update(old.counts)
+        self._switch_modes(cfg, closed=("no_modes", "initializing"))
         found = self.search.found
         self.health.note("initializing", t_rel, f"no mode guesses: {found.describe()}; initializing the estimator")
         self._marked_gaps = 0
@@ -737,11 +742,7 @@ class MonitorPipeline:
             self.notices.append(f"the mode guesses gave no valid model ({why}); the modes found in the data have "
                                 f"other integrators than modes.integrators {given}: not used")
             return False
-        old = self.health
-        self._set_modes(new)
-        for kind, (t_seen, msg) in old.active.items():
-            self.health.note(kind, t_seen, msg, count=0)
-        self.health.counts.update(old.counts)
+        self._switch_modes(new)
         modes = ", ".join(f"{m[0]:.5g} Hz" if m[0] > 0 else "rigid body" for m in np.asarray(found.modal))
         line = (f"the mode guesses gave no valid model ({why}); started from the {self.K} mode(s) found in the "
                 f"data instead ({modes})")
