@@ -94,6 +94,30 @@ def _run(args: list[str], env: dict, **kw) -> subprocess.CompletedProcess:
                           capture_output=True, text=True, timeout=60, **kw)
 
 
+def _replay_while_spinning(ex, node, args: list[str], env: dict, enough) -> subprocess.CompletedProcess:
+    """Run ``rsrivc_replay args`` while ``ex`` spins ``node`` in a thread (``spin_once``: ``spin()`` cannot be
+    stopped from another thread); after the replay, wait up to 10 s for ``enough()``."""
+    ex.add_node(node)
+    done = threading.Event()
+
+    def spin() -> None:
+        while not done.is_set():
+            ex.spin_once(timeout_sec=0.05)
+
+    spinner = threading.Thread(target=spin, daemon=True)
+    spinner.start()
+    try:
+        res = _run(args, env)
+        deadline = time.monotonic() + 10.0
+        while res.returncode == 0 and time.monotonic() < deadline and not enough():
+            time.sleep(0.05)
+    finally:
+        done.set()
+        spinner.join(5.0)
+        ex.remove_node(node)
+    return res
+
+
 def test_bad_bags_one_line(tmp_path: Path, ros_env: dict) -> None:
     (tmp_path / "nometa").mkdir()
     (tmp_path / "garbage.mcap").write_bytes(b"not an mcap file at all" * 10)
@@ -138,24 +162,10 @@ def test_replay_into_subscriber(tmp_path: Path, ros_env: dict, storage: str) -> 
             node.create_subscription(Float64, t, lambda m, t=t: got[t].append((time.monotonic(), m.data)), qos)
         node.create_subscription(Clock, "/clock", lambda m: clocks.append(m.clock.sec * 10**9 + m.clock.nanosec),
                                  QoSProfile(depth=100, reliability=ReliabilityPolicy.RELIABLE))
-        ex = EventsExecutor(context=ctx)
-        ex.add_node(node)
-        done = threading.Event()
-
-        def spin() -> None:  # EventsExecutor.spin() cannot be stopped from another thread; spin_once can
-            while not done.is_set():
-                ex.spin_once(timeout_sec=0.1)
-
-        spinner = threading.Thread(target=spin, daemon=True)
-        spinner.start()
-        res = _run([str(bag), "--stats", "--clock", "200", "--wait-for-subscribers", "20"], ros_env)
+        res = _replay_while_spinning(EventsExecutor(context=ctx), node, [
+            str(bag), "--stats", "--clock", "200", "--wait-for-subscribers", "20"], ros_env,
+            lambda: all(len(v) >= n for v in got.values()))
         assert res.returncode == 0, res.stderr
-        deadline = time.monotonic() + 10.0
-        while time.monotonic() < deadline and any(len(v) < n for v in got.values()):
-            time.sleep(0.05)
-        done.set()
-        spinner.join(5.0)
-        ex.remove_node(node)
         node.destroy_node()
     finally:
         rclpy.shutdown(context=ctx)
@@ -251,24 +261,12 @@ def test_replay_block_into_subscriber(tmp_path: Path, ros_env: dict) -> None:
             (got.append(rows) if rows is not None else errors.append(err))
         node.create_subscription(Float64MultiArray, "/block", cb, QoSProfile(depth=1000,
                                                                              reliability=ReliabilityPolicy.RELIABLE))
-        done = threading.Event()
+        from rclpy.executors import SingleThreadedExecutor
 
-        def spin() -> None:
-            from rclpy.executors import SingleThreadedExecutor
-            ex = SingleThreadedExecutor(context=ctx)
-            ex.add_node(node)
-            while not done.is_set():
-                ex.spin_once(timeout_sec=0.05)
-
-        th = threading.Thread(target=spin, daemon=True)
-        th.start()
-        res = _run([str(bag), "--block", "64", "--stats", "--wait-for-subscribers", "20"], ros_env)
+        res = _replay_while_spinning(SingleThreadedExecutor(context=ctx), node, [
+            str(bag), "--block", "64", "--stats", "--wait-for-subscribers", "20"], ros_env,
+            lambda: sum(len(g) for g in got) >= n)
         assert res.returncode == 0, res.stderr
-        deadline = time.monotonic() + 10.0
-        while time.monotonic() < deadline and sum(len(g) for g in got) < n:
-            time.sleep(0.05)
-        done.set()
-        th.join(5.0)
         node.destroy_node()
     finally:
         rclpy.shutdown(context=ctx)
