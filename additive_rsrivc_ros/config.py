@@ -22,31 +22,13 @@ import yaml
 
 from .core.controller import DiscreteController
 from .core.model import SubmodelStructure, guess_structure, guess_theta
+from .core.params import ESTIMATOR_PARAMS, FAULT_PARAMS, EstimatorOptions, Param
 
 DEFAULT_NODE_NAME = "additive_rsrivc_monitor"
-PARAM_TYPES = ("bool", "int", "double", "string", "bool[]", "int[]", "double[]", "string[]")
 
 
 class ParamError(ValueError):
     """A parameter file or value that cannot be used; the message names the parameter."""
-
-
-@dataclass(frozen=True)
-class Param:
-    """One parameter: name (dotted), type, default, description and validity range."""
-
-    name: str
-    type: str
-    default: Any
-    description: str
-    min: float | None = None
-    max: float | None = None
-    read_only: bool = False  # True: changing it needs a restart (re-initialization)
-    choices: tuple[str, ...] = ()
-
-    def __post_init__(self) -> None:
-        if self.type not in PARAM_TYPES:
-            raise ValueError(f"{self.name}: unknown type {self.type}")
 
 
 CORE_PARAMS: list[Param] = [
@@ -79,35 +61,7 @@ CORE_PARAMS: list[Param] = [
           "/diagnostics: diagnostics_period_s). At most 100 Hz: a report costs the pipeline ~1.3 ms (measured), so "
           "1000 Hz would need more than a core and stop the consumption of 4096 Hz inputs "
           "(scripts/bench_node.py --publish-rate).", 0.01, 100.0),
-    Param("estimator.block_sweeps", "int", 1, "M_l: block-coordinate sweeps over the modes per sample.", 1, 20,
-          True),
-    Param("estimator.refinements", "int", 0, "M_s: SRIVC refinements per mode and sweep.", 0, 20, True),
-    Param("estimator.stability_projection", "bool", True, "Reflect right-half-plane roots of A_i (000 §4.7).",
-          read_only=True),
-    Param("estimator.output_subsampling", "int", 1, "Update the estimate every n-th sample; all inputs are "
-          "still filtered (000 §4.7).", 1, 1000, True),
-    Param("estimator.p0_relative_a", "double", 0.016, "P(0) of a denominator coefficient relative to its "
-          "square (../shared/NOTES.md: 1e-3/0.25^2).", 1e-12, 1e3, True),
-    Param("estimator.p0_relative_b", "double", 1.1e-6, "P(0) of a numerator coefficient relative to its "
-          "square (../shared/NOTES.md: 1e-5/3^2).", 1e-12, 1e3, True),
-    Param("estimator.p0_policy", "string", "information", "P(0) after the offline initialization: 'information' "
-          "(the initialization record's IV information weighted like the recursion, so the reported uncertainty and "
-          "the adaptation gain start at their steady level) or 'relative' (p0_relative_a/b; also the fallback "
-          "when the guesses are used).", read_only=True, choices=("information", "relative")),
-    Param("estimator.init_method", "string", "auto", "Offline initialization: auto (additive-clsrivc in closed "
-          "loop, additive-srivc in open loop), or one of the rsrivc_identify methods, or none (use the "
-          "guesses as they are).", read_only=True,
-          choices=("auto", "none", "additive-clsrivc", "additive-srivc", "bcd-srivc", "srivc", "clsrivc")),
-    Param("estimator.filter_smoothing", "string", "auto", "Prefilter denominator from the estimate (off: 000 "
-          "Algorithm 2 as printed) or smoothed over one period of the mode (on); auto: only for modes whose memory is "
-          "shorter than 3 decay times 1/(zeta omega), where the carried filter states (000 Remark 4.4) otherwise make "
-          "the estimate oscillate.", read_only=True, choices=("auto", "on", "off")),
-    Param("estimator.init_warmup_s", "double", -1.0, "Seconds at the start of the initialization data that only "
-          "warm up the offline filters (left out of the fit); -1: automatic (none, unless the fit's output error "
-          "starts with the plant's free response, i.e. the data start in motion: then 5 decay times of the slowest "
-          "mode).", -1.0, 1e5, True),
-    Param("estimator.init_max_iterations", "int", 30, "Iteration limit of the offline initialization.", 1, 1000,
-          True),
+    *ESTIMATOR_PARAMS,
 ]
 
 SIGNAL_PARAMS: list[Param] = []
@@ -151,73 +105,6 @@ ALIGN_PARAMS: list[Param] = [
           "over the current one before the streams are re-aligned.", 5.0, 1e6, True),
 ]
 
-# Fault-diagnosis parameters: owned by core/faults.py (appended there or here by its owner).
-FAULT_PARAMS: list[Param] = [
-    Param("faults.enabled", "bool", True, "Run the structural fault tests (estimation and health run regardless)."),
-    Param("faults.settle_memory_lengths", "double", 3.0, "Wait this many (longest) memory lengths after the "
-          "recursion starts before the baseline window or the tests begin.", 0.0, 1000.0),
-    Param("faults.settle_max_memory_lengths", "double", 30.0, "Start the baseline window after this many "
-          "(longest) memory lengths even if the estimate has not converged (std still growing or estimate "
-          "still moving).", 0.0, 1e5),
-    Param("faults.baseline_duration_s", "double", 0.0, "Length of the healthy window the baseline is learned "
-          "over (s); 0: faults.baseline_memory_lengths x the longest memory.", 0.0, 1e7),
-    Param("faults.baseline_memory_lengths", "double", 5.0, "Baseline window in (longest) memory lengths when "
-          "faults.baseline_duration_s is 0.", 0.5, 1000.0),
-    *[Param(f"faults.baseline.{_k}", "double[]", [], f"Given baseline {_k} per mode (empty: learn it; give all "
-            "three lists or none).", read_only=True) for _k in ("natural_frequency_hz", "damping_ratio", "gain")],
-    *[Param(f"faults.baseline.{_k}_std", "double[]", [], f"Uncertainty of the given baseline {_k} per mode "
-            "(empty: exact).", 0.0, None, True) for _k in ("natural_frequency_hz", "damping_ratio", "gain")],
-    Param("faults.min_change.natural_frequency", "double", 0.02, "Minimum relevant relative change of a natural "
-          "frequency for a fault.", 1e-6, 10.0),
-    Param("faults.min_change.damping", "double", 0.20, "Minimum relevant relative change of a damping ratio for "
-          "a fault.", 1e-6, 10.0),
-    Param("faults.min_change.gain", "double", 0.10, "Minimum relevant relative change of a modal gain for a "
-          "fault.", 1e-6, 10.0),
-    Param("faults.min_change.spread_factor", "double", 3.0, "A change is relevant only if it also exceeds this many "
-          "times the healthy fluctuation (spread) of the estimate seen while the baseline was learned; 0 disables.",
-          0.0, 100.0),
-    Param("faults.cusum.reference_sigma", "double", 0.5, "CUSUM reference value k: deviations below k standard "
-          "deviations do not accumulate evidence.", 0.0, 100.0),
-    Param("faults.cusum.false_alarm_interval_days", "double", 100.0, "Mean time between false alarms of one "
-          "CUSUM side (per mode and quantity) on healthy data, before the relevance and persistence checks; sets "
-          "the CUSUM threshold (Siegmund's approximation).", 1e-6, 1e9),
-    Param("faults.cusum.threshold", "double", 0.0, "Fixed CUSUM threshold h in independent estimates (one per two "
-          "memory lengths); 0: derived from faults.cusum.false_alarm_interval_days.", 0.0, 1e4),
-    Param("faults.persistence_s", "double", 0.0, "A suspected fault must persist this long (s) to be confirmed; "
-          "the larger of this and faults.persistence_memory_lengths x the mode's memory is used.", 0.0, 1e6),
-    Param("faults.persistence_memory_lengths", "double", 1.0, "Persistence before confirming, in memory "
-          "lengths of the mode.", 0.0, 1000.0),
-    Param("faults.clear_s", "double", 0.0, "A fault clears after its deviation stayed away this long (s); the "
-          "larger of this and faults.clear_memory_lengths x the mode's memory is used.", 0.0, 1e6),
-    Param("faults.clear_memory_lengths", "double", 2.0, "Hysteresis before clearing, in memory lengths of the "
-          "mode.", 0.0, 1000.0),
-    Param("faults.clear_fraction", "double", 0.5, "A fault counts as gone when its deviation is below this "
-          "fraction of the minimum relevant change.", 0.01, 0.99),
-    Param("faults.health.holdoff_memory_lengths", "double", 2.0, "Structural alarms stay held back this many "
-          "(longest) memory lengths after an estimator-health or data problem ended.", 0.0, 1000.0),
-    Param("faults.health.holdoff_min_s", "double", 0.5, "Minimum hold-off after a health problem (s).", 0.0, 1e6),
-    Param("faults.health.max_condition", "double", 1e12, "Loss of excitation when the estimator's IV condition "
-          "number exceeds this.", 1.0, 1e300),
-    Param("faults.health.max_projection_fraction", "double", 0.01, "Projection storm when more than this "
-          "fraction of updates needed the stability projection (000 §4.7).", 0.0, 1.0),
-    Param("faults.health.residual_jump_ratio", "double", 3.0, "Residual-variance jump when the residual "
-          "variance exceeds its healthy level by this factor (advisory: a fault is then confirmed only if it "
-          "began together with the jump).", 1.0, 1e12),
-    Param("faults.health.max_relative_std", "double", 0.25, "Loss of excitation when a mode's frequency or "
-          "gain std exceeds this fraction of its value.", 1e-6, 1e6),
-    Param("faults.health.max_parameter_ratio", "double", 10.0, "Divergence when a frequency or gain moves by "
-          "more than this factor from its initial estimate.", 1.01, 1e6),
-    Param("faults.health.stuck_s", "double", 0.25, "Stuck sensor when the output repeats the exact same value "
-          "for this long (s).", 0.0, 1e6),
-    Param("faults.health.stuck_min_samples", "int", 10, "... and for at least this many samples.", 2, 100000000),
-    Param("faults.health.gap_tolerance", "double", 0.5, "A data gap is a sample spacing above (1 + this) / "
-          "loop_rate_hz; the estimator is re-primed after it.", 0.01, 1000.0),
-    Param("faults.health.repeated_output_is_missing", "bool", True, "An output exactly equal to the previous one "
-          "is a dropped sample held by the receiver: skip it (set false for coarsely quantized sensors)."),
-    Param("faults.health.max_repeated_fraction", "double", 0.01, "Health warning when more than this fraction of "
-          "the outputs between two reports repeat their previous value.", 0.0, 1.0),
-]
-
 # Node-only parameters (autostart, state_file, ...): owned by node.py.
 NODE_PARAMS: list[Param] = [
     Param("autostart", "bool", True, "Configure and activate the lifecycle node on start.", read_only=True),
@@ -259,9 +146,21 @@ NODE_PARAMS: list[Param] = [
 ]
 
 
+# The sections of the table, in declaration order, with the banner config/template.yaml shows above each.
+SECTIONS: list[tuple[str, list[Param]]] = [
+    ("Plant, controller, modes and estimator (edit these for your plant)", CORE_PARAMS),
+    ("Input topics (std_msgs/msg/Float64: aligned by arrival order; sensor_msgs/msg/JointState: by header stamp)",
+     SIGNAL_PARAMS),
+    ("Verified alignment of r, u, y (closed loop): the controller invariant u = C_d(q)(r - y) must hold sample by "
+     "sample; a lost or repeated message on one topic is found and corrected (or reported)", ALIGN_PARAMS),
+    ("Fault diagnosis (defaults are sensible; thresholds are changeable at runtime)", FAULT_PARAMS),
+    ("Node only", NODE_PARAMS),
+]
+
+
 def all_params() -> list[Param]:
     """Every parameter row, in declaration order."""
-    return [*CORE_PARAMS, *SIGNAL_PARAMS, *ALIGN_PARAMS, *FAULT_PARAMS, *NODE_PARAMS]
+    return [p for _, rows in SECTIONS for p in rows]
 
 
 def param_table() -> dict[str, Param]:
@@ -391,21 +290,6 @@ class SignalConfig:
 
 
 @dataclass(frozen=True)
-class EstimatorOptions:
-    block_sweeps: int = 1
-    refinements: int = 0
-    stability_projection: bool = True
-    output_subsampling: int = 1
-    p0_relative_a: float = 0.016
-    p0_relative_b: float = 1.1e-6
-    p0_policy: str = "information"
-    init_method: str = "auto"
-    init_max_iterations: int = 30
-    filter_smoothing: str = "auto"
-    init_warmup_s: float = -1.0
-
-
-@dataclass(frozen=True)
 class MonitorConfig:
     """Typed view of the validated parameters (built by :meth:`from_params`)."""
 
@@ -419,8 +303,8 @@ class MonitorConfig:
     estimator: EstimatorOptions
     signals: dict[str, SignalConfig]
     params: dict[str, Any] = field(repr=False)
-    mode_count: int = 0
-    max_mode_count: int = 6
+    mode_count: int
+    max_mode_count: int
     frequency_range_hz: tuple[float, float] | None = None
 
     @property
@@ -455,15 +339,7 @@ class MonitorConfig:
                 controller = DiscreteController(tuple(p["controller.numerator"]), tuple(p["controller.denominator"]))
             except ValueError as exc:
                 raise ParamError(f"controller: {exc}") from None
-        est = EstimatorOptions(
-            block_sweeps=p["estimator.block_sweeps"], refinements=p["estimator.refinements"],
-            stability_projection=p["estimator.stability_projection"],
-            output_subsampling=p["estimator.output_subsampling"],
-            p0_relative_a=p["estimator.p0_relative_a"], p0_relative_b=p["estimator.p0_relative_b"],
-            p0_policy=p["estimator.p0_policy"],
-            init_method=p["estimator.init_method"], init_max_iterations=p["estimator.init_max_iterations"],
-            filter_smoothing=p["estimator.filter_smoothing"], init_warmup_s=p["estimator.init_warmup_s"],
-        )
+        est = EstimatorOptions.from_params(p)
         signals = {
             s: SignalConfig(p[f"{s}.topic"], p[f"{s}.type"], p[f"{s}.joint"], p[f"{s}.field"])
             for s in ("reference", "input", "output")
@@ -595,10 +471,71 @@ def _yaml_value(p: Param, v: Any) -> str:
     return _yaml_scalar(float(v) if p.type == "double" else v)
 
 
-def _comment_lines(text: str, indent: str, width: int = 112) -> list[str]:
+def _comment_lines(text: str, indent: str, width: int = 112, *, break_on_hyphens: bool = True) -> list[str]:
     import textwrap
 
-    return [f"{indent}# {line}" for line in textwrap.wrap(text, max(40, width - len(indent) - 2))]
+    return [f"{indent}# {line}" for line in textwrap.wrap(text, max(40, width - len(indent) - 2),
+                                                          break_on_hyphens=break_on_hyphens)]
+
+
+def _param_tree(rows: list[Param]) -> dict[str, Any]:
+    """``{group: {subgroup: ..., leaf: Param}}`` of dotted names, in row order."""
+    tree: dict[str, Any] = {}
+    for p in rows:
+        node = tree
+        *parents, leaf = p.name.split(".")
+        for key in parents:
+            node = node.setdefault(key, {})
+        node[leaf] = p
+    return tree
+
+
+def param_note(p: Param) -> str:
+    """``[type; range; runtime]`` summary of a row, as config/template.yaml shows it after the description."""
+    parts = [p.type]
+    if p.min is not None and p.max is not None:
+        parts.append(f"range [{p.min:g}, {p.max:g}]")
+    elif p.min is not None:
+        parts.append(f"min {p.min:g}")
+    elif p.max is not None:
+        parts.append(f"max {p.max:g}")
+    if p.choices:
+        parts.append("one of " + ", ".join(p.choices))
+    parts.append("read-only (restart to change)" if p.read_only else "changeable at runtime")
+    return "[" + "; ".join(parts) + "]"
+
+
+@dataclass
+class _YamlWriter:
+    """Emits a parameter tree as commented params YAML (an empty list, which a ROS 2 params file cannot hold, is
+    written commented out, with its ``examples`` value if there is one)."""
+
+    values: Mapping[str, Any]
+    annotate: bool = False                    # append param_note() to each description (template)
+    examples: Mapping[str, Any] = field(default_factory=dict)
+    group_notes: Mapping[str, str] = field(default_factory=dict)
+    lines: list[str] = field(default_factory=list)
+
+    def _has_value(self, node: dict[str, Any]) -> bool:
+        return any(self._has_value(c) if isinstance(c, dict) else bool(self.values[c.name]) or
+                   not c.type.endswith("[]") for c in node.values())
+
+    def emit(self, node: dict[str, Any], depth: int, commented: bool = False, prefix: str = "") -> None:
+        indent = "  " * depth
+        for key, child in node.items():
+            if isinstance(child, dict):
+                off = commented or not self._has_value(child)
+                if f"{prefix}{key}" in self.group_notes:
+                    self.lines.extend(_comment_lines(self.group_notes[f"{prefix}{key}"], indent))
+                self.lines.append(f"{indent}{'# ' if off else ''}{key}:")
+                self.emit(child, depth + 1, off, f"{prefix}{key}.")
+                continue
+            v = self.values[child.name]
+            text = f"{child.description} {param_note(child)}" if self.annotate else child.description
+            self.lines.extend(_comment_lines(text, indent, break_on_hyphens=not self.annotate))
+            off = commented or (child.type.endswith("[]") and not v)
+            shown = self.examples.get(child.name, v) if off and not v else v
+            self.lines.append(f"{indent}{'# ' if off else ''}{key}: {_yaml_value(child, shown)}")
 
 
 def render_params_yaml(params: Mapping[str, Any], node_name: str = DEFAULT_NODE_NAME, header: str = "") -> str:
@@ -606,34 +543,87 @@ def render_params_yaml(params: Mapping[str, Any], node_name: str = DEFAULT_NODE_
     empty list, which a ROS 2 params file cannot hold, is written commented out). Reads back with
     :func:`load_params_file` to the same values."""
     table = param_table()
-    values = validate_params({k: v for k, v in params.items() if k in table})
-    tree: dict[str, Any] = {}
-    for p in all_params():
-        node = tree
-        *parents, leaf = p.name.split(".")
-        for key in parents:
-            node = node.setdefault(key, {})
-        node[leaf] = p
+    writer = _YamlWriter(validate_params({k: v for k, v in params.items() if k in table}))
+    writer.lines += [f"# {line}" if line else "#" for line in header.splitlines()]
+    writer.lines += [f"{node_name}:", "  ros__parameters:"]
+    writer.emit(_param_tree(all_params()), 2)
+    return "\n".join(writer.lines) + "\n"
 
-    def has_value(node: dict[str, Any]) -> bool:
-        return any(has_value(c) if isinstance(c, dict) else bool(values[c.name]) or not c.type.endswith("[]")
-                   for c in node.values())
 
-    lines = [f"# {line}" if line else "#" for line in header.splitlines()]
-    lines += [f"{node_name}:", "  ros__parameters:"]
+# ------------------------------------------------------------------ generated documentation (the table is the source)
+# scripts/generate_param_docs.py writes these; test_param_docs fails when the checked-in files drift from the table.
+TEMPLATE_PATH = "config/template.yaml"
+README_PATH = "README.md"
+REGENERATE_COMMAND = "python scripts/generate_param_docs.py"
 
-    def emit(node: dict[str, Any], depth: int, commented: bool) -> None:
-        indent = "  " * depth
-        for key, child in node.items():
-            if isinstance(child, dict):
-                off = commented or not has_value(child)
-                lines.append(f"{indent}{'# ' if off else ''}{key}:")
-                emit(child, depth + 1, off)
-                continue
-            v = values[child.name]
-            lines.extend(_comment_lines(child.description, indent))
-            off = commented or (child.type.endswith("[]") and not v)
-            lines.append(f"{indent}{'# ' if off else ''}{key}: {_yaml_value(child, v)}")
+# The made-up plant config/template.yaml shows (2 modes at 12 and 85 Hz, 1 kHz loop, PI controller); every other
+# parameter is shown at its default.
+TEMPLATE_EXAMPLE: dict[str, Any] = {
+    "loop_rate_hz": 1000.0, "controller.numerator": [0.5, -0.49], "controller.denominator": [1.0, -1.0],
+    "input_delay_samples": 1, "modes.natural_frequency_hz": [12.0, 85.0], "modes.damping_ratio": [0.05, 0.02],
+    "modes.gain": [1.0, 0.05], "modes.integrators": [0, 0], "modes.memory_s": [20.0, 10.0], "init_duration_s": 10.0,
+}
+# Values shown (commented out) for parameters whose value in the template is an empty list.
+TEMPLATE_COMMENTED_EXAMPLE: dict[str, Any] = {"modes.frequency_range_hz": [1.0, 400.0]}
+# Comment lines above a group of the template.
+TEMPLATE_GROUP_NOTES: dict[str, str] = {
+    "block": "Block input instead of the three topics above (issue 14). Rows are paired by index (the sample time "
+             "is index / loop_rate_hz): missing indices are data gaps, repeated ones are dropped, an index that goes "
+             "back (controller restart) re-primes the estimator. Set stale_timeout_s above the time one block covers.",
+    "faults.baseline": "A given baseline (every entry below is optional; uncomment to give a baseline):",
+}
+# The rows of the README's parameter table ("the main ones"); the others are in config/template.yaml.
+README_PARAMS: tuple[str, ...] = (
+    "loop_rate_hz", "closed_loop", "controller.numerator", "controller.denominator", "input_delay_samples",
+    "modes.natural_frequency_hz", "modes.damping_ratio", "modes.gain", "modes.count", "modes.integrators",
+    "modes.memory_s", "init_duration_s", "publish_rate_hz", "diagnostics_period_s",
+)
+README_BEGIN = f"<!-- BEGIN parameter table: generated from additive_rsrivc_ros/config.py by {REGENERATE_COMMAND} -->"
+README_END = "<!-- END parameter table -->"
+_BANNER = "=" * 100
 
-    emit(tree, 2, False)
-    return "\n".join(lines) + "\n"
+
+def render_template(header: str) -> str:
+    """config/template.yaml: ``header`` (its leading comment block, kept as written), then every parameter of the
+    table by section, each with its description and :func:`param_note`, at :data:`TEMPLATE_EXAMPLE` or its
+    default."""
+    writer = _YamlWriter(validate_params(TEMPLATE_EXAMPLE), annotate=True, examples=TEMPLATE_COMMENTED_EXAMPLE,
+                         group_notes=TEMPLATE_GROUP_NOTES)
+    writer.lines += [*header.splitlines(), f"{DEFAULT_NODE_NAME}:", "  ros__parameters:"]
+    for i, (title, rows) in enumerate(SECTIONS):
+        if i:
+            writer.lines.append("")
+        writer.lines += ["    # " + _BANNER, *_comment_lines(title, "    "), "    # " + _BANNER]
+        writer.emit(_param_tree(rows), 2)
+    return "\n".join(writer.lines) + "\n"
+
+
+def template_header(text: str) -> str:
+    """The leading comment block of a template (the prose above the node's section, kept when regenerating)."""
+    lines = text.splitlines()
+    n = next((i for i, line in enumerate(lines) if line and not line.startswith("#")), len(lines))
+    return "\n".join(lines[:n])
+
+
+def render_readme_table() -> str:
+    """The README's parameter table (:data:`README_PARAMS`) between its begin/end markers."""
+    table = param_table()
+    lines = [README_BEGIN, "", "| name | type | default | meaning |", "|---|---|---|---|"]
+    for name in README_PARAMS:
+        p = table[name]
+        runtime = "" if p.read_only else " Changeable at runtime."
+        text = (p.description + runtime).replace("|", "\\|")
+        lines.append(f"| `{name}` | {p.type} | `{_yaml_value(p, p.default)}` | {text} |")
+    others = sorted({p.name.split(".")[0] + (".*" if "." in p.name else "") for p in all_params()}
+                    - {n.split(".")[0] + (".*" if "." in n else "") for n in README_PARAMS})
+    lines.append(f"| {', '.join(f'`{g}`' for g in others)} | | | the other "
+                 f"{len(table) - len(README_PARAMS)} parameters: see `{TEMPLATE_PATH}` |")
+    return "\n".join([*lines, "", README_END])
+
+
+def readme_with_table(readme: str) -> str:
+    """``readme`` with the text between its parameter-table markers replaced by :func:`render_readme_table`."""
+    begin, end = readme.find(README_BEGIN), readme.find(README_END)
+    if begin < 0 or end < begin:
+        raise ParamError(f"README has no '{README_BEGIN}' ... '{README_END}' markers")
+    return readme[:begin] + render_readme_table() + readme[end + len(README_END):]

@@ -79,3 +79,31 @@ def test_template_documents_every_parameter():
     for name in empty:
         assert name.rsplit(".", 1)[-1] in text, f"template.yaml does not mention {name}"
     assert flat["loop_rate_hz"] > 0
+
+
+def test_template_and_readme_table_are_generated_from_the_table():
+    """config/template.yaml and the README's parameter table are what the table renders (issue 15): a changed row
+    (default, range, description) without regenerating them fails here."""
+    from additive_rsrivc_ros.config import (
+        README_PATH,
+        REGENERATE_COMMAND,
+        TEMPLATE_PATH,
+        readme_with_table,
+        render_template,
+        template_header,
+    )
+
+    root = CONFIG_DIR.parent
+    template, readme = (root / TEMPLATE_PATH).read_text(), (root / README_PATH).read_text()
+    assert template == render_template(template_header(template)), f"{TEMPLATE_PATH} drifted: run {REGENERATE_COMMAND}"
+    assert readme == readme_with_table(readme), f"{README_PATH} parameter table drifted: run {REGENERATE_COMMAND}"
+
+
+def test_template_notes_show_each_rows_range_and_runtime_flag():
+    from additive_rsrivc_ros.config import param_note, param_table
+
+    t = param_table()
+    assert param_note(t["loop_rate_hz"]) == "[double; range [0.1, 1e+06]; read-only (restart to change)]"
+    assert param_note(t["faults.enabled"]) == "[bool; changeable at runtime]"
+    assert param_note(t["modes.frequency_range_hz"]) == "[double[]; min 0; read-only (restart to change)]"
+    assert "one of information, relative" in param_note(t["estimator.p0_policy"])

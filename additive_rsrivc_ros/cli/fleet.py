@@ -246,10 +246,13 @@ def _monitored_mask(t: Any, blind: Sequence[dict[str, Any]]) -> Any:
 
 def _bag_result(summary: dict[str, Any], out_dir: Path) -> dict[str, Any]:
     """What the fleet needs of one diagnosed bag: verdict, events, first sample time, levels per mode."""
+    from ..core.faults import QUANTITIES, FaultSettings
+    from ..core.params import settings_from_params
     from ..core.trend import bag_level
 
     k = int(summary["K"])
     params = summary.get("parameters", {})
+    settings = settings_from_params(FaultSettings, params)  # the run's thresholds (a name it lacks: the default)
     memory = params.get("modes.memory_s") or [1.0] * k
     t, modal = _read_estimates(out_dir / "estimates.csv", k)
     period = 1.0 / float(params.get("publish_rate_hz", 10.0) or 10.0)
@@ -271,9 +274,8 @@ def _bag_result(summary: dict[str, Any], out_dir: Path) -> dict[str, Any]:
             "verdict_text": summary.get("verdict_text", ""), "events": len(summary.get("events", [])),
             "K": k, "monitored_s": float(summary.get("monitored_s") or 0.0), "duration_s": summary.get("duration_s"),
             "level_s": level.monitored_s if level is not None else 0.0, "modes": modes, "exclusion": exclusion,
-            "min_change": {q: float(params.get(f"faults.min_change.{q}", d)) for q, d in
-                           (("natural_frequency", 0.02), ("damping", 0.2), ("gain", 0.1))},
-            "spread_factor": float(params.get("faults.min_change.spread_factor", 3.0))}
+            "min_change": dict(zip(QUANTITIES, settings.min_change, strict=True)),
+            "spread_factor": settings.relevance_spread_factor}
 
 
 def _exclusion(summary: dict[str, Any], level: Any, memory: Sequence[float]) -> str | None:

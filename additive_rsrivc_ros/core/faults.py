@@ -46,6 +46,7 @@ from typing import Any
 import numpy as np
 
 from .model import SubmodelStructure
+from .params import from_param, settings_as_params, settings_from_params
 
 QUANTITIES: tuple[str, ...] = ("natural_frequency", "damping", "gain")
 """Quantity names as in ../shared/CONTRACT.md events.csv; index q matches columns q and q+3 of modal()."""
@@ -69,81 +70,44 @@ class FaultConfigError(ValueError):
 # ----------------------------------------------------------------------------------------------- settings
 @dataclass(frozen=True)
 class FaultSettings:
-    """Thresholds of the fault logic (parameters ``faults.*`` in config.FAULT_PARAMS)."""
+    """Thresholds of the fault logic: each field is filled from the ``faults.*`` row(s) it names (core/params.py,
+    which holds their defaults, ranges and descriptions)."""
 
-    enabled: bool = True
-    settle_memory_lengths: float = 3.0
-    settle_max_memory_lengths: float = 30.0
-    baseline_duration_s: float = 0.0
-    baseline_memory_lengths: float = 5.0
-    baseline_value: tuple[tuple[float, ...], ...] = ((), (), ())      # per quantity, per mode (empty: learn)
-    baseline_std: tuple[tuple[float, ...], ...] = ((), (), ())
-    min_change: tuple[float, float, float] = (0.02, 0.20, 0.10)
-    relevance_spread_factor: float = 3.0  # relevant change >= this x the estimate's healthy spread too
-    cusum_reference_sigma: float = 0.5
-    cusum_threshold: float = 0.0          # 0: from cusum_false_alarm_interval_days (Siegmund)
-    cusum_false_alarm_interval_days: float = 100.0
-    persistence_s: float = 0.0
-    persistence_memory_lengths: float = 1.0
-    clear_s: float = 0.0
-    clear_memory_lengths: float = 2.0
-    clear_fraction: float = 0.5
-    health_holdoff_memory_lengths: float = 2.0
-    health_holdoff_min_s: float = 0.5
-    health_max_condition: float = 1e12
-    health_max_projection_fraction: float = 0.01
-    health_residual_jump_ratio: float = 3.0
-    health_max_relative_std: float = 0.25
-    health_max_parameter_ratio: float = 10.0
-    health_stuck_s: float = 0.25
-    health_stuck_min_samples: int = 10
-    health_gap_tolerance: float = 0.5
-    health_repeated_output_is_missing: bool = True
-    health_max_repeated_fraction: float = 0.01
+    enabled: bool = from_param("faults.enabled")
+    settle_memory_lengths: float = from_param("faults.settle_memory_lengths")
+    settle_max_memory_lengths: float = from_param("faults.settle_max_memory_lengths")
+    baseline_duration_s: float = from_param("faults.baseline_duration_s")
+    baseline_memory_lengths: float = from_param("faults.baseline_memory_lengths")
+    # per quantity (BASELINE_KEYS), per mode; empty: learn the baseline
+    baseline_value: tuple[tuple[float, ...], ...] = from_param(*(f"faults.baseline.{k}" for k in BASELINE_KEYS))
+    baseline_std: tuple[tuple[float, ...], ...] = from_param(*(f"faults.baseline.{k}_std" for k in BASELINE_KEYS))
+    min_change: tuple[float, float, float] = from_param(*(f"faults.min_change.{q}" for q in QUANTITIES))
+    relevance_spread_factor: float = from_param("faults.min_change.spread_factor")
+    cusum_reference_sigma: float = from_param("faults.cusum.reference_sigma")
+    cusum_threshold: float = from_param("faults.cusum.threshold")
+    cusum_false_alarm_interval_days: float = from_param("faults.cusum.false_alarm_interval_days")
+    persistence_s: float = from_param("faults.persistence_s")
+    persistence_memory_lengths: float = from_param("faults.persistence_memory_lengths")
+    clear_s: float = from_param("faults.clear_s")
+    clear_memory_lengths: float = from_param("faults.clear_memory_lengths")
+    clear_fraction: float = from_param("faults.clear_fraction")
+    health_holdoff_memory_lengths: float = from_param("faults.health.holdoff_memory_lengths")
+    health_holdoff_min_s: float = from_param("faults.health.holdoff_min_s")
+    health_max_condition: float = from_param("faults.health.max_condition")
+    health_max_projection_fraction: float = from_param("faults.health.max_projection_fraction")
+    health_residual_jump_ratio: float = from_param("faults.health.residual_jump_ratio")
+    health_max_relative_std: float = from_param("faults.health.max_relative_std")
+    health_max_parameter_ratio: float = from_param("faults.health.max_parameter_ratio")
+    health_stuck_s: float = from_param("faults.health.stuck_s")
+    health_stuck_min_samples: int = from_param("faults.health.stuck_min_samples")
+    health_gap_tolerance: float = from_param("faults.health.gap_tolerance")
+    health_repeated_output_is_missing: bool = from_param("faults.health.repeated_output_is_missing")
+    health_max_repeated_fraction: float = from_param("faults.health.max_repeated_fraction")
 
     @classmethod
     def from_params(cls, p: Mapping[str, Any]) -> FaultSettings:
-        """Build from flat ``faults.*`` parameters (missing names keep their defaults)."""
-        d = cls()
-
-        def g(name: str, default: Any) -> Any:
-            return p.get(f"faults.{name}", default)
-
-        base = tuple(tuple(float(v) for v in g(f"baseline.{k}", ())) for k in BASELINE_KEYS)
-        base_std = tuple(tuple(float(v) for v in g(f"baseline.{k}_std", ())) for k in BASELINE_KEYS)
-        s = cls(
-            enabled=bool(g("enabled", d.enabled)),
-            settle_memory_lengths=float(g("settle_memory_lengths", d.settle_memory_lengths)),
-            settle_max_memory_lengths=float(g("settle_max_memory_lengths", d.settle_max_memory_lengths)),
-            baseline_duration_s=float(g("baseline_duration_s", d.baseline_duration_s)),
-            baseline_memory_lengths=float(g("baseline_memory_lengths", d.baseline_memory_lengths)),
-            baseline_value=base, baseline_std=base_std,
-            min_change=tuple(float(g(f"min_change.{q}", d.min_change[i])) for i, q in enumerate(QUANTITIES)),
-            relevance_spread_factor=float(g("min_change.spread_factor", d.relevance_spread_factor)),
-            cusum_reference_sigma=float(g("cusum.reference_sigma", d.cusum_reference_sigma)),
-            cusum_threshold=float(g("cusum.threshold", d.cusum_threshold)),
-            cusum_false_alarm_interval_days=float(g("cusum.false_alarm_interval_days",
-                                                    d.cusum_false_alarm_interval_days)),
-            persistence_s=float(g("persistence_s", d.persistence_s)),
-            persistence_memory_lengths=float(g("persistence_memory_lengths", d.persistence_memory_lengths)),
-            clear_s=float(g("clear_s", d.clear_s)),
-            clear_memory_lengths=float(g("clear_memory_lengths", d.clear_memory_lengths)),
-            clear_fraction=float(g("clear_fraction", d.clear_fraction)),
-            health_holdoff_memory_lengths=float(g("health.holdoff_memory_lengths", d.health_holdoff_memory_lengths)),
-            health_holdoff_min_s=float(g("health.holdoff_min_s", d.health_holdoff_min_s)),
-            health_max_condition=float(g("health.max_condition", d.health_max_condition)),
-            health_max_projection_fraction=float(g("health.max_projection_fraction",
-                                                   d.health_max_projection_fraction)),
-            health_residual_jump_ratio=float(g("health.residual_jump_ratio", d.health_residual_jump_ratio)),
-            health_max_relative_std=float(g("health.max_relative_std", d.health_max_relative_std)),
-            health_max_parameter_ratio=float(g("health.max_parameter_ratio", d.health_max_parameter_ratio)),
-            health_stuck_s=float(g("health.stuck_s", d.health_stuck_s)),
-            health_stuck_min_samples=int(g("health.stuck_min_samples", d.health_stuck_min_samples)),
-            health_gap_tolerance=float(g("health.gap_tolerance", d.health_gap_tolerance)),
-            health_repeated_output_is_missing=bool(g("health.repeated_output_is_missing",
-                                                     d.health_repeated_output_is_missing)),
-            health_max_repeated_fraction=float(g("health.max_repeated_fraction", d.health_max_repeated_fraction)),
-        )
+        """Build from flat ``faults.*`` parameters (missing names keep their defaults) and check them."""
+        s = settings_from_params(cls, p)
         s.check()
         return s
 
@@ -516,7 +480,7 @@ class FaultMonitor:
 
         ``params`` may hold only the changed names; a given baseline is applied when its lists change.
         """
-        merged = self._settings_as_params()
+        merged = settings_as_params(self.settings)
         merged.update({k: v for k, v in params.items() if k.startswith("faults.")})
         new = FaultSettings.from_params(merged)
         new.check(self.K)
@@ -529,38 +493,6 @@ class FaultMonitor:
                     self.phase = "monitoring"
             elif old.has_given_baseline:
                 self.rebaseline(self.t_last)
-
-    def _settings_as_params(self) -> dict[str, Any]:
-        s = self.settings
-        out: dict[str, Any] = {
-            "faults.enabled": s.enabled, "faults.settle_memory_lengths": s.settle_memory_lengths,
-            "faults.settle_max_memory_lengths": s.settle_max_memory_lengths,
-            "faults.baseline_duration_s": s.baseline_duration_s,
-            "faults.baseline_memory_lengths": s.baseline_memory_lengths,
-            "faults.cusum.reference_sigma": s.cusum_reference_sigma, "faults.cusum.threshold": s.cusum_threshold,
-            "faults.cusum.false_alarm_interval_days": s.cusum_false_alarm_interval_days,
-            "faults.persistence_s": s.persistence_s, "faults.persistence_memory_lengths": s.persistence_memory_lengths,
-            "faults.clear_s": s.clear_s, "faults.clear_memory_lengths": s.clear_memory_lengths,
-            "faults.clear_fraction": s.clear_fraction,
-            "faults.health.holdoff_memory_lengths": s.health_holdoff_memory_lengths,
-            "faults.health.holdoff_min_s": s.health_holdoff_min_s,
-            "faults.health.max_condition": s.health_max_condition,
-            "faults.health.max_projection_fraction": s.health_max_projection_fraction,
-            "faults.health.residual_jump_ratio": s.health_residual_jump_ratio,
-            "faults.health.max_relative_std": s.health_max_relative_std,
-            "faults.health.max_parameter_ratio": s.health_max_parameter_ratio,
-            "faults.health.stuck_s": s.health_stuck_s, "faults.health.stuck_min_samples": s.health_stuck_min_samples,
-            "faults.health.gap_tolerance": s.health_gap_tolerance,
-            "faults.health.repeated_output_is_missing": s.health_repeated_output_is_missing,
-            "faults.health.max_repeated_fraction": s.health_max_repeated_fraction,
-        }
-        for q, name in enumerate(QUANTITIES):
-            out[f"faults.min_change.{name}"] = s.min_change[q]
-        out["faults.min_change.spread_factor"] = s.relevance_spread_factor
-        for q, key in enumerate(BASELINE_KEYS):
-            out[f"faults.baseline.{key}"] = list(s.baseline_value[q])
-            out[f"faults.baseline.{key}_std"] = list(s.baseline_std[q])
-        return out
 
     def set_memory(self, memory_s: Sequence[float]) -> None:
         """Follow a runtime memory change (time constants of S1 and of the persistence/clear times)."""

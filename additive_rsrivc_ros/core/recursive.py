@@ -31,6 +31,7 @@ import numpy as np
 
 from . import kernel as kn
 from .model import SubmodelStructure, modal_from_theta, modal_std
+from .params import EstimatorOptions, core_param
 
 STATE_KEYS = ("kind", "lam", "muf", "cnum", "cden", "cfg_i", "cfg_f", "p0diag", "theta", "thf", "P", "S", "xs", "vin",
               "phi",
@@ -44,7 +45,7 @@ FILTER_PERIODS = 1.0  # default filter-model time constant in periods of each mo
 # "auto" filter policy: smooth the prefilter denominator of a mode only where the slow-variation approximation of
 # 000 Remark 4.4 fails, i.e. where the forgetting memory is shorter than this many decay times 1/(zeta omega)
 AUTO_DECAY_FACTOR = 3.0
-FILTER_POLICIES = ("auto", "on", "off")
+FILTER_POLICIES = core_param("estimator.filter_smoothing").choices  # ("auto", "on", "off")
 
 
 def _kind_of(s: SubmodelStructure) -> int:
@@ -61,7 +62,8 @@ def _structure_of(kind: int) -> SubmodelStructure:
     return SubmodelStructure(2, 0, 0) if kind == 0 else SubmodelStructure(0, 0, int(kind))
 
 
-P0_POLICIES = ("information", "relative")
+P0_POLICIES = core_param("estimator.p0_policy").choices  # ("information", "relative")
+DEFAULTS = EstimatorOptions()  # the estimator.* defaults (core/params.py) of the keyword arguments below
 
 
 def p0_from_information(p_block: np.ndarray, n_samples: int, lam: float) -> np.ndarray | None:
@@ -268,13 +270,16 @@ class RecursiveAdditiveSRIVC:
 
     def __init__(self, structures: Sequence[SubmodelStructure], theta0: Sequence[np.ndarray], rate_hz: float, *,
                  forgetting: np.ndarray | Sequence[float] | float, controller: Any,
-                 input_delay: int = 0, block_sweeps: int = 1, refinements: int = 0, projection: bool = True,
-                 subsampling: int = 1, p0_relative: tuple[float, float] = (0.016, 1.1e-6),
+                 input_delay: int = 0, block_sweeps: int = DEFAULTS.block_sweeps,
+                 refinements: int = DEFAULTS.refinements, projection: bool = DEFAULTS.stability_projection,
+                 subsampling: int = DEFAULTS.output_subsampling,
+                 p0_relative: tuple[float, float] = (DEFAULTS.p0_relative_a, DEFAULTS.p0_relative_b),
                  max_step: float = 0.0, p_cap: float = math.inf, filter_memory_s: float | Sequence[float] | None = 0.0,
                  filter_policy: str | None = None,
                  reprime_s: float | None = None,
-                 init_method: str = "auto", init_max_iterations: int = 30, init_samples: int | None = None,
-                 init_warmup_s: float | None = None, p0_policy: str = "information") -> None:
+                 init_method: str = DEFAULTS.init_method, init_max_iterations: int = DEFAULTS.init_max_iterations,
+                 init_samples: int | None = None, init_warmup_s: float | None = None,
+                 p0_policy: str = DEFAULTS.p0_policy) -> None:
         structures = list(structures)
         K = len(structures)
         if K == 0:
@@ -363,7 +368,7 @@ class RecursiveAdditiveSRIVC:
     # ------------------------------------------------------------------ construction helpers
     @classmethod
     def from_config(cls, cfg: Any) -> RecursiveAdditiveSRIVC:
-        """Build from a :class:`config.MonitorConfig` (modes, memories, controller, estimator options)."""
+        """Build from a :class:`config.MonitorConfig` (modes, memories, controller, ``cfg.estimator`` options)."""
         if not cfg.modes:  # issue 12: without guesses the modes come from core.modefind.autostart_config first
             raise ValueError("no mode guesses (modes.natural_frequency_hz empty): find them first (core.modefind."
                              "autostart_config, rsrivc_diagnose, or rsrivc_identify --modes auto --out-params)")
