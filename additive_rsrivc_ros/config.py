@@ -1,19 +1,23 @@
 """Parameters of the monitor: one declarative table shared by the ROS node and the offline tools.
 
 The same params YAML (``additive_rsrivc_monitor: ros__parameters: ...``, ../shared/CONTRACT.md) drives
-``rsrivc_monitor``, ``rsrivc_diagnose`` and ``rsrivc_identify``. Every parameter is a :class:`Param`
-row: the node declares each with a descriptor built from it; :func:`load_params_file` and
-:func:`validate_params` apply the same types, ranges and cross-checks offline.
+``rsrivc_monitor``, ``rsrivc_diagnose`` and ``rsrivc_identify``. Every parameter is declared once, as a
+:class:`Param` row (name, type, default, description, range, choices, read-only): the node declares each with a
+descriptor built from it; :func:`load_params_file` and :func:`validate_params` apply the same types, ranges and
+cross-checks offline; :meth:`MonitorConfig.from_params` builds the typed view; config/template.yaml and the README's
+parameter table are rendered from the rows (scripts/generate_param_docs.py; test_config checks they are current).
 
-Sections are separate lists so that each owner edits only its own: ``CORE_PARAMS`` (plant, modes,
-estimator), ``SIGNAL_PARAMS`` (topics), ``FAULT_PARAMS`` (diagnosis), ``NODE_PARAMS`` (node only).
+Sections (:data:`SECTIONS`, in declaration order): ``CORE_PARAMS`` (plant, modes, and the ``estimator.*`` rows),
+``SIGNAL_PARAMS`` (topics), ``ALIGN_PARAMS`` (stream alignment), ``FAULT_PARAMS`` (diagnosis), ``NODE_PARAMS``
+(node only). The ``estimator.*`` and ``faults.*`` rows live in core/params.py, next to the settings dataclasses
+they fill (EstimatorOptions, core.faults.FaultSettings), because core/ must not import this module.
 """
 
 from __future__ import annotations
 
 import math
 from collections.abc import Mapping
-from dataclasses import dataclass, field, replace
+from dataclasses import dataclass, field, fields, replace
 from pathlib import Path
 from typing import Any
 
@@ -64,6 +68,8 @@ CORE_PARAMS: list[Param] = [
     *ESTIMATOR_PARAMS,
 ]
 
+# Defaults shared by the rows of the three signals and SignalConfig.
+SIGNAL_DEFAULTS: dict[str, str] = {"type": "std_msgs/msg/Float64", "joint": "", "field": "position"}
 SIGNAL_PARAMS: list[Param] = []
 for _sig, _topic in (("reference", "reference"), ("input", "plant_input"), ("output", "plant_output")):
     SIGNAL_PARAMS += [
@@ -71,12 +77,12 @@ for _sig, _topic in (("reference", "reference"), ("input", "plant_input"), ("out
               f"node's namespace (/{_topic} in the root namespace, /<ns>/{_topic} under -r __ns:=/<ns>); remap it "
               f"(-r {_topic}:=/other) rather than changing it. In a bag, a relative name matches /{_topic}.",
               read_only=True),
-        Param(f"{_sig}.type", "string", "std_msgs/msg/Float64", f"Message type of the {_sig} signal.",
+        Param(f"{_sig}.type", "string", SIGNAL_DEFAULTS["type"], f"Message type of the {_sig} signal.",
               read_only=True, choices=("std_msgs/msg/Float64", "sensor_msgs/msg/JointState")),
-        Param(f"{_sig}.joint", "string", "", f"JointState joint name of the {_sig} signal (empty: first joint).",
-              read_only=True),
-        Param(f"{_sig}.field", "string", "position", f"JointState field of the {_sig} signal.", read_only=True,
-              choices=("position", "velocity", "effort")),
+        Param(f"{_sig}.joint", "string", SIGNAL_DEFAULTS["joint"], f"JointState joint name of the {_sig} signal "
+              "(empty: first joint).", read_only=True),
+        Param(f"{_sig}.field", "string", SIGNAL_DEFAULTS["field"], f"JointState field of the {_sig} signal.",
+              read_only=True, choices=("position", "velocity", "effort")),
     ]
 
 SIGNAL_PARAMS += [
@@ -283,10 +289,12 @@ class ModeConfig:
 
 @dataclass(frozen=True)
 class SignalConfig:
+    """One input signal: the rows ``<signal>.topic/type/joint/field`` (defaults: SIGNAL_DEFAULTS)."""
+
     topic: str
-    type: str = "std_msgs/msg/Float64"
-    joint: str = ""
-    field: str = "position"
+    type: str = SIGNAL_DEFAULTS["type"]
+    joint: str = SIGNAL_DEFAULTS["joint"]
+    field: str = SIGNAL_DEFAULTS["field"]
 
 
 @dataclass(frozen=True)
@@ -341,7 +349,7 @@ class MonitorConfig:
                 raise ParamError(f"controller: {exc}") from None
         est = EstimatorOptions.from_params(p)
         signals = {
-            s: SignalConfig(p[f"{s}.topic"], p[f"{s}.type"], p[f"{s}.joint"], p[f"{s}.field"])
+            s: SignalConfig(**{f.name: p[f"{s}.{f.name}"] for f in fields(SignalConfig)})
             for s in ("reference", "input", "output")
         }
         return cls(
