@@ -21,7 +21,7 @@ def _tree(src: str, dst: str) -> list[tuple[str, list[str]]]:
 class BuildPyWithConfig(build_py):
     """build_py that also copies ``config/*.yaml`` (the one hand-kept copy) into the built package as
     ``additive_rsrivc_ros/data/config``, so the scenarios find their params files after a plain
-    ``pip install .`` or ``colcon build`` (``core.scenarios.config_dir``)."""
+    ``pip install .`` or ``colcon build`` (``sim.scenarios.config_dir``)."""
 
     def run(self) -> None:
         super().run()

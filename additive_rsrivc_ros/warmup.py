@@ -3,7 +3,7 @@ node pays compilation on its first run.
 
 It exercises the code paths the node and the offline tools take, on short simulated records written as real
 bags: closed loop (the beam), a rigid-body mode (integrators), open loop, and an automatic start without guesses;
-each is simulated (core.simulate), written (rosbag2/MCAP), read back (bagio, mcap_fast) and diagnosed
+each is simulated (sim.simulate), written (rosbag2/MCAP), read back (bagio, mcap_fast) and diagnosed
 (pipeline: alignment, recursion, filters, ZOH, faults). ``--check`` then lists kernels that were never compiled.
 The setup (``scripts/bootstrap.sh``) runs it; after ``colcon build`` run ``ros2 run additive_rsrivc_ros
 rsrivc_warmup`` once (otherwise the first node start compiles, about 20-40 s).
@@ -72,7 +72,7 @@ def kernel_dispatchers() -> dict[str, object]:
 def _run_case(work: Path, scenario: str, params: str, after_s: float) -> None:
     from .cli import diagnose, simulate
     from .config import load_config
-    from .core.scenarios import config_dir
+    from .sim.scenarios import config_dir
 
     cfg_path = config_dir() / params
     cfg = load_config(cfg_path, "additive_rsrivc_monitor")

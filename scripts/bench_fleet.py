@@ -3,7 +3,7 @@
 
     python scripts/bench_fleet.py [--bags 8] [--duration 10] [--workers N] [--no-report] [--json]
 
-The bags are simulated recordings of one machine (additive_rsrivc_ros.fleetsim: open loop, 1 kHz, 2 modes); each
+The bags are simulated recordings of one machine (additive_rsrivc_ros.sim.fleetsim: open loop, 1 kHz, 2 modes); each
 task is the full ``rsrivc_diagnose`` of one bag (report included unless --no-report). The figure comes from
 :func:`additive_rsrivc_ros.cli.fleet.throughput` (``rsrivc_bench --json`` key ``fleet``). Run it with
 ``scripts/env.sh`` sourced (one BLAS thread per worker, the shared numba cache).

@@ -296,7 +296,7 @@ def main() -> int:
     domain = 150 + os.getpid() % 80
     env = dict(os.environ, ROS_DOMAIN_ID=str(domain), ROS_AUTOMATIC_DISCOVERY_RANGE="LOCALHOST",
                OPENBLAS_NUM_THREADS="1", PYTHONUNBUFFERED="1")
-    from additive_rsrivc_ros.core import scenarios
+    from additive_rsrivc_ros.sim import scenarios
 
     with tempfile.TemporaryDirectory(prefix="bench_node_") as tmp:
         t0 = time.monotonic()

@@ -3,7 +3,7 @@
 
     python scripts/make_fleet_figure.py [--out docs/images/fleet_trend.png] [--workers 2]
 
-Simulates 6 recordings of one machine a day apart (additive_rsrivc_ros.fleetsim: open loop, 1 kHz, modes at 5 Hz
+Simulates 6 recordings of one machine a day apart (additive_rsrivc_ros.sim.fleetsim: open loop, 1 kHz, modes at 5 Hz
 and 20 Hz) whose mode-2 natural frequency declines 0.5 % per recording, plus a truncated (corrupt) bag, runs
 ``rsrivc_fleet`` on them with ``faults.min_change.natural_frequency: 0.0175``, prints its output and saves the
 trend figure of ``fleet.html`` (small: 72 dpi).
@@ -17,9 +17,9 @@ import shutil
 import tempfile
 from pathlib import Path
 
-from additive_rsrivc_ros import fleetsim
 from additive_rsrivc_ros.cli import fleet
 from additive_rsrivc_ros.fleet_report import trend_png
+from additive_rsrivc_ros.sim import fleetsim
 
 REPO = Path(__file__).resolve().parents[1]
 

@@ -27,7 +27,7 @@ import numpy as np
 
 from additive_rsrivc_ros.config import MonitorConfig, load_params_file
 from additive_rsrivc_ros.core.pipeline import MonitorPipeline
-from additive_rsrivc_ros.core.scenarios import build, config_dir
+from additive_rsrivc_ros.sim.scenarios import build, config_dir
 
 TRUE_F = np.array([3.2487, 32.972, 171.7, 183.2])
 TRUE_Z = np.array([0.2348, 0.01709, 0.0056, 0.0020])

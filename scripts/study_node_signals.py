@@ -33,8 +33,8 @@ SIGNALS = ("/reference", "/plant_input", "/plant_output")
 def valid_state_file(path: Path) -> str:
     """A state file of the beam configuration with an initialized estimator (6 s of simulated beam data)."""
     from additive_rsrivc_ros.config import MonitorConfig, load_params_file
-    from additive_rsrivc_ros.core import scenarios
     from additive_rsrivc_ros.core.pipeline import MonitorPipeline
+    from additive_rsrivc_ros.sim import scenarios
 
     sc = scenarios.build("beam", duration_s=6.0, seed=2)
     pipe = MonitorPipeline(MonitorConfig.from_params(load_params_file(PARAMS)))

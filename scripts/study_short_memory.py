@@ -1,7 +1,7 @@
 #!/usr/bin/env python
 """Why the beam's mode-2 estimate breaks down at the paper's short memory (000 §6: lambda2 = 0.999 at 4096 Hz).
 
-Scenario ``core.scenarios.build("beam", seed)``: 4096 Hz, closed loop, 4-sample delay, K = 2 of 4 plant modes,
+Scenario ``sim.scenarios.build("beam", seed)``: 4096 Hz, closed loop, 4-sample delay, K = 2 of 4 plant modes,
 2 Hz square-wave setpoint, mode 2 (33 Hz, zeta 0.017) frequency down 10 % and back over [40, 100] s. Memories
 ``[2.44, MEM2]`` s, ``lambda_i = 1 - 1/(memory_s_i rate)``.
 
@@ -33,10 +33,10 @@ for _v in ("OPENBLAS_NUM_THREADS", "OMP_NUM_THREADS", "MKL_NUM_THREADS"):
 
 import numpy as np  # noqa: E402
 
-from additive_rsrivc_ros.core import scenarios as S  # noqa: E402
 from additive_rsrivc_ros.core.model import modal_from_theta  # noqa: E402
 from additive_rsrivc_ros.core.recursive import RecursiveAdditiveSRIVC  # noqa: E402
 from additive_rsrivc_ros.core.zoh import second_order_zoh  # noqa: E402
+from additive_rsrivc_ros.sim import scenarios as S  # noqa: E402
 
 NOISE_STD = S.BEAM_NOISE_STD
 CHANGE = (40.0, 100.0)

@@ -33,9 +33,9 @@ import numpy as np  # noqa: E402
 from additive_rsrivc_ros.core.controller import DiscreteController  # noqa: E402
 from additive_rsrivc_ros.core.frf import discrete_model_frf  # noqa: E402
 from additive_rsrivc_ros.core.modefind import find_modes  # noqa: E402
-from additive_rsrivc_ros.core.simulate import (  # noqa: E402
+from additive_rsrivc_ros.core.plant import loop_margins  # noqa: E402
+from additive_rsrivc_ros.sim.simulate import (  # noqa: E402
     PlantMode,
-    loop_margins,
     simulate_modes,
     square_wave,
     white_noise,

@@ -19,7 +19,7 @@ from additive_rsrivc_ros.bagio import (
 )
 from additive_rsrivc_ros.config import MonitorConfig, validate_params
 from additive_rsrivc_ros.core.controller import DiscreteController
-from additive_rsrivc_ros.core.simulate import (
+from additive_rsrivc_ros.sim.simulate import (
     ModalChange,
     PlantMode,
     SensorFault,
@@ -242,7 +242,7 @@ def test_atomic_writer_refuses_existing_and_cleans_up(tmp_path, sim):
 def test_bundled_bags_match_their_scenario(repo, name, duration, overrides):
     """bags/ (scripts/make_bags.sh) holds exactly the scenario's samples and truth, within the size budget."""
     from additive_rsrivc_ros.config import load_config
-    from additive_rsrivc_ros.core.scenarios import build
+    from additive_rsrivc_ros.sim.scenarios import build
 
     bag = repo / "bags" / name
     assert bag.is_dir(), "run: bash scripts/make_bags.sh"

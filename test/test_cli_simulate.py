@@ -7,7 +7,7 @@ import pytest
 
 from additive_rsrivc_ros.bagio import read_signals
 from additive_rsrivc_ros.cli import simulate as cli
-from additive_rsrivc_ros.core.scenarios import build
+from additive_rsrivc_ros.sim.scenarios import build
 
 
 def _run(argv, capsys):

@@ -11,7 +11,7 @@ import numpy as np
 
 from additive_rsrivc_ros.cli import evaluate as ev
 from additive_rsrivc_ros.core.faults import FaultEvent
-from additive_rsrivc_ros.core.simulate import ModalChange, SensorFault
+from additive_rsrivc_ros.sim.simulate import ModalChange, SensorFault
 
 
 def _data(changes, sensor=()):

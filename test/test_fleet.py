@@ -1,6 +1,6 @@
 """rsrivc_fleet end to end on a dask LocalCluster with 2 worker processes, real rosbag2 files.
 
-One simulated machine (additive_rsrivc_ros.fleetsim: open loop, 1 kHz, modes 5 Hz and 20 Hz), recordings one
+One simulated machine (additive_rsrivc_ros.sim.fleetsim: open loop, 1 kHz, modes 5 Hz and 20 Hz), recordings one
 day apart whose mode-2 natural frequency declines 0.5 % per recording (constant within each 10 s recording, so
 no single bag shows it), plus a corrupt bag; and a healthy machine (no drift) with a recording too short to be
 monitored.
@@ -20,8 +20,8 @@ import pytest
 
 pytest.importorskip("dask.distributed")
 
-from additive_rsrivc_ros import fleetsim  # noqa: E402
 from additive_rsrivc_ros.cli import diagnose, fleet  # noqa: E402
+from additive_rsrivc_ros.sim import fleetsim  # noqa: E402
 
 DRIFT = 0.005                      # per recording
 MIN_CHANGE_F = 0.0175              # between the true cumulative changes 1.5 % (rec_03) and 2.0 % (rec_04)

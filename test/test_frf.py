@@ -12,7 +12,8 @@ import pytest
 
 from additive_rsrivc_ros.core.controller import DiscreteController
 from additive_rsrivc_ros.core.frf import discrete_model_frf, estimate_frf
-from additive_rsrivc_ros.core.simulate import PlantMode, loop_margins, simulate_modes, square_wave, white_noise
+from additive_rsrivc_ros.core.plant import loop_margins
+from additive_rsrivc_ros.sim.simulate import PlantMode, simulate_modes, square_wave, white_noise
 
 FS = 1000.0
 MODES = (PlantMode(5.0, 0.05, 1.0), PlantMode(40.0, 0.02, 0.1))

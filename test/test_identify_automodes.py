@@ -12,7 +12,7 @@ from test_frf import CONTROLLER, DELAY, FS, MODES, no_guess_params_yaml
 from additive_rsrivc_ros.bagio import write_bag
 from additive_rsrivc_ros.cli import diagnose, identify
 from additive_rsrivc_ros.config import load_config, load_params_file
-from additive_rsrivc_ros.core.simulate import simulate_modes, square_wave, white_noise
+from additive_rsrivc_ros.sim.simulate import simulate_modes, square_wave, white_noise
 
 PARAMS = no_guess_params_yaml()
 

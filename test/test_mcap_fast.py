@@ -45,7 +45,7 @@ def test_stream_walk_without_chunk_index_reads_identically(repo, monkeypatch):
 
 def test_nan_samples_and_open_loop_bags(tmp_path, monkeypatch):
     """NaN payloads and a bag without /reference (open loop) agree bit for bit too."""
-    from additive_rsrivc_ros.core.scenarios import build
+    from additive_rsrivc_ros.sim.scenarios import build
 
     data = build("sensor_fault", duration_s=400.0, seed=1, fault_time_s=20.0)
     path = data.write_bag(tmp_path / "sf")

@@ -7,7 +7,7 @@ import pytest
 from test_frf import CONTROLLER, DELAY, FS, MODES
 
 from additive_rsrivc_ros.core.modefind import find_modes
-from additive_rsrivc_ros.core.simulate import PlantMode, simulate_modes, square_wave, white_noise
+from additive_rsrivc_ros.sim.simulate import PlantMode, simulate_modes, square_wave, white_noise
 
 
 def _square_wave_closed_loop(seed: int, duration_s: float = 20.0):

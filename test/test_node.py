@@ -4,13 +4,11 @@ parameters, services, state persistence across a restart, bad inputs, clean shut
 The estimation reference is the offline :class:`MonitorPipeline` fed the same samples in the test process:
 the node is a shell around it, so with stamped (JointState) inputs and no loss its ~/modes must equal the
 offline reports to rounding. Accuracy against the simulation truth is checked with the recursive engine's
-validated error level (scripts/validate_recursive.py LIMITS, 10-seed mean RMS relative error in %), allowing
+validated error level (sim/experiments.py LIMITS, 10-seed mean RMS relative error in %), allowing
 4x for a single seed at a single instant.
 """
-import importlib.util
 import math
 import subprocess
-import sys
 import time
 from pathlib import Path
 
@@ -21,20 +19,16 @@ from rclpy.context import Context  # noqa: E402
 from rclpy.parameter import Parameter  # noqa: E402
 from sensor_msgs.msg import JointState  # noqa: E402
 from std_msgs.msg import Float64, String  # noqa: E402
+from test_node_helpers import Client, start_node, stop_node  # noqa: E402
 
 from additive_rsrivc_ros.config import MonitorConfig, load_params_file  # noqa: E402
-from additive_rsrivc_ros.core import scenarios  # noqa: E402
 from additive_rsrivc_ros.core.pipeline import MonitorPipeline  # noqa: E402
 from additive_rsrivc_ros.ros.convert import MODE_KEYS  # noqa: E402
-
-sys.path.insert(0, str(Path(__file__).resolve().parent))
-from test_node_helpers import Client, start_node, stop_node  # noqa: E402
+from additive_rsrivc_ros.sim import scenarios  # noqa: E402
+from additive_rsrivc_ros.sim.experiments import LIMITS
 
 REPO = Path(__file__).resolve().parents[1]
 PAPER = str(REPO / "config" / "paper_example.yaml")
-_spec = importlib.util.spec_from_file_location("validate_recursive", REPO / "scripts" / "validate_recursive.py")
-vr = importlib.util.module_from_spec(_spec)
-_spec.loader.exec_module(vr)
 
 STAMPED = [f"{s}.type:=sensor_msgs/msg/JointState" for s in ("reference", "input", "output")]
 
@@ -102,7 +96,7 @@ def test_stamped_inputs_params_services_and_restart(ros_env, tmp_path):
         truth = sc.truth[:, -1, :]
         rel = np.abs(modal[:, :3] - truth) / np.abs(truth)
         # the node already equals the offline pipeline here: a failure below is an estimator (core) problem
-        assert np.all(rel <= 4 * vr.LIMITS / 100), ("offline pipeline and node off the truth by (%)",
+        assert np.all(rel <= 4 * LIMITS / 100), ("offline pipeline and node off the truth by (%)",
                                                     np.round(100 * rel, 2))
         cli.wait_for(lambda: cli.status("mode 1")["values"]["baseline_gain"] != "nan", 20, "baseline on /diagnostics")
         for i in range(3):
@@ -176,7 +170,7 @@ def test_stamped_inputs_params_services_and_restart(ros_env, tmp_path):
         assert ev["initializations"] == "1" and ev["phase"] != "initializing", ev
         modal = np.asarray(cli.modes[-1].data).reshape(3, 6)
         rel = np.abs(modal[:, :3] - truth) / np.abs(truth)
-        assert np.all(rel <= 4 * vr.LIMITS / 100), np.round(100 * rel, 2)
+        assert np.all(rel <= 4 * LIMITS / 100), np.round(100 * rel, 2)
     finally:
         cli.close()
         rc, out = stop_node(proc, "INT")

@@ -6,18 +6,15 @@ refill the lost sample from u = C_d(q)(r - y) and say so on /diagnostics; the no
 the offline pipeline's on the complete data (up to the rounding of the refilled sample).
 """
 import subprocess
-import sys
 from pathlib import Path
 
 import numpy as np
 from std_msgs.msg import Float64
+from test_node_helpers import Client, start_node, stop_node  # noqa: E402
 
 from additive_rsrivc_ros.config import MonitorConfig, load_params_file
-from additive_rsrivc_ros.core import scenarios
 from additive_rsrivc_ros.core.pipeline import MonitorPipeline
-
-sys.path.insert(0, str(Path(__file__).resolve().parent))
-from test_node_helpers import Client, start_node, stop_node  # noqa: E402
+from additive_rsrivc_ros.sim import scenarios
 
 REPO = Path(__file__).resolve().parents[1]
 PAPER = str(REPO / "config" / "paper_example.yaml")

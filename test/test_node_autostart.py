@@ -7,18 +7,14 @@ estimator status says why (STALE while collecting, the failed window's reason af
 the modes are found on the next window (one log line), /diagnostics carries one ``<node>: mode i`` status per mode
 found with frequencies near the truth (the modefind tests' 1 %) and ~/modes has K rows.
 """
-import sys
 import time
-from pathlib import Path
 
 import numpy as np
 from sensor_msgs.msg import JointState
 from test_frf import CONTROLLER, DELAY, FS, MODES, no_guess_params_yaml
-
-from additive_rsrivc_ros.core.simulate import simulate_modes, square_wave, white_noise
-
-sys.path.insert(0, str(Path(__file__).resolve().parent))
 from test_node_helpers import Client, start_node, stop_node  # noqa: E402
+
+from additive_rsrivc_ros.sim.simulate import simulate_modes, square_wave, white_noise
 
 STAMPED = [f"{s}.type:=sensor_msgs/msg/JointState" for s in ("reference", "input", "output")]
 PARAMS = no_guess_params_yaml("    qos_depth: 20000\n")

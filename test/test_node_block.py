@@ -15,7 +15,6 @@ block, malformed blocks and a controller restart, which are counted on /diagnost
 from __future__ import annotations
 
 import math
-import sys
 import threading
 from pathlib import Path
 
@@ -23,17 +22,15 @@ import numpy as np
 import pytest
 from rclpy.qos import QoSProfile, ReliabilityPolicy
 from std_msgs.msg import Float64MultiArray, MultiArrayDimension
+from test_node_helpers import Client, start_node, stop_node  # noqa: E402
 
 from additive_rsrivc_ros.config import MonitorConfig, load_params_file
-from additive_rsrivc_ros.core import scenarios
 from additive_rsrivc_ros.core.controller import DiscreteController
 from additive_rsrivc_ros.core.pipeline import MonitorPipeline
 from additive_rsrivc_ros.ros import blocks
 from additive_rsrivc_ros.ros.blocks import BlockSync
 from additive_rsrivc_ros.ros.convert import block_message, block_rows
-
-sys.path.insert(0, str(Path(__file__).resolve().parent))
-from test_node_helpers import Client, start_node, stop_node  # noqa: E402
+from additive_rsrivc_ros.sim import scenarios
 
 REPO = Path(__file__).resolve().parents[1]
 PAPER = str(REPO / "config" / "paper_example.yaml")

@@ -12,30 +12,24 @@
   the data's time): a ratio of counts.
 * A missing ``loop_rate_hz`` under a namespace names the params-file keys (one line).
 """
-import importlib.util
 import subprocess
-import sys
 import time
 from pathlib import Path
 
 import numpy as np
 from rclpy.qos import ReliabilityPolicy
 from std_msgs.msg import Float64
-
-from additive_rsrivc_ros.bagio import DEFAULT_T0_NS
-from additive_rsrivc_ros.config import MonitorConfig, load_params_file
-from additive_rsrivc_ros.core import scenarios
-from additive_rsrivc_ros.core.pipeline import MonitorPipeline
-
-sys.path.insert(0, str(Path(__file__).resolve().parent))
 from test_alignment import _write_topics  # noqa: E402
 from test_node_helpers import Client, start_node, stop_node  # noqa: E402
 
+from additive_rsrivc_ros.bagio import DEFAULT_T0_NS
+from additive_rsrivc_ros.config import MonitorConfig, load_params_file
+from additive_rsrivc_ros.core.pipeline import MonitorPipeline
+from additive_rsrivc_ros.sim import scenarios
+from additive_rsrivc_ros.sim.experiments import LIMITS
+
 REPO = Path(__file__).resolve().parents[1]
 PAPER = REPO / "config" / "paper_example.yaml"
-_spec = importlib.util.spec_from_file_location("validate_recursive", REPO / "scripts" / "validate_recursive.py")
-vr = importlib.util.module_from_spec(_spec)
-_spec.loader.exec_module(vr)
 NO_DRIFT = {"drift1_start_s": 1e4, "drift1_end_s": 1.1e4}
 SIGNALS = (("reference", "r"), ("plant_input", "u"), ("plant_output", "y"))
 
@@ -92,7 +86,7 @@ def test_two_axes_in_namespaces_from_one_params_file(ros_env, tmp_path):
                 return bool(cli.modes) and any(np.allclose(np.asarray(cli.modes[-1].data), r.modal.ravel(),
                                                            rtol=1e-6, atol=0.0) for r in refs[ax])
             cli.wait_for(matched, 60, f"{ax}: ~/modes equal to the offline pipeline on {ax}'s own plant")
-        tol = 4 * vr.LIMITS / 100
+        tol = 4 * LIMITS / 100
         for ax, cli in clis.items():
             other = "axis2" if ax == "axis1" else "axis1"
             modal = np.asarray(cli.modes[-1].data).reshape(3, 6)[:, :3]

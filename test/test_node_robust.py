@@ -5,19 +5,16 @@ is a WARN naming the topic and both rates."""
 import json
 import re
 import signal
-import sys
 import threading
 import time
 from pathlib import Path
 
 import numpy as np
 from std_msgs.msg import Float64
+from test_node_helpers import Client, start_node, stop_node  # noqa: E402
 
 from additive_rsrivc_ros.config import MonitorConfig, load_params_file
 from additive_rsrivc_ros.core.pipeline import MonitorPipeline
-
-sys.path.insert(0, str(Path(__file__).resolve().parent))
-from test_node_helpers import Client, start_node, stop_node  # noqa: E402
 
 REPO = Path(__file__).resolve().parents[1]
 PAPER = str(REPO / "config" / "paper_example.yaml")

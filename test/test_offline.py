@@ -1,4 +1,4 @@
-"""Offline estimators (core/offline.py): exact recovery without noise, statistics with noise, bad input.
+"""Offline estimators (core/offline/): exact recovery without noise, statistics with noise, bad input.
 
 Data come from test_offline_helpers.simulate (scipy cont2discrete ZOH + an explicit causal loop), which is
 independent of the estimators' own filters.

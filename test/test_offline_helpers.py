@@ -7,12 +7,13 @@ import numpy as np
 from scipy import signal
 
 from additive_rsrivc_ros.core.model import SubmodelStructure, total_transfer_function
+from additive_rsrivc_ros.sim.plants import CL52_THETAS, PAPER_PID_DEN, PAPER_PID_NUM
 
 MODE = SubmodelStructure(n=2, m=0, integrators=0)
 # 001 §5.2 system (eq. 46) and PID (NOTES erratum 1)
-PAPER_THETAS = [np.array([0.25, 0.25, 3.0]), np.array([0.01, 0.025, 1.0])]
-PID_NUM = (0.02329, -0.02058, 0.00454)
-PID_DEN = (1.0, -1.0, 0.0)
+PAPER_THETAS = CL52_THETAS
+PID_NUM = PAPER_PID_NUM
+PID_DEN = PAPER_PID_DEN
 
 
 def zoh_tf(thetas, structures, h: float, delay: int = 0) -> tuple[np.ndarray, np.ndarray]:

@@ -1,4 +1,4 @@
-"""Unstable plants and integral action (core/offline_unstable.py, 003 §4-§7), CI-sized."""
+"""Unstable plants and integral action (core/offline/unstable.py, 003 §4-§7), CI-sized."""
 
 from __future__ import annotations
 

@@ -3,8 +3,8 @@ import numpy as np
 
 from additive_rsrivc_ros.config import load_config
 from additive_rsrivc_ros.core.offline import identify, initial_transient_test, warmup_samples
-from additive_rsrivc_ros.core.scenarios import PAPER_MODES
-from additive_rsrivc_ros.core.simulate import simulate_modes, white_noise
+from additive_rsrivc_ros.sim.plants import PAPER_MODES
+from additive_rsrivc_ros.sim.simulate import simulate_modes, white_noise
 
 
 def _segment(repo, start_s: float, end_s: float):

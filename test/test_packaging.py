@@ -118,7 +118,7 @@ def test_optional_mcap_is_imported_only_inside_functions():
 def test_bags_are_read_by_rosbags_when_mcap_is_not_installed(tmp_path, monkeypatch):
     """With ``import mcap`` failing, read_signals takes the rosbags path and returns the same samples."""
     from additive_rsrivc_ros import bagio
-    from additive_rsrivc_ros.core.scenarios import build
+    from additive_rsrivc_ros.sim.scenarios import build
 
     data = build("beam", duration_s=1.0, seed=3)
     bag = data.write_bag(tmp_path / "bag")
@@ -277,7 +277,7 @@ def test_colcon_installs_launch_files_and_their_params(colcon_install):
 
 def test_colcon_installed_package_finds_its_params_files(colcon_install):
     """The colcon-installed package (source tree off the path) reads the params copy installed inside it."""
-    code = "from additive_rsrivc_ros.core import scenarios as s; print(s.__file__); print(s.config_dir())"
+    code = "from additive_rsrivc_ros.sim import scenarios as s; print(s.__file__); print(s.config_dir())"
     env = {k: v for k, v in os.environ.items() if k != "PYTHONPATH"}
     res = subprocess.run(["bash", "-c", f'source "{colcon_install}/setup.bash" && "{sys.executable}" -c "{code}"'],
                          capture_output=True, text=True, timeout=120, env=env, cwd=colcon_install)
@@ -323,7 +323,7 @@ def test_pip_install_into_a_fresh_venv_runs_simulate(tmp_path):
     first run short: this test is about installation; the compiled numerics are tested from the source tree.
     """
     from additive_rsrivc_ros.bagio import read_signals
-    from additive_rsrivc_ros.core.scenarios import build
+    from additive_rsrivc_ros.sim.scenarios import build
 
     src, venv = tmp_path / "src", tmp_path / "venv"
     _copy_sources(src)

@@ -9,8 +9,9 @@ import pytest
 
 from additive_rsrivc_ros.config import MonitorConfig, load_params_file
 from additive_rsrivc_ros.core.pipeline import MonitorPipeline, PipelineError
-from additive_rsrivc_ros.core.scenarios import PAPER_MODES, build, config_dir
-from additive_rsrivc_ros.core.simulate import simulate_modes, sum_of_sines, time_vector, white_noise
+from additive_rsrivc_ros.sim.plants import PAPER_MODES
+from additive_rsrivc_ros.sim.scenarios import build, config_dir
+from additive_rsrivc_ros.sim.simulate import simulate_modes, sum_of_sines, time_vector, white_noise
 
 MEMORY = 20.0          # s; lambda = 1 - 1/(20 * 20)
 

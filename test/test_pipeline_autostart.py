@@ -19,7 +19,7 @@ from test_frf import CONTROLLER, DELAY, FS, MODES
 from additive_rsrivc_ros.config import MonitorConfig, validate_params
 from additive_rsrivc_ros.core.faults import Level
 from additive_rsrivc_ros.core.pipeline import MonitorPipeline, PipelineError
-from additive_rsrivc_ros.core.simulate import simulate_modes, square_wave, white_noise
+from additive_rsrivc_ros.sim.simulate import simulate_modes, square_wave, white_noise
 
 PARAMS = {"loop_rate_hz": FS, "closed_loop": True, "controller.numerator": list(CONTROLLER.numerator),
           "controller.denominator": list(CONTROLLER.denominator), "input_delay_samples": DELAY,

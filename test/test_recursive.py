@@ -334,8 +334,8 @@ def test_closed_loop_spectral_radius_matches_the_simulator_and_the_paper_erratum
     discretization equals the simulator's independent construction (core/simulate.closed_loop_poles); the 000 §5
     controller as printed (-0.2058) does not stabilize the §5 plant, the corrected one does (NOTES erratum 1)."""
     from additive_rsrivc_ros.core.controller import DiscreteController
+    from additive_rsrivc_ros.core.plant import closed_loop_poles
     from additive_rsrivc_ros.core.recursive import closed_loop_spectral_radius
-    from additive_rsrivc_ros.core.simulate import closed_loop_poles
 
     rigid = SubmodelStructure(0, 0, 2)
     cases = [(S3, PAPER_THETA, [0, 0, 0]), ([rigid, SubmodelStructure()], [np.array([0.5]), PAPER_THETA[1]], [2, 0])]

@@ -6,31 +6,27 @@ start +-2 %. The issue's limits are for a 10-seed mean; with 4 seeds the mean is
 plus two standard errors of the mean (sample spread over the seeds / sqrt(4)), the statistical allowance for
 the smaller sample (per seed, the mode-3 gain error ranges about 0.5-2 %).
 """
-import importlib.util
 from pathlib import Path
 
 import numpy as np
 
-_spec = importlib.util.spec_from_file_location(
-    "validate_recursive", Path(__file__).resolve().parents[1] / "scripts" / "validate_recursive.py")
-vr = importlib.util.module_from_spec(_spec)
-_spec.loader.exec_module(vr)
+from additive_rsrivc_ros.sim.experiments import LIMITS, run_paper
 
 
 def test_paper_example_closed_loop_ci():
-    runs = [vr.run_paper(seed) for seed in range(4)]
+    runs = [run_paper(seed) for seed in range(4)]
     assert not any(r["diverged"] for r in runs)
     errs = np.array([r["err"] for r in runs])
     mean, sem = errs.mean(axis=0), errs.std(axis=0, ddof=1) / np.sqrt(len(runs))
-    assert np.all(mean <= vr.LIMITS + 2 * sem), np.round(mean, 3)
+    assert np.all(mean <= LIMITS + 2 * sem), np.round(mean, 3)
 
 
 def test_paper_example_open_loop_far_start_converges():
     """Starts 10-20 % off converge: after the last ramp the errors are within the issue's limits."""
-    runs = [vr.run_paper(seed, closed=False, spread=(0.10, 0.20), window=(850.0, 1000.0)) for seed in range(3)]
+    runs = [run_paper(seed, closed=False, spread=(0.10, 0.20), window=(850.0, 1000.0)) for seed in range(3)]
     assert not any(r["diverged"] for r in runs)
     mean = np.mean([r["err"] for r in runs], axis=0)
-    assert np.all(mean <= vr.LIMITS), np.round(mean, 3)
+    assert np.all(mean <= LIMITS), np.round(mean, 3)
 
 
 def test_auto_filter_policy_selects_only_modes_with_memory_below_their_decay_time():
@@ -58,9 +54,9 @@ def test_beam_short_memory_with_filter_model():
     the whole run after 10 s, including the -10 % frequency drift: mode 2 within 2 %, mode 1 within 1 %, the
     damping never collapses (within 10 % of a zeta of 0.017, i.e. far from the zeta -> 0 breakdown), no
     projections."""
-    from additive_rsrivc_ros.core import scenarios
     from additive_rsrivc_ros.core.model import modal_from_theta
     from additive_rsrivc_ros.core.recursive import RecursiveAdditiveSRIVC
+    from additive_rsrivc_ros.sim import scenarios
 
     sc = scenarios.build("beam", seed=4)  # the worst of seeds 0-4 with Algorithm 2 (f2 error 95 %)
     cfg = sc.config

@@ -10,12 +10,12 @@ import numpy as np
 from numba import njit
 from scipy import signal
 
-from additive_rsrivc_ros.core.controller import DiscreteController
 from additive_rsrivc_ros.core.model import theta_from_modal
 from additive_rsrivc_ros.core.zoh import integrator_chain_zoh, second_order_zoh
+from additive_rsrivc_ros.sim.plants import PAPER_PID, PAPER_THETAS
 
-PID = DiscreteController((0.02329, -0.02058, 0.00454), (1.0, -1.0, 0.0))  # NOTES erratum 1
-PAPER_THETA = [np.array([0.25, 0.25, 3.0]), np.array([0.01, 0.04, 0.5]), np.array([0.01, 0.0025, 1.0])]
+PID = PAPER_PID  # NOTES erratum 1
+PAPER_THETA = PAPER_THETAS
 
 
 @njit(cache=False)

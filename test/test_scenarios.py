@@ -4,11 +4,11 @@ import math
 import numpy as np
 import pytest
 
-from additive_rsrivc_ros.core.scenarios import BEAM_MODES, SCENARIOS, build, list_scenarios
-from additive_rsrivc_ros.core.simulate import (
+from additive_rsrivc_ros.core.plant import closed_loop_poles, loop_margins
+from additive_rsrivc_ros.sim.plants import BEAM_MODES
+from additive_rsrivc_ros.sim.scenarios import SCENARIOS, build, list_scenarios
+from additive_rsrivc_ros.sim.simulate import (
     PlantMode,
-    closed_loop_poles,
-    loop_margins,
     simulate_modes,
     thetas_from_modal,
 )

@@ -8,12 +8,13 @@ from scipy.linalg import expm
 
 from additive_rsrivc_ros.core.controller import DiscreteController
 from additive_rsrivc_ros.core.model import SubmodelStructure
-from additive_rsrivc_ros.core.simulate import (
+from additive_rsrivc_ros.core.plant import closed_loop_poles
+from additive_rsrivc_ros.sim.plants import PAPER_MODES, PAPER_PID
+from additive_rsrivc_ros.sim.simulate import (
     ModalChange,
     PlantMode,
     SensorFault,
     arma_noise,
-    closed_loop_poles,
     modal_trajectories,
     multisine,
     prbs,
@@ -26,9 +27,8 @@ from additive_rsrivc_ros.core.simulate import (
     white_noise,
 )
 
-PID = DiscreteController((0.02329, -0.02058, 0.00454), (1.0, -1.0, 0.0))  # 001 §5.2 / NOTES erratum 1
-PAPER = [PlantMode(1 / (2 * np.pi * 0.5), 0.25, 3.0), PlantMode(1 / (2 * np.pi * 0.2), 0.025, 0.5),
-         PlantMode(1 / (2 * np.pi * 0.05), 0.1, 1.0)]  # 000 §5: a2 = [0.25, 0.04, 0.0025]
+PID = PAPER_PID  # 001 §5.2 / NOTES erratum 1
+PAPER = list(PAPER_MODES)  # 000 §5: a2 = [0.25, 0.04, 0.0025]
 BEAM = [PlantMode(3.25, 0.235, 11.81), PlantMode(33.0, 0.0171, 0.159), PlantMode(171.7, 0.0056, 3.19e-4),
         PlantMode(183.2, 0.002, 1.27e-4)]
 MIXED = [PlantMode(0.0, 0.0, 2.0, integrators=2), PlantMode(5.0, 0.05, 0.3),

@@ -15,15 +15,15 @@ import math
 import numpy as np
 import pytest
 
-from additive_rsrivc_ros.core.controller import DiscreteController
 from additive_rsrivc_ros.core.faults import HealthMonitor
 from additive_rsrivc_ros.core.model import SubmodelStructure, modal_from_theta, theta_from_modal
 from additive_rsrivc_ros.core.recursive import RecursiveAdditiveSRIVC
-from additive_rsrivc_ros.core.simulate import PlantMode, simulate_modes
+from additive_rsrivc_ros.sim.plants import CL52_THETAS, PAPER_PID
+from additive_rsrivc_ros.sim.simulate import PlantMode, simulate_modes
 
 RATE = 20.0
-PID = DiscreteController((0.02329, -0.02058, 0.00454), (1.0, -1.0, 0.0))
-THETAS = [np.array([0.25, 0.25, 3.0]), np.array([0.01, 0.025, 1.0])]
+PID = PAPER_PID
+THETAS = CL52_THETAS
 MODES = [PlantMode(*modal_from_theta(th)) for th in THETAS]
 MEMORY_S = 25.0
 NOMINAL = 0.9545

@@ -25,36 +25,12 @@ import time  # noqa: E402
 
 import numpy as np  # noqa: E402
 
-from ..core.controller import DiscreteController  # noqa: E402
 from ..core.model import SubmodelStructure  # noqa: E402
-
-PAPER_PID = DiscreteController((0.02329, -0.02058, 0.00454), (1.0, -1.0, 0.0))
-PAPER_THETAS = [np.array([0.25, 0.25, 3.0]), np.array([0.01, 0.04, 0.5]), np.array([0.01, 0.0025, 1.0])]
-# NOTES lists the beam truth as [a2, a1, b0] (3.25 Hz / zeta 0.235, 33 Hz / 0.017, 171.7 Hz / 0.0056,
-# 183 Hz / 0.002, as in test_zoh.py); here in 000 eq. 7 order [a1, a2, b0].
-BEAM_THETAS = [np.array([0.023, 0.0024, 11.81]), np.array([1.65e-4, 2.33e-5, 0.159]),
-               np.array([1.03e-5, 8.59e-7, 3.19e-4]), np.array([3.55e-6, 7.55e-7, 1.27e-4])]
-
-
-def beam_controller(rate_hz: float = 4096.0) -> DiscreteController:
-    """A stabilizing PID for the beam truth of NOTES (4 modes, delay 4): modulus margin 0.52 (0.60 with the
-    second mode's stiffness -30 %), slowest closed-loop pole 0.99948.
-
-    ``C = kp + ki h/(1 - q^-1) + kd (1 - q^-1)/(tf + h - tf q^-1)`` (backward Euler, derivative filtered at
-    50 Hz), kp = 0.3, ki = 3, kd = 0.01.
-    """
-    h = 1.0 / rate_hz
-    kp, ki, kd, tf = 0.3, 3.0, 0.01, 1.0 / (2 * np.pi * 50.0)
-    a = tf + h
-    num_pd = np.array([kp * a + kd, -kp * tf - kd]) / a
-    den_pd = np.array([1.0, -tf / a])
-    num = np.convolve(num_pd, [1.0, -1.0]) + np.convolve([ki * h, 0.0], den_pd)
-    den = np.convolve(den_pd, [1.0, -1.0])
-    return DiscreteController(tuple(num), tuple(den))
 
 
 def _case_data(case: str, seconds: float) -> tuple:
-    from ..core.simulate import simulate
+    from ..sim.plants import BEAM_THETAS, PAPER_PID, PAPER_THETAS, beam_controller
+    from ..sim.simulate import simulate
     rng = np.random.default_rng(0)
     if case.startswith("k3"):
         rate, thetas, ctrl, delay = 20.0, PAPER_THETAS, PAPER_PID, 0
@@ -154,7 +130,7 @@ def diagnose_figure(seconds: float = 60.0) -> dict[str, float]:
     import tempfile
     from pathlib import Path
 
-    from ..core.scenarios import build, config_dir
+    from ..sim.scenarios import build, config_dir
 
     with tempfile.TemporaryDirectory(prefix="rsrivc-bench-diag-") as tmp:
         bag = Path(tmp) / "beam"

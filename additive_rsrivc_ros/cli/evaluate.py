@@ -79,14 +79,15 @@ def quick_cases() -> list[Case]:
 
 def simulate_case(case: Case) -> Any:
     """The :class:`ScenarioData` of a case (a paper-plant change is built on the 000 §5 plant and config)."""
-    from ..core import scenarios as sc
+    from ..sim import scenarios as sc
 
     if case.beam_change is not None:
         return _beam_change_case(case)
     if case.paper_change is None:
         return sc.build(case.scenario, case.duration_s, case.seed, **case.overrides)
     from ..config import load_config
-    from ..core.simulate import ModalChange, simulate_modes, sum_of_sines, time_vector, white_noise
+    from ..sim import plants
+    from ..sim.simulate import ModalChange, simulate_modes, sum_of_sines, time_vector, white_noise
 
     cfg_path = sc.config_dir() / "paper_example.yaml"
     cfg = load_config(cfg_path)
@@ -99,14 +100,14 @@ def simulate_case(case: Case) -> Any:
     # mode is excited at one line, and a gain change cannot be told from a frequency change (NOTES)
     r = sum_of_sines(t, [3.0, 1.0, 1.0, 1.0], [0.005, 2.0, 5.0, 17.5]) + white_noise(t.size, 1.0, rng)
     v = white_noise(t.size, 0.1, rng)
-    sim = simulate_modes(sc.PAPER_MODES, cfg.loop_rate_hz, changes=changes, r=r, controller=cfg.controller,
+    sim = simulate_modes(plants.PAPER_MODES, cfg.loop_rate_hz, changes=changes, r=r, controller=cfg.controller,
                          noise=v, rng=rng)
     return _case_data(case, cfg_path, cfg, sim, changes)
 
 
 def _case_data(case: Case, cfg_path: Any, cfg: Any, sim: Any, changes: list) -> Any:
     """A :class:`ScenarioData` for a custom (not named-scenario) simulation of a case."""
-    from ..core import scenarios as sc
+    from ..sim import scenarios as sc
 
     return sc.ScenarioData(
         name=case.label, seed=case.seed, t=sim.t, r=sim.r, u=sim.u, y=sim.y, x=sim.x, truth=sim.modal[:cfg.K],
@@ -117,8 +118,9 @@ def _case_data(case: Case, cfg_path: Any, cfg: Any, sim: Any, changes: list) -> 
 def _beam_change_case(case: Case) -> Any:
     """The beam plant (scenario ``beam_healthy``'s signals and params) with one modal change of a step."""
     from ..config import load_config
-    from ..core import scenarios as sc
-    from ..core.simulate import ModalChange, simulate_modes, square_wave, time_vector, white_noise
+    from ..sim import plants
+    from ..sim import scenarios as sc
+    from ..sim.simulate import ModalChange, simulate_modes, square_wave, time_vector, white_noise
 
     cfg_path = sc.config_dir() / "beam_healthy.yaml"
     cfg = load_config(cfg_path)
@@ -127,8 +129,8 @@ def _beam_change_case(case: Case) -> Any:
     rng = np.random.default_rng([case.seed, 11])
     t = time_vector(cfg.loop_rate_hz, case.duration_s)
     r = square_wave(t, 2.0, 0.1)
-    v = white_noise(t.size, sc.BEAM_NOISE_STD, rng)
-    sim = simulate_modes(sc.BEAM_MODES, cfg.loop_rate_hz, changes=changes, r=r, controller=cfg.controller,
+    v = white_noise(t.size, plants.BEAM_NOISE_STD, rng)
+    sim = simulate_modes(plants.BEAM_MODES, cfg.loop_rate_hz, changes=changes, r=r, controller=cfg.controller,
                          input_delay=cfg.input_delay_samples, noise=v, rng=rng)
     return _case_data(case, cfg_path, cfg, sim, changes)
 
@@ -153,7 +155,7 @@ def run_pipeline(data: Any, block_s: float = 0.1) -> tuple[list[FaultEvent], lis
 
 def score(data: Any, events: list[FaultEvent], reports: list[dict[str, Any]]) -> dict[str, Any]:
     """Detection, isolation, false alarms and sensor-fault handling of one run (see module docstring)."""
-    from ..core.scenarios import QUANTITY_NAMES
+    from ..sim.scenarios import QUANTITY_NAMES
 
     memory = [m.memory_s for m in data.config.modes]
     changes = [c for c in data.changes if c.mode < data.config.K and c.start_s < data.t[-1]]

@@ -628,7 +628,7 @@ if __name__ == "__main__":
 def throughput(n_bags: int = 8, duration_s: float = 10.0, workers: int | None = None,
                      report: bool = True) -> dict[str, float | int]:
     """Fleet throughput: bags per minute with 1 worker and with ``workers`` (default: all CPUs available) on the
-    same ``n_bags`` simulated recordings (:mod:`..fleetsim`, ``duration_s`` each, per-bag report included unless
+    same ``n_bags`` simulated recordings (:mod:`..sim.fleetsim`, ``duration_s`` each, per-bag report included unless
     ``report`` is False). Timed from submitting the tasks to the last result, on a started cluster whose workers
     have each diagnosed one warm-up bag first (imports, numba cache, fonts: paid once per worker, not per bag).
 
@@ -636,7 +636,7 @@ def throughput(n_bags: int = 8, duration_s: float = 10.0, workers: int | None = 
     key ``fleet``)."""
     import tempfile
 
-    from .. import fleetsim
+    from ..sim import fleetsim
 
     n_all = workers or default_workers()
     rates = {}

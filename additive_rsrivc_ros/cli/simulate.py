@@ -55,7 +55,7 @@ def _overrides(items: list[str]) -> dict[str, Any]:
 
 def main(argv: list[str] | None = None) -> int:
     args = _parser().parse_args(argv)
-    from ..core.scenarios import SCENARIOS, build, list_scenarios
+    from ..sim.scenarios import SCENARIOS, build, list_scenarios
 
     if args.list:
         for name in list_scenarios():

@@ -254,7 +254,7 @@ def discrete_model_frf(thetas: Sequence[np.ndarray], structures: Sequence[Submod
                        freqs_hz: np.ndarray, input_delay: int = 0) -> np.ndarray:
     """``G_d(e^{j w h})`` of the exact ZOH discretization of the additive model with the input delay (the quantity
     :func:`estimate_frf` estimates)."""
-    from .simulate import discrete_plant
+    from .plant import discrete_plant
 
     phi, gam, c = discrete_plant(list(thetas), list(structures), rate_hz, input_delay)
     zs = np.exp(2j * np.pi * np.asarray(freqs_hz, dtype=float) / rate_hz)

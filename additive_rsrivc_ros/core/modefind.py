@@ -216,8 +216,8 @@ def _held_out_error(thetas, structures, rate_hz: float, u, y, r, controller, inp
         from .filters import closed_loop_response
         _, y_hat = closed_loop_response(list(thetas), list(structures), 1.0 / rate_hz, controller, r, input_delay)
     else:
-        from .simulate import simulate
-        y_hat = simulate(list(thetas), list(structures), rate_hz, u=u, input_delay=input_delay).y
+        from .plant import open_loop_output
+        y_hat = open_loop_output(list(thetas), list(structures), rate_hz, u, input_delay)
     e = y - y_hat
     if not np.all(np.isfinite(e)):
         return np.inf, np.inf

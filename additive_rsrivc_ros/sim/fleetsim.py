@@ -18,7 +18,7 @@ RATE_HZ = 1000.0
 MODES = ((5.0, 0.05, 1.0), (20.0, 0.02, 0.2))
 T0_NS = 1_750_000_000 * 10**9
 MACHINE_PARAMS = """\
-# Simulated machine of additive_rsrivc_ros.fleetsim: open loop, 1 kHz, two modes (5 Hz and 20 Hz).
+# Simulated machine of additive_rsrivc_ros.sim.fleetsim: open loop, 1 kHz, two modes (5 Hz and 20 Hz).
 additive_rsrivc_monitor:
   ros__parameters:
     loop_rate_hz: 1000.0
@@ -48,8 +48,8 @@ def machine_params(path: str | Path, extra_faults: dict[str, float] | None = Non
 def write_recording(path: str | Path, index: int, *, drift_per_recording: float = 0.0, drift_mode: int = 2,
                     duration_s: float = 10.0, seed: int = 0, interval_s: float = 86400.0) -> Path:
     """Simulate recording ``index`` of the machine and write it as an MCAP rosbag2 with its truth topics."""
-    from .bagio import write_bag
-    from .core.simulate import PlantMode, multisine, simulate_modes, time_vector, white_noise
+    from ..bagio import write_bag
+    from .simulate import PlantMode, multisine, simulate_modes, time_vector, white_noise
 
     rng = np.random.default_rng([int(seed), int(index)])
     t = time_vector(RATE_HZ, duration_s)

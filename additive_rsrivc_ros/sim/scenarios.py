@@ -24,6 +24,7 @@ from typing import Any
 import numpy as np
 
 from ..config import MonitorConfig, load_config
+from .plants import BEAM_MODES, BEAM_NOISE_STD, PAPER_MODES
 from .simulate import (
     ModalChange,
     PlantMode,
@@ -39,22 +40,6 @@ from .simulate import (
 )
 
 QUANTITY_NAMES = {"frequency": "natural_frequency", "damping": "damping", "gain": "gain"}  # events.csv vocabulary
-
-# 000 §5 (NOTES): a2 = [0.25, 0.04, 0.0025], a1 = [0.25, 0.01, 0.01], b0 = [3, 0.5, 1]
-PAPER_MODES = (PlantMode(1.0 / (2 * math.pi * 0.5), 0.25, 3.0), PlantMode(1.0 / (2 * math.pi * 0.2), 0.025, 0.5),
-               PlantMode(1.0 / (2 * math.pi * 0.05), 0.1, 1.0))
-
-
-def _beam_mode(a2: float, a1: float, b0: float) -> PlantMode:
-    """A mode from the 001 §6 estimates, listed in NOTES as ``[a2, a1, b0]`` (a2 = 0.0024 is 3.25 Hz)."""
-    return PlantMode(1.0 / (2 * math.pi * math.sqrt(a2)), a1 / (2 * math.sqrt(a2)), b0)
-
-
-# 001 §6 converged estimates (NOTES): f ~ [3.25, 33.0, 171.7, 183.2] Hz; modes 3-4 are not estimated (K = 2)
-BEAM_MODES = (_beam_mode(0.0024, 0.023, 11.81), _beam_mode(2.33e-5, 1.65e-4, 0.159),
-              _beam_mode(8.59e-7, 1.03e-5, 3.19e-4), _beam_mode(7.55e-7, 3.55e-6, 1.27e-4))
-BEAM_NOISE_STD = 3.0e-4  # ~3 % of the std of mode 2's output contribution (0.011 with the 0.1 square wave)
-
 
 def config_dir() -> Path:
     """The params files: ``config/`` of a source tree (checkout, editable install, colcon --symlink-install), else

@@ -14,20 +14,20 @@ Methods
 ``bcd-srivc``         002 Algorithm 2 (SRIVC inner iterations per block, descent test on V_N)
 ``srivc``/``clsrivc`` unfactored ``B/(p^l A)`` (001 eq. 30, K = 1), split back into the additive form
 ``lssvf``             one least-squares step with the fixed filter of the initial guess (003 §3)
-``*-uns``             unstable plants (003 §4-§6), see ``core/offline_unstable.py``
+``*-uns``             unstable plants (003 §4-§6), see ``core/offline/unstable.py``
 
 Marginally stable submodels (integrators, 001 Remark 6 eqs. 31-32) are part of every method here.
 """
 
 from __future__ import annotations
 
-from dataclasses import dataclass, field
+from dataclasses import dataclass
 from typing import Any
 
 import numpy as np
 
-from .controller import DiscreteController
-from .filters import (
+from ..controller import DiscreteController
+from ..filters import (
     ClosedLoopUnstableError,
     closed_loop_radius,
     closed_loop_response,
@@ -37,7 +37,7 @@ from .filters import (
     svf,
     svf_continuous,
 )
-from .model import (
+from ..model import (
     SubmodelStructure,
     frequency_response,
     modal_from_theta,
@@ -46,99 +46,10 @@ from .model import (
     split_theta,
     total_transfer_function,
 )
-
-METHODS = ("auto", "additive-clsrivc", "additive-srivc", "bcd-srivc", "srivc", "clsrivc", "lssvf",
-           "srivc-uns", "clsrivc-uns", "lssvf-uns", "srivc-uns-monic", "clsrivc-uns-monic")
+from .types import METHODS, IdentificationResult, OfflineData, equilibrated_solve, finite_or_none
 
 
-@dataclass
-class IdentificationResult:
-    """Outcome of one offline estimator (001 eq. 29 / Theorem 1 covariance).
-
-    ``thetas``: per submodel, 000 eq. 7 layout. ``covariance``: full ``sigma^2`` sandwich covariance
-    ``sigma^2 M^-1 (Z^T Z) M^-T`` with ``M = Z^T Phi`` the IV normal matrix (asymptotically
-    ``sigma^2 (sum zeta zeta^T)^-1``, 001 Theorem 1/Corollary 1); ``covariances`` its diagonal blocks.
-    ``P``: the unscaled inverse IV normal matrix ``M^-1`` (sums, not means; 001 eq. 33), and ``p_blocks``
-    the per-submodel ``(sum_k zeta_i phi_i^T)^-1`` used by the block-coordinate recursion (000 eqs. 30-32).
-    ``cond``: condition number of the column-equilibrated IV normal matrix. ``cost``: ``V_N = mean(eps^2)``
-    of the output error (002 eq. 8). ``modal``: (K, 3) natural frequency [Hz], damping ratio, gain;
-    ``modal_std`` by the delta method (``model.modal_std``).
-    """
-
-    method: str
-    structures: list[SubmodelStructure]
-    thetas: list[np.ndarray]
-    covariances: list[np.ndarray]
-    covariance: np.ndarray
-    P: np.ndarray
-    p_blocks: list[np.ndarray]
-    residual_variance: float
-    iterations: int
-    converged: bool
-    cond: float
-    cost: float
-    modal: np.ndarray
-    modal_std: np.ndarray
-    projections: int = 0
-    message: str = ""
-    n_samples: int = 0
-    extra: dict[str, Any] = field(default_factory=dict)
-
-    @property
-    def beta(self) -> np.ndarray:
-        """Stacked parameter vector (000 eq. 8)."""
-        return np.concatenate(self.thetas)
-
-    @property
-    def theta_std(self) -> list[np.ndarray]:
-        return [np.sqrt(np.maximum(np.diag(c), 0.0)) for c in self.covariances]
-
-    def to_dict(self) -> dict[str, Any]:
-        """JSON-ready object of ../shared/CONTRACT.md (``rsrivc_identify``)."""
-        modes = []
-        for th, sd, mo, ms in zip(self.thetas, self.theta_std, self.modal, self.modal_std, strict=True):
-            modes.append({
-                "theta": [float(v) for v in th], "theta_std": [float(v) for v in sd],
-                "natural_frequency_hz": _num(mo[0]), "damping_ratio": _num(mo[1]), "gain": _num(mo[2]),
-                "natural_frequency_hz_std": _num(ms[0]), "damping_ratio_std": _num(ms[1]), "gain_std": _num(ms[2]),
-            })
-        return {
-            "method": self.method, "converged": bool(self.converged), "iterations": int(self.iterations),
-            "modes": modes, "residual_variance": _num(self.residual_variance), "cost": _num(self.cost),
-            "cond": _num(self.cond), "projections": int(self.projections), "message": self.message,
-            "n_samples": int(self.n_samples),
-        }
-
-
-def _num(v: float) -> float | None:
-    v = float(v)
-    return v if np.isfinite(v) else None
-
-
-# --------------------------------------------------------------------------------------------------
-# input checks
-
-
-@dataclass
-class _Data:
-    u: np.ndarray          # input as seen by the plant (delayed)
-    y: np.ndarray
-    r: np.ndarray | None
-    h: float
-    controller: DiscreteController | None
-    delay: int
-    skip: int = 0          # filter warm-up samples left out of the normal equations and the cost
-
-    @property
-    def closed_loop(self) -> bool:
-        return self.r is not None and self.controller is not None
-
-    @property
-    def n(self) -> int:
-        return self.y.size
-
-
-def _check_inputs(u, y, rate_hz, structures, thetas0, r, controller, input_delay) -> tuple[_Data, list]:
+def _check_inputs(u, y, rate_hz, structures, thetas0, r, controller, input_delay) -> tuple[OfflineData, list]:
     """Validate the data and the initial model; clear ``ValueError`` messages for bad input."""
     if not (np.isscalar(rate_hz) and np.isfinite(rate_hz) and rate_hz > 0):
         raise ValueError(f"rate_hz must be a positive finite number, got {rate_hz!r}")
@@ -181,7 +92,7 @@ def _check_inputs(u, y, rate_hz, structures, thetas0, r, controller, input_delay
         raise ValueError("the input u is identically zero: nothing to identify")
     if (r is None) != (controller is None):
         raise ValueError("closed-loop identification needs both the reference r and the controller")
-    data = _Data(delay_signal(u, delay), y, r, 1.0 / float(rate_hz), controller, delay)
+    data = OfflineData(delay_signal(u, delay), y, r, 1.0 / float(rate_hz), controller, delay)
     return data, thetas
 
 
@@ -206,7 +117,7 @@ def _blocks(structures: list[SubmodelStructure]) -> list[slice]:
     return out
 
 
-def _submodel_outputs(data: _Data, thetas, structures) -> tuple[list[np.ndarray], list[np.ndarray]]:
+def _submodel_outputs(data: OfflineData, thetas, structures) -> tuple[list[np.ndarray], list[np.ndarray]]:
     """``p^j/(p^l A_i) u`` (j = 0..m_i) banks and the simulated outputs ``B_i/(p^l A_i) u`` (001 eq. 23)."""
     banks, xhat = [], []
     for th, st in zip(thetas, structures, strict=True):
@@ -217,7 +128,7 @@ def _submodel_outputs(data: _Data, thetas, structures) -> tuple[list[np.ndarray]
     return banks, xhat
 
 
-def _instrument_source(data: _Data, thetas, structures, closed_loop: bool) -> np.ndarray:
+def _instrument_source(data: OfflineData, thetas, structures, closed_loop: bool) -> np.ndarray:
     """``z = u`` (open loop) or ``z = S_uo(q) r`` of the current model, delayed like ``u`` (001 eq. 20)."""
     if not closed_loop:
         return data.u
@@ -225,7 +136,7 @@ def _instrument_source(data: _Data, thetas, structures, closed_loop: bool) -> np
     return delay_signal(z, data.delay)
 
 
-def _build(data: _Data, thetas, structures, closed_loop: bool, only: int | None = None) -> _Step:
+def _build(data: OfflineData, thetas, structures, closed_loop: bool, only: int | None = None) -> _Step:
     """Instrument, regressor and filtered outputs of every submodel (or only submodel ``only``).
 
     The compiled filters write straight into the preallocated (N, P) instrument and regressor matrices.
@@ -267,23 +178,11 @@ def _build(data: _Data, thetas, structures, closed_loop: bool, only: int | None 
     return _Step(Z[s:], Phi[s:], Ups[s:], xhat, (data.y - total)[s:])
 
 
-def _equilibrated_solve(M: np.ndarray, R: np.ndarray, zn: np.ndarray, pn: np.ndarray) -> tuple[np.ndarray, float]:
-    """Solve ``M X = R`` after column/row equilibration; returns X and cond of the equilibrated matrix."""
-    dz = 1.0 / np.where(zn > 0, zn, 1.0)
-    dp = 1.0 / np.where(pn > 0, pn, 1.0)
-    Ms = dz[:, None] * M * dp[None, :]
-    cond = float(np.linalg.cond(Ms))
-    if not np.isfinite(cond) or cond > 1e15:
-        raise np.linalg.LinAlgError(f"IV normal matrix is singular (cond {cond:.3g})")
-    X = dp[:, None] * np.linalg.solve(Ms, dz[:, None] * R)
-    return X, cond
-
-
 def _iv_update(step: _Step, structures: list[SubmodelStructure], only: int | None = None) -> tuple[list, float]:
     """001 eq. 29: ``B^{j+1} = [sum zeta phi^T]^-1 [sum zeta Upsilon^T]``, block diagonal extracted (eq. 27)."""
     M = step.Z.T @ step.Phi
     R = step.Z.T @ step.Ups
-    X, cond = _equilibrated_solve(M, R, np.linalg.norm(step.Z, axis=0), np.linalg.norm(step.Phi, axis=0))
+    X, cond = equilibrated_solve(M, R, np.linalg.norm(step.Z, axis=0), np.linalg.norm(step.Phi, axis=0))
     sts = structures if only is None else [structures[only]]
     out = [X[sl, i].copy() for i, sl in enumerate(_blocks(sts))]
     return out, cond
@@ -357,7 +256,7 @@ def relative_change(new: list[np.ndarray], old: list[np.ndarray], scale: np.ndar
     return float(np.linalg.norm(bn - bo) / max(np.linalg.norm(bo), 1e-300))
 
 
-def _cl_ok(data: _Data, thetas, structures) -> bool:
+def _cl_ok(data: OfflineData, thetas, structures) -> bool:
     try:
         return closed_loop_radius(thetas, structures, data.h, data.controller, data.delay) < 1.0
     except (ValueError, np.linalg.LinAlgError):
@@ -385,7 +284,7 @@ def _safeguard(data, thetas_new, thetas_old, structures, closed_loop: bool, proj
     return None, proj, "no iterate stabilized by the controller near the previous one"
 
 
-def _finalize(method: str, data: _Data, structures, thetas, closed_loop: bool, iterations: int, converged: bool,
+def _finalize(method: str, data: OfflineData, structures, thetas, closed_loop: bool, iterations: int, converged: bool,
               cond: float, projections: int, message: str, thetas_cov=None) -> IdentificationResult:
     """Covariance (001 Theorem 1, sandwich form), residual variance, cost, modal values and their stds."""
     step = _build(data, thetas, structures, closed_loop)
@@ -424,7 +323,7 @@ def _finalize(method: str, data: _Data, structures, thetas, closed_loop: bool, i
         cost=rss / N, modal=modal, modal_std=mstd, projections=projections, message=message, n_samples=N)
 
 
-def additive_iv(data: _Data, structures, thetas0, *, closed_loop: bool, method: str, max_iterations: int = 50,
+def additive_iv(data: OfflineData, structures, thetas0, *, closed_loop: bool, method: str, max_iterations: int = 50,
                 tol: float = 1e-7, projection: bool = True) -> IdentificationResult:
     """Additive SRIVC / CLSRIVC: iterate 001 eq. 29 (K = 1: SRIVC/CLSRIVC of 001 eq. 30).
 
@@ -472,12 +371,12 @@ def additive_iv(data: _Data, structures, thetas0, *, closed_loop: bool, method: 
     return _finalize(method, data, structures, thetas, closed_loop, it, converged, cond, projections, message)
 
 
-def _cost(data: _Data, xhat_sum: np.ndarray) -> float:
+def _cost(data: OfflineData, xhat_sum: np.ndarray) -> float:
     e = (data.y - xhat_sum)[data.skip:]
     return float(e @ e) / e.size
 
 
-def bcd_srivc(data: _Data, structures, thetas0, *, max_iterations: int = 50, tol: float = 1e-7,
+def bcd_srivc(data: OfflineData, structures, thetas0, *, max_iterations: int = 50, tol: float = 1e-7,
               inner_iterations: int = 20, projection: bool = True, closed_loop: bool = False) -> IdentificationResult:
     """Block-coordinate descent SRIVC (002 Algorithm 2): per block, SRIVC iterations (002 eq. 12) on the
     residual output until ``V_N`` (002 eq. 8) decreases; stop on the relative change of x (line 15)."""
@@ -608,7 +507,7 @@ def split_additive(theta_u: np.ndarray, su: SubmodelStructure, structures: list[
     return out
 
 
-def unfactored_iv(data: _Data, structures, thetas0, *, closed_loop: bool, method: str, max_iterations: int = 50,
+def unfactored_iv(data: OfflineData, structures, thetas0, *, closed_loop: bool, method: str, max_iterations: int = 50,
                   tol: float = 1e-7, projection: bool = True) -> IdentificationResult:
     """Unfactored SRIVC / CLSRIVC (001 eq. 30, Remark 5) on ``B/(p^l A)``, then split into the submodels.
 
@@ -653,7 +552,7 @@ def unfactored_iv(data: _Data, structures, thetas0, *, closed_loop: bool, method
         extra={"unfactored_theta": th_u, "unfactored_structure": su, "unfactored_covariance": res.covariance})
 
 
-def lssvf(data: _Data, structures, thetas0, *, method: str = "lssvf") -> IdentificationResult:
+def lssvf(data: OfflineData, structures, thetas0, *, method: str = "lssvf") -> IdentificationResult:
     """Least-squares state-variable filter (003 §3): one LS step with the fixed filter ``1/A_f`` of the guess.
 
     Uses the unfactored model with ``A_f`` the total denominator of the initial guess, then the additive
@@ -664,7 +563,7 @@ def lssvf(data: _Data, structures, thetas0, *, method: str = "lssvf") -> Identif
     fy = svf(a_f, data.y, data.h, 0)
     fu = svf(a_f, data.u, data.h, su.integrators)
     Phi = np.hstack((-fy[:, 1: su.n + 1], fu[:, : su.m + 1]))
-    X, cond = _equilibrated_solve(Phi.T @ Phi, (Phi.T @ fy[:, 0])[:, None], np.linalg.norm(Phi, axis=0),
+    X, cond = equilibrated_solve(Phi.T @ Phi, (Phi.T @ fy[:, 0])[:, None], np.linalg.norm(Phi, axis=0),
                                   np.linalg.norm(Phi, axis=0))
     th_u = X[:, 0]
     thetas = [th_u] if len(structures) == 1 else split_additive(th_u, su, structures, thetas0)
@@ -690,8 +589,8 @@ class TransientTest:
     detected: bool
 
     def to_dict(self) -> dict[str, Any]:
-        return {"statistic": _num(self.statistic), "threshold": _num(self.threshold), "window": int(self.window),
-                "detected": bool(self.detected)}
+        return {"statistic": finite_or_none(self.statistic), "threshold": finite_or_none(self.threshold),
+                "window": int(self.window), "detected": bool(self.detected)}
 
 
 TRANSIENT_FALSE_ALARM = 1e-3
@@ -776,7 +675,7 @@ def warmup_samples(thetas, structures, rate_hz: float, n: int, warmup_s: float |
     return int(min(round(warmup_s * rate_hz), n // 4))
 
 
-def _refit_if_started_in_motion(res: IdentificationResult, data: _Data, structures, thetas0,
+def _refit_if_started_in_motion(res: IdentificationResult, data: OfflineData, structures, thetas0,
                                 refit) -> IdentificationResult:
     """Automatic warm-up: keep the fit over every sample unless its output error starts with the plant's free
     response (:func:`initial_transient_test`); then refit with the filters' warm-up left out. From rest the
@@ -847,7 +746,7 @@ def identify(u, y, rate_hz: float, structures, thetas0, *, r=None, controller: D
     if needs_cl and not data.closed_loop:
         raise ValueError(f"method {method} needs the reference r and the controller (closed-loop data)")
     if method.endswith("-uns") or method.endswith("-monic"):
-        from .offline_unstable import identify_unstable
+        from .unstable import identify_unstable
         return identify_unstable(data, structures, thetas, method=method, max_iterations=max_iterations, tol=tol)
     if needs_cl:
         if method == "clsrivc":
@@ -873,7 +772,7 @@ def identify(u, y, rate_hz: float, structures, thetas0, *, r=None, controller: D
     return res
 
 
-def _unstable_msg(data: _Data, thetas, structures) -> str:
+def _unstable_msg(data: OfflineData, thetas, structures) -> str:
     try:
         rho = closed_loop_radius(thetas, structures, data.h, data.controller, data.delay)
         return (f"the controller does not stabilize the initial model (closed-loop spectral radius {rho:.4g} >= 1); "

@@ -25,8 +25,9 @@ from __future__ import annotations
 import numpy as np
 from scipy import signal
 
-from .filters import closed_loop_response, delay_signal, discretize, instrument_continuous_poly, svf_continuous
-from .model import SubmodelStructure, modal_from_theta, modal_std
+from ..filters import closed_loop_response, delay_signal, discretize, instrument_continuous_poly, svf_continuous
+from ..model import SubmodelStructure, modal_from_theta, modal_std
+from .types import IdentificationResult, OfflineData, equilibrated_solve
 
 UNSTABLE_RADIUS = 1.0 + 1e-9   # |lambda| above this is cancelled; integrator poles (|lambda| = 1) are not
 
@@ -102,7 +103,7 @@ def _unstable_roots(par: _Param, theta: np.ndarray, h: float) -> np.ndarray:
     return lam[np.abs(lam) > UNSTABLE_RADIUS]
 
 
-def _signals(data, par: _Param, theta: np.ndarray, lam_u=None):
+def _signals(data: OfflineData, par: _Param, theta: np.ndarray, lam_u=None):
     """Filtered output (003 eq. 21), regressor (eq. 22) and the prefiltered residual (eq. 19)."""
     st, h = par.st, data.h
     den = par.den(theta)
@@ -118,7 +119,8 @@ def _signals(data, par: _Param, theta: np.ndarray, lam_u=None):
     return yf, Phi, eps, by, bu, lam_u
 
 
-def _instrument_srivc(data, par: _Param, theta: np.ndarray, lam_u: np.ndarray, Phi: np.ndarray) -> np.ndarray:
+def _instrument_srivc(data: OfflineData, par: _Param, theta: np.ndarray, lam_u: np.ndarray,
+                      Phi: np.ndarray) -> np.ndarray:
     """003 eq. 26: ``d yhat / d theta``. Without unstable poles to cancel it is the exact ZOH gradient
     ``[-p^j B/(p^l A^2) u, p^j/(p^l A) u]`` (001 eq. 10/31); otherwise central differences of the stable
     prefiltered residual (003 §7.1: the a-part would need ``1/A^2``, which one all-pass cannot stabilize)."""
@@ -138,7 +140,7 @@ def _instrument_srivc(data, par: _Param, theta: np.ndarray, lam_u: np.ndarray, P
     return np.column_stack(cols)
 
 
-def _instrument_clsrivc(data, par: _Param, theta: np.ndarray, by, bu) -> np.ndarray:
+def _instrument_clsrivc(data: OfflineData, par: _Param, theta: np.ndarray, by, bu) -> np.ndarray:
     """003 eqs. 28-29 with a discrete controller: ``AP [-p^j/A T_o r, p^j/(p^l A) S_uo r]``."""
     at = par.to_antimonic(theta)
     if at is None:
@@ -158,7 +160,7 @@ def _instrument_clsrivc(data, par: _Param, theta: np.ndarray, by, bu) -> np.ndar
     return np.hstack((-fa, fb))
 
 
-def _regression(base: str, data, par, theta: np.ndarray) -> tuple[np.ndarray, ...]:
+def _regression(base: str, data: OfflineData, par, theta: np.ndarray) -> tuple[np.ndarray, ...]:
     """Filtered output, regressor, output error, the method's instrument (LSSVF: the regressor itself) and the
     unstable poles cancelled by the all-pass prefilter."""
     yf, Phi, eps, by, bu, lam_u = _signals(data, par, theta)
@@ -171,10 +173,10 @@ def _regression(base: str, data, par, theta: np.ndarray) -> tuple[np.ndarray, ..
     return yf, Phi, eps, Z, lam_u
 
 
-def identify_unstable(data, structures, thetas0, *, method: str, max_iterations: int = 50, tol: float = 1e-7):
-    """Dispatch of the 003 estimators (K = 1); returns an :class:`offline.IdentificationResult`."""
-    from .filters import ClosedLoopUnstableError
-    from .offline import IdentificationResult, _equilibrated_solve
+def identify_unstable(data: OfflineData, structures, thetas0, *, method: str, max_iterations: int = 50,
+                      tol: float = 1e-7) -> IdentificationResult:
+    """Dispatch of the 003 estimators (K = 1); returns an :class:`types.IdentificationResult`."""
+    from ..filters import ClosedLoopUnstableError
 
     if len(structures) != 1:
         raise ValueError(f"{method} estimates one unfactored submodel (K = 1), got {len(structures)}")
@@ -197,7 +199,7 @@ def identify_unstable(data, structures, thetas0, *, method: str, max_iterations:
     for it in range(1, iters + 1):
         try:
             yf, Phi, eps, Z, _ = _regression(base, data, par, theta)
-            X, cond = _equilibrated_solve(Z.T @ Phi, (Z.T @ yf)[:, None], np.linalg.norm(Z, axis=0),
+            X, cond = equilibrated_solve(Z.T @ Phi, (Z.T @ yf)[:, None], np.linalg.norm(Z, axis=0),
                                           np.linalg.norm(Phi, axis=0))
             new = X[:, 0]
         except (np.linalg.LinAlgError, ValueError) as exc:

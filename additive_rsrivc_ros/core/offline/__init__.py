@@ -1,0 +1,27 @@
+"""Offline continuous-time identification (001, 002, 003): one entry point, :func:`identify`.
+
+``types`` holds the checked data and the result every estimator returns; ``stable`` the LSSVF, SRIVC, CLSRIVC,
+additive SRIVC/CLSRIVC and BCD estimators (001, 002) with the warm-up and initial-transient tests; ``unstable``
+the estimators for unstable plants (003), reached through :func:`identify`'s ``*-uns`` methods.
+"""
+
+from .stable import (
+    TRANSIENT_FALSE_ALARM,
+    WARMUP_DECAY_TIMES,
+    TransientTest,
+    identify,
+    initial_transient_test,
+    match_order,
+    min_cost_assignment,
+    model_frf,
+    relative_change,
+    split_additive,
+    to_unfactored,
+    unfactored_structure,
+    warmup_samples,
+)
+from .types import METHODS, IdentificationResult, OfflineData
+
+__all__ = ["METHODS", "TRANSIENT_FALSE_ALARM", "WARMUP_DECAY_TIMES", "IdentificationResult", "OfflineData",
+           "TransientTest", "identify", "initial_transient_test", "match_order", "min_cost_assignment", "model_frf",
+           "relative_change", "split_additive", "to_unfactored", "unfactored_structure", "warmup_samples"]

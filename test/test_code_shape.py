@@ -1,0 +1,127 @@
+"""The package's shape (issue 15): a pure numerical core, no import cycle, short functions.
+
+Parsed with ``ast`` (nothing is imported): (1) every module of ``core/`` imports only numpy, scipy, numba, the
+standard library and ``core`` itself, also inside functions; (2) the module-level imports among the package's
+modules form no cycle; (3) no function is longer than 120 lines.
+"""
+
+from __future__ import annotations
+
+import ast
+import sys
+from pathlib import Path
+
+PACKAGE = Path(__file__).resolve().parents[1] / "additive_rsrivc_ros"
+NAME = PACKAGE.name
+CORE_ALLOWED = {"numpy", "scipy", "numba"}
+MAX_FUNCTION_LINES = 120
+
+
+def _modules() -> dict[str, Path]:
+    """Dotted module name -> file, for every module of the package (``pkg/__init__.py`` is ``pkg``)."""
+    out = {}
+    for path in sorted(PACKAGE.rglob("*.py")):
+        parts = list(path.relative_to(PACKAGE.parent).with_suffix("").parts)
+        if parts[-1] == "__init__":
+            parts = parts[:-1]
+        out[".".join(parts)] = path
+    return out
+
+
+def _imported(module: str, path: Path, node: ast.Import | ast.ImportFrom) -> list[str]:
+    """Absolute dotted names an import statement refers to (``from . import x`` gives ``pkg.x``)."""
+    if isinstance(node, ast.Import):
+        return [a.name for a in node.names]
+    base = module.split(".")
+    if path.name != "__init__.py":
+        base = base[:-1]                                  # the package the module lives in
+    if node.level:
+        base = base[:len(base) - (node.level - 1)]
+        prefix = ".".join(base + ([node.module] if node.module else []))
+    else:
+        prefix = node.module or ""
+    return [f"{prefix}.{a.name}" for a in node.names] + [prefix]
+
+
+def _imports(module: str, path: Path, module_level_only: bool) -> list[tuple[int, str]]:
+    tree = ast.parse(path.read_text(encoding="utf-8"), filename=str(path))
+    nodes = tree.body if module_level_only else list(ast.walk(tree))
+    out = []
+    for node in nodes:
+        if isinstance(node, ast.Import | ast.ImportFrom):
+            if module_level_only and isinstance(node, ast.ImportFrom) and node.module == "__future__":
+                continue
+            out += [(node.lineno, name) for name in _imported(module, path, node)]
+    return out
+
+
+def test_core_imports_only_numpy_scipy_numba_stdlib_and_itself():
+    core = f"{NAME}.core"
+    bad = []
+    for module, path in _modules().items():
+        if module != core and not module.startswith(core + "."):
+            continue
+        for line, name in _imports(module, path, module_level_only=False):
+            top = name.split(".")[0]
+            ok = (name == core or name.startswith(core + ".") or top in CORE_ALLOWED
+                  or top in sys.stdlib_module_names or top == "__future__")
+            if not ok:
+                bad.append(f"{path.relative_to(PACKAGE.parent)}:{line} imports {name}")
+    assert not bad, "core/ must import only numpy, scipy, numba, the standard library and core:\n" + "\n".join(bad)
+
+
+def _graph() -> dict[str, set[str]]:
+    """Module -> the package modules it imports at module level (``from pkg import mod`` counts ``pkg.mod``)."""
+    mods = _modules()
+    graph = {}
+    for module, path in mods.items():
+        deps = {name for _, name in _imports(module, path, module_level_only=True) if name in mods}
+        deps.discard(module)
+        graph[module] = deps
+    return graph
+
+
+def _find_cycle(graph: dict[str, set[str]]) -> list[str] | None:
+    """One cycle of the directed graph (depth-first search), or None."""
+    state: dict[str, int] = {}                            # 1 on the current path, 2 done
+    stack: list[str] = []
+
+    def visit(node: str) -> list[str] | None:
+        state[node] = 1
+        stack.append(node)
+        for nxt in sorted(graph[node]):
+            if state.get(nxt) == 1:
+                return stack[stack.index(nxt):] + [nxt]
+            if nxt not in state and (cycle := visit(nxt)):
+                return cycle
+        stack.pop()
+        state[node] = 2
+        return None
+
+    for node in sorted(graph):
+        if node not in state and (cycle := visit(node)):
+            return cycle
+    return None
+
+
+def test_find_cycle_reports_a_cycle_and_accepts_a_dag():
+    assert _find_cycle({"a": {"b"}, "b": {"c"}, "c": {"a"}}) == ["a", "b", "c", "a"]
+    assert _find_cycle({"a": {"b", "c"}, "b": {"c"}, "c": set()}) is None
+
+
+def test_no_import_cycle_among_the_package_modules():
+    """A package's ``__init__`` importing its own submodules is not a cycle unless a submodule imports it back."""
+    cycle = _find_cycle(_graph())
+    assert cycle is None, "import cycle: " + " -> ".join(cycle)
+
+
+def test_no_function_longer_than_120_lines():
+    long = []
+    for path in sorted(PACKAGE.rglob("*.py")):
+        tree = ast.parse(path.read_text(encoding="utf-8"), filename=str(path))
+        for node in ast.walk(tree):
+            if isinstance(node, ast.FunctionDef | ast.AsyncFunctionDef):
+                n = node.end_lineno - node.lineno + 1
+                if n > MAX_FUNCTION_LINES:
+                    long.append(f"{path.relative_to(PACKAGE.parent)}:{node.lineno} {node.name}: {n} lines")
+    assert not long, f"functions longer than {MAX_FUNCTION_LINES} lines:\n" + "\n".join(long)
