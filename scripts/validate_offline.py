@@ -28,18 +28,16 @@ import argparse
 import os
 import sys
 import time
-from pathlib import Path
 
 for _v in ("OPENBLAS_NUM_THREADS", "OMP_NUM_THREADS", "MKL_NUM_THREADS"):
     os.environ.setdefault(_v, "1")
 
 import numpy as np  # noqa: E402
 
-REPO = Path(__file__).resolve().parents[1]
-sys.path.insert(0, str(REPO))
-sys.path.insert(0, str(REPO / "test"))
-
-from test_offline_helpers import (  # noqa: E402
+from additive_rsrivc_ros.core.controller import DiscreteController  # noqa: E402
+from additive_rsrivc_ros.core.model import SubmodelStructure  # noqa: E402
+from additive_rsrivc_ros.core.offline import identify, to_unfactored  # noqa: E402
+from additive_rsrivc_ros.sim.independent import (  # noqa: E402
     MODE,
     PAPER_THETAS,
     PID_DEN,
@@ -48,10 +46,6 @@ from test_offline_helpers import (  # noqa: E402
     second_order_gradient_covariance,
     simulate,
 )
-
-from additive_rsrivc_ros.core.controller import DiscreteController  # noqa: E402
-from additive_rsrivc_ros.core.model import SubmodelStructure  # noqa: E402
-from additive_rsrivc_ros.core.offline import identify, to_unfactored  # noqa: E402
 
 NAMES_52 = ["a11", "a12", "b10", "a21", "a22", "b20"]
 VERDICT_NOTES: dict[str, str] = {}

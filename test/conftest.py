@@ -26,3 +26,11 @@ def ros_env(tmp_path) -> dict:
     env["ROS_DOMAIN_ID"] = str(101 + (os.getpid() + hash(str(tmp_path))) % 100)
     env["PYTHONUNBUFFERED"] = "1"
     return env
+
+
+def pytest_collection_modifyitems(items: list[pytest.Item]) -> None:
+    """Mark every test that runs real ROS 2 (it asks for ``ros_env``) as ``ros``: ``-m "not ros"`` runs the
+    ROS-free part of the suite."""
+    for item in items:
+        if "ros_env" in getattr(item, "fixturenames", ()):
+            item.add_marker(pytest.mark.ros)

@@ -9,6 +9,7 @@ from __future__ import annotations
 
 import numpy as np
 import pytest
+from bag_variants import write_topics
 
 from additive_rsrivc_ros.bagio import read_signals
 from additive_rsrivc_ros.config import MonitorConfig, load_params_file
@@ -175,20 +176,6 @@ def test_pipeline_keeps_the_fault_verdict_on_shifted_streams(beam, case):
 
 
 # ------------------------------------------------------------------------------------------------ bags
-def _write_topics(path, streams: dict[str, tuple[np.ndarray, np.ndarray]]):
-    """A bag with Float64 topics given as (log times ns, values), as a recorder would have stored them."""
-    from rosbags.rosbag2 import StoragePlugin, Writer
-
-    from additive_rsrivc_ros.bagio import _TYPESTORE, float64_cdr
-    with Writer(path, version=9, storage_plugin=StoragePlugin.MCAP) as w:
-        conns = {topic: w.add_connection(topic, "std_msgs/msg/Float64", typestore=_TYPESTORE) for topic in streams}
-        rows = sorted((int(t), topic, k) for topic, (ts, _) in streams.items() for k, t in enumerate(ts))
-        payload = {topic: float64_cdr(v) for topic, (_, v) in streams.items()}
-        for t, topic, k in rows:
-            w.write(conns[topic], t, payload[topic][k])
-    return path
-
-
 def _bag_case(sig, case: str):
     t_ns = sig.t0_ns + np.rint(sig.t * 1e9).astype(np.int64)
     s = {"/reference": [t_ns, sig.r], "/plant_input": [t_ns, sig.u], "/plant_output": [t_ns, sig.y]}
@@ -213,7 +200,7 @@ def test_bag_with_a_lost_repeated_or_shifted_message_keeps_the_verdict(beam, tmp
     natural_frequency / down, nothing on mode 1, and the run says what it corrected."""
     from additive_rsrivc_ros.bagio import read_signals as read
     cfg, sig = beam
-    bag = _write_topics(tmp_path / "bag", _bag_case(sig, case))
+    bag = write_topics(tmp_path / "bag", _bag_case(sig, case))
     s2 = read(bag, cfg)
     pipe = MonitorPipeline(cfg)
     reports = []
@@ -233,7 +220,7 @@ def test_bag_at_the_wrong_rate_is_refused_with_the_reason(beam, tmp_path, scale)
     cfg, sig = beam
     n = 8192
     t_ns = sig.t0_ns + np.rint(sig.t[:n] * scale * 1e9).astype(np.int64)
-    bag = _write_topics(tmp_path / "bag", {"/reference": (t_ns, sig.r[:n]), "/plant_input": (t_ns, sig.u[:n]),
+    bag = write_topics(tmp_path / "bag", {"/reference": (t_ns, sig.r[:n]), "/plant_input": (t_ns, sig.u[:n]),
                                           "/plant_output": (t_ns, sig.y[:n])})
     with pytest.raises(BagError, match=r"loop_rate_hz is 4096: more than 0\.2% apart"):
         read(bag, cfg)
@@ -247,7 +234,7 @@ def test_diagnose_says_what_the_aligner_corrected(beam, tmp_path, repo_root):
     import subprocess
 
     cfg, sig = beam
-    bag = _write_topics(tmp_path / "bag", _bag_case(sig, "/plant_input shifted 5000"))
+    bag = write_topics(tmp_path / "bag", _bag_case(sig, "/plant_input shifted 5000"))
     out = tmp_path / "out"
     run = subprocess.run(["rsrivc_diagnose", str(bag), "--params-file", str(repo_root / "config/beam_fault.yaml"),
                           "--out", str(out), "--no-report", "--quiet"], capture_output=True, text=True, timeout=600)

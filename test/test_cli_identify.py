@@ -6,11 +6,11 @@ import json
 
 import numpy as np
 import pytest
-from test_offline_helpers import MODE, PAPER_THETAS, PID_DEN, PID_NUM, simulate
 
 from additive_rsrivc_ros.bagio import write_bag
 from additive_rsrivc_ros.cli.identify import main
 from additive_rsrivc_ros.core.model import modal_from_theta
+from additive_rsrivc_ros.sim.independent import MODE, PAPER_THETAS, PID_DEN, PID_NUM, simulate
 
 RATE = 20.0
 PARAMS = """additive_rsrivc_monitor:

@@ -5,11 +5,11 @@ from __future__ import annotations
 import numpy as np
 import pytest
 from scipy import signal
-from test_offline_helpers import MODE, PAPER_THETAS, PID_DEN, PID_NUM, simulate
 
 from additive_rsrivc_ros.core import filters as F
 from additive_rsrivc_ros.core.controller import DiscreteController
 from additive_rsrivc_ros.core.model import SubmodelStructure, theta_from_modal
+from additive_rsrivc_ros.sim.independent import MODE, PAPER_THETAS, PID_DEN, PID_NUM, simulate
 
 EPS = np.finfo(float).eps
 

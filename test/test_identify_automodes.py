@@ -7,7 +7,7 @@ import json
 
 import numpy as np
 import pytest
-from test_frf import CONTROLLER, DELAY, FS, MODES, no_guess_params_yaml
+from frf_cases import CONTROLLER, DELAY, FS, MODES, no_guess_params_yaml
 
 from additive_rsrivc_ros.bagio import write_bag
 from additive_rsrivc_ros.cli import diagnose, identify

@@ -14,17 +14,16 @@ import os
 import subprocess
 import sys
 from collections import deque
-from pathlib import Path
 
 import numpy as np
 import pytest
 from scipy.linalg import expm
-from test_recursive_sim import PAPER_THETA, PID, paper_reference, simulate_modal
 
 from additive_rsrivc_ros.core.kernel import project_second_order
 from additive_rsrivc_ros.core.model import SubmodelStructure, reflect_unstable
 from additive_rsrivc_ros.core.recursive import FILTER_PERIODS, RecursiveAdditiveSRIVC, p0_diagonal
 from additive_rsrivc_ros.core.zoh import companion
+from additive_rsrivc_ros.sim.independent import PAPER_THETA, PID, paper_reference, simulate_modal
 
 Y, U, Z, X = range(4)
 
@@ -164,31 +163,29 @@ def test_projection_closed_form_matches_root_reflection():
 _SCRIPT = r"""
 import json, sys
 import numpy as np
-sys.path.insert(0, {testdir!r})
-from test_kernel import _paper_data
-from test_recursive_sim import PID
+from additive_rsrivc_ros.core.controller import DiscreteController
 from additive_rsrivc_ros.core.model import SubmodelStructure
 from additive_rsrivc_ros.core.recursive import RecursiveAdditiveSRIVC
-r, u, y, start = _paper_data(200, True, 2)
-est = RecursiveAdditiveSRIVC([SubmodelStructure()] * 3, start, 20.0, forgetting=0.99, controller=PID,
-                             input_delay=2, block_sweeps=2, refinements=1)
-tr = est.update(r, u, y, trace=True)
-np.save({out!r}, tr)
+d = np.load(sys.argv[1])
+est = RecursiveAdditiveSRIVC([SubmodelStructure()] * 3, list(d["start"]), 20.0, forgetting=0.99,
+                             controller=DiscreteController(tuple(d["cnum"]), tuple(d["cden"])), input_delay=2,
+                             block_sweeps=2, refinements=1)
+np.save(sys.argv[2], est.update(d["r"], d["u"], d["y"], trace=True))
 print(json.dumps(est.health["samples"]))
 """
 
 
 def test_interpreted_kernel_matches_compiled(tmp_path):
     """One source of truth: NUMBA_DISABLE_JIT=1 runs the same Python code; results agree to 1e-10."""
-    testdir = str(Path(__file__).parent)
-    out = str(tmp_path / "tr.npy")
+    r, u, y, start = _paper_data(200, True, 2)
+    data, out = tmp_path / "data.npz", tmp_path / "tr.npy"
+    np.savez(data, r=r, u=u, y=y, start=np.array(start), cnum=PID.num, cden=PID.den)
     env = dict(os.environ, NUMBA_DISABLE_JIT="1")
-    res = subprocess.run([sys.executable, "-c", _SCRIPT.format(testdir=testdir, out=out)], env=env,
-                         capture_output=True, text=True, timeout=300)
+    res = subprocess.run([sys.executable, "-c", _SCRIPT, str(data), str(out)], env=env, capture_output=True,
+                         text=True, timeout=300)
     assert res.returncode == 0, res.stderr[-2000:]
     assert json.loads(res.stdout.strip().splitlines()[-1]) == 200
     interp = np.load(out)
-    r, u, y, start = _paper_data(200, True, 2)
     est = RecursiveAdditiveSRIVC([SubmodelStructure()] * 3, start, 20.0, forgetting=0.99, controller=PID,
                                  input_delay=2, block_sweeps=2, refinements=1)
     comp = est.update(r, u, y, trace=True)

@@ -4,7 +4,7 @@ from __future__ import annotations
 
 import numpy as np
 import pytest
-from test_frf import CONTROLLER, DELAY, FS, MODES
+from frf_cases import CONTROLLER, DELAY, FS, MODES
 
 from additive_rsrivc_ros.core.modefind import find_modes
 from additive_rsrivc_ros.sim.simulate import PlantMode, simulate_modes, square_wave, white_noise

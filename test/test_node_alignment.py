@@ -21,7 +21,7 @@ PAPER = str(REPO / "config" / "paper_example.yaml")
 
 
 def test_one_lost_input_message_is_realigned_live(ros_env, tmp_path):
-    from test_alignment import _write_topics
+    from bag_variants import write_topics
 
     from additive_rsrivc_ros.bagio import DEFAULT_T0_NS
     dom = int(ros_env["ROS_DOMAIN_ID"])
@@ -29,7 +29,7 @@ def test_one_lost_input_message_is_realigned_live(ros_env, tmp_path):
                          drift2_start_s=1.2e4, drift2_end_s=1.3e4)
     k_lost = 2500                                   # after the initialization, while everything streams
     t_ns = DEFAULT_T0_NS + np.rint(sc.t * 1e9).astype(np.int64)
-    bag = _write_topics(tmp_path / "lost", {"/reference": (t_ns, sc.r), "/plant_output": (t_ns, sc.y),
+    bag = write_topics(tmp_path / "lost", {"/reference": (t_ns, sc.r), "/plant_output": (t_ns, sc.y),
                                             "/plant_input": (np.delete(t_ns, k_lost), np.delete(sc.u, k_lost))})
     proc = start_node(ros_env, PAPER, "use_sim_time:=true", "qos_depth:=5000")
     cli = Client(dom, Float64)

@@ -10,8 +10,8 @@ found with frequencies near the truth (the modefind tests' 1 %) and ~/modes has 
 import time
 
 import numpy as np
+from frf_cases import CONTROLLER, DELAY, FS, MODES, no_guess_params_yaml
 from sensor_msgs.msg import JointState
-from test_frf import CONTROLLER, DELAY, FS, MODES, no_guess_params_yaml
 from test_node_helpers import Client, start_node, stop_node  # noqa: E402
 
 from additive_rsrivc_ros.sim.simulate import simulate_modes, square_wave, white_noise

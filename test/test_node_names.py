@@ -17,9 +17,9 @@ import time
 from pathlib import Path
 
 import numpy as np
+from bag_variants import write_topics
 from rclpy.qos import ReliabilityPolicy
 from std_msgs.msg import Float64
-from test_alignment import _write_topics  # noqa: E402
 from test_node_helpers import Client, start_node, stop_node  # noqa: E402
 
 from additive_rsrivc_ros.bagio import DEFAULT_T0_NS
@@ -63,7 +63,7 @@ def test_two_axes_in_namespaces_from_one_params_file(ros_env, tmp_path):
     for ax, sc in plants.items():
         t_ns = DEFAULT_T0_NS + np.rint(sc.t * 1e9).astype(np.int64)
         streams.update({f"/{ax}/{name}": (t_ns, getattr(sc, v)) for name, v in SIGNALS})
-    bag = _write_topics(tmp_path / "axes", streams)
+    bag = write_topics(tmp_path / "axes", streams)
     procs = {ax: start_node(ros_env, str(params), "use_sim_time:=true", "qos_depth:=5000",
                             ros_args=("-r", f"__ns:=/{ax}")) for ax in plants}
     clis = {ax: Client(dom, Float64, ns=ax) for ax in plants}

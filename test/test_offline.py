@@ -1,6 +1,6 @@
 """Offline estimators (core/offline/): exact recovery without noise, statistics with noise, bad input.
 
-Data come from test_offline_helpers.simulate (scipy cont2discrete ZOH + an explicit causal loop), which is
+Data come from sim/independent.py (scipy cont2discrete ZOH + an explicit causal loop), which is
 independent of the estimators' own filters.
 """
 
@@ -8,12 +8,19 @@ from __future__ import annotations
 
 import numpy as np
 import pytest
-from test_offline_helpers import MODE, PAPER_THETAS, PID_DEN, PID_NUM, second_order_gradient_covariance, simulate
 
 from additive_rsrivc_ros.core.controller import DiscreteController
 from additive_rsrivc_ros.core.filters import ClosedLoopUnstableError
 from additive_rsrivc_ros.core.model import SubmodelStructure, modal_from_theta, theta_from_modal
 from additive_rsrivc_ros.core.offline import identify, split_additive, to_unfactored
+from additive_rsrivc_ros.sim.independent import (
+    MODE,
+    PAPER_THETAS,
+    PID_DEN,
+    PID_NUM,
+    second_order_gradient_covariance,
+    simulate,
+)
 
 H = 0.05
 TRUTH = np.concatenate(PAPER_THETAS)

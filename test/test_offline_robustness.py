@@ -21,11 +21,11 @@ from pathlib import Path
 import numpy as np
 import pytest
 from bag_variants import damage, write_stamped_bag
-from test_offline_helpers import MODE, PAPER_THETAS, PID_DEN, PID_NUM, simulate
 
 from additive_rsrivc_ros.bagio import DEFAULT_T0_NS, read_signals, write_bag
 from additive_rsrivc_ros.cli import diagnose, identify
 from additive_rsrivc_ros.config import load_config
+from additive_rsrivc_ros.sim.independent import MODE, PAPER_THETAS, PID_DEN, PID_NUM, simulate
 
 REPO = Path(__file__).resolve().parents[1]
 BEAM_PARAMS = REPO / "config" / "beam_fault.yaml"

@@ -4,11 +4,11 @@ from __future__ import annotations
 
 import numpy as np
 import pytest
-from test_offline_helpers import MODE, simulate
 
 from additive_rsrivc_ros.core.controller import DiscreteController
 from additive_rsrivc_ros.core.model import SubmodelStructure
 from additive_rsrivc_ros.core.offline import identify
+from additive_rsrivc_ros.sim.independent import MODE, simulate
 
 H = 0.1
 ST = SubmodelStructure(n=2, m=1)

@@ -60,7 +60,7 @@ def test_transient_test_false_alarms_on_noise_alone():
     from scipy.signal import lfilter
 
     thetas = [np.array([0.25, 0.25, 3.0]), np.array([0.01, 0.025, 1.0])]
-    from test_offline_helpers import MODE
+    from additive_rsrivc_ros.sim.independent import MODE
 
     rng = np.random.default_rng(3)
     n, h, window = 4000, 0.05, 800

@@ -14,7 +14,7 @@ import json
 
 import numpy as np
 import pytest
-from test_frf import CONTROLLER, DELAY, FS, MODES
+from frf_cases import CONTROLLER, DELAY, FS, MODES
 
 from additive_rsrivc_ros.config import MonitorConfig, validate_params
 from additive_rsrivc_ros.core.faults import Level

@@ -1,11 +1,11 @@
 """RecursiveAdditiveSRIVC: exactness, convergence, streaming, snapshot/restore, bad input (issue 4)."""
 import numpy as np
 import pytest
-from test_recursive_sim import PAPER_THETA, PID, paper_reference, simulate_modal
 
 from additive_rsrivc_ros.config import MonitorConfig
 from additive_rsrivc_ros.core.model import SubmodelStructure, modal_from_theta
 from additive_rsrivc_ros.core.recursive import RecursiveAdditiveSRIVC
+from additive_rsrivc_ros.sim.independent import PAPER_THETA, PID, paper_reference, simulate_modal
 
 S3 = [SubmodelStructure()] * 3
 

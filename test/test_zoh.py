@@ -1,13 +1,12 @@
 """Closed-form ZOH of second-order sections against the augmented matrix exponential (scipy) and, over the whole
 admissible domain, against an extended-precision reference (``scripts/validate_zoh.py``, issue 17 item 2)."""
-import importlib.util
-from pathlib import Path
 
 import numpy as np
 import pytest
 from scipy.linalg import expm
 
 from additive_rsrivc_ros.core.zoh import companion, integrator_chain_zoh, second_order_zoh, zoh_matrices
+from additive_rsrivc_ros.sim import zoh_reference as vz
 
 
 def _reference(a1: float, a2: float, h: float) -> tuple[np.ndarray, np.ndarray]:
@@ -67,11 +66,6 @@ def test_step_response_settles_to_dc_gain():
         x = phi @ x + gam
     np.testing.assert_allclose(x, [1.0, 0.0], atol=1e-12)
 
-
-_spec = importlib.util.spec_from_file_location("validate_zoh", Path(__file__).resolve().parents[1] / "scripts" /
-                                               "validate_zoh.py")
-vz = importlib.util.module_from_spec(_spec)
-_spec.loader.exec_module(vz)
 
 
 def test_decimal_reference_matches_decimal_expm():
