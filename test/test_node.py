@@ -266,6 +266,23 @@ def test_cli_help_and_bad_params(tmp_path, ros_env):
     assert r.returncode == 2 and "--ros-args" in r.stderr
 
 
+def test_cli_help_and_argument_errors_need_no_ros(ros_env):
+    """--help and an argument error are answered before ROS is imported: with rclpy and the message packages made
+    unimportable the console script's main still prints the usage (0) or one line (2)."""
+    block = ("import sys\nfor m in ('rclpy', 'std_msgs', 'sensor_msgs', 'diagnostic_msgs', 'std_srvs', "
+             "'rcl_interfaces'):\n    sys.modules[m] = None\n"
+             "from additive_rsrivc_ros.node import main\nsys.exit(main(sys.argv[1:]))\n")
+    r = subprocess.run([sys.executable, "-c", block, "--help"], capture_output=True, text=True, timeout=60,
+                       env=ros_env)
+    assert r.returncode == 0 and r.stdout.startswith("usage: rsrivc_monitor"), r.stdout + r.stderr
+    r = subprocess.run([sys.executable, "-c", block, "--bogus"], capture_output=True, text=True, timeout=60,
+                       env=ros_env)
+    assert r.returncode == 2 and "--ros-args" in r.stderr and "Traceback" not in r.stderr, r.stderr
+    r = subprocess.run([sys.executable, "-c", block, "--ros-args"], capture_output=True, text=True, timeout=60,
+                       env=ros_env)
+    assert r.returncode != 0 and "rclpy" in r.stderr     # the check can fail: past the arguments ROS is needed
+
+
 @pytest.mark.parametrize("params", sorted(p.name for p in (REPO / "config").glob("*.yaml")
                                           if not p.name.startswith("diagnostic_aggregator")))
 def test_every_bundled_params_file_configures_the_node(params, ros_env):
