@@ -113,7 +113,7 @@ def test_stamped_inputs_params_services_and_restart(ros_env, tmp_path):
             np.testing.assert_allclose(float(vals["natural_frequency_hz"]), ref.modal[i, 0], rtol=1e-9)
             np.testing.assert_allclose(float(vals["baseline_gain"]), ref.baseline[i, 2], rtol=1e-9)
         # the estimate after the last sample (a few samples later than the last report)
-        saved_modal, saved_baseline = pipe._modal().copy(), ref.baseline.copy()
+        saved_modal, saved_baseline = pipe.modal().copy(), ref.baseline.copy()
 
         # ---- runtime parameters from another process
         ok = cli.set_params([Parameter("modes.memory_s", Parameter.Type.DOUBLE_ARRAY, [30.0, 30.0, 30.0]),

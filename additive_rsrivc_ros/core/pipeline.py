@@ -781,11 +781,6 @@ class MonitorPipeline:
         """Current (K, 6) estimate ``f_hz, zeta, gain`` and their std; NaN before the first initialization."""
         return self._modal()
 
-    def modal_estimates(self) -> np.ndarray:
-        """The live ``(K, 6)`` modal estimate (frequency, damping, gain and their standard deviations; NaN without
-        a valid model): what the node shows before the first report of a restored state."""
-        return self._modal()
-
     def _modal(self) -> np.ndarray:
         if not self.initialized:     # no valid model (before the first accepted initialization, or after one
             return np.full((self.K, 6), np.nan)   # was rejected / diverged): NaN, never the guesses

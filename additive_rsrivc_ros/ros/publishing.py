@@ -120,7 +120,7 @@ class PublishingMixin:
         if self.lock.acquire(timeout=0.02):
             try:
                 if self.pipeline is not None:
-                    self._snapshot = (self.pipeline.last_report, self.pipeline.modal_estimates())
+                    self._snapshot = (self.pipeline.last_report, self.pipeline.modal())
             finally:
                 self.lock.release()
         return self._snapshot
