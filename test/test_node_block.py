@@ -392,3 +392,16 @@ def test_node_block_gap_duplicate_malformed_restart(ros_env):
     assert "Traceback" not in out
     assert sum("malformed block" in ln for ln in out.splitlines()) == 1, out
     assert "controller restart" in out and "index gap" in out
+
+
+def test_block_input_runtime_change_applies_the_silence_as_at_start_up():
+    """Block input takes stale_timeout_s without the Float64 stall floor, at start-up and at runtime alike, and
+    ignores the Float64-only settings (backlog, quiet, hold) as its start-up does."""
+    s = _sync(silent_s=1.0)
+    assert s.silent_ns == 1_000_000_000
+    before = (s.max_backlog, s.quiet_ns, s.hold_ns, s.persist_ns)
+    s.update(silent_s=0.3, gap_s=0.2, max_backlog=3, quiet_s=9.0, hold_s=1.0)
+    fresh = _sync(silent_s=0.3, gap_s=0.2)
+    assert (s.silent_ns, s.gap_ns) == (fresh.silent_ns, fresh.gap_ns) == (300_000_000, 200_000_000)
+    assert (s.max_backlog, s.quiet_ns, s.hold_ns, s.persist_ns) == before
+

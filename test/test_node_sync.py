@@ -6,7 +6,7 @@ Every message carries its sample index as value, so a misaligned sample is one w
 import numpy as np
 import pytest
 
-from additive_rsrivc_ros.ros.sync import InputSync
+from additive_rsrivc_ros.ros.sync import InputSync, settings
 
 RATE = 1000.0
 H_NS = 1_000_000
@@ -244,3 +244,34 @@ def test_stall_of_the_node_is_not_an_input_pause():
     collect_all(p, 200 * H_NS + 600_000_000)
     assert p.counters.gaps == 1 and p.counters.node_stall_gaps == 0
     assert s.silent(late, 0.1, looking_since_ns=late - 50_000_000) == []      # not looking long enough
+
+
+def _limits(s: InputSync) -> tuple[int, ...]:
+    return s.max_backlog, s.gap_ns, s.hold_ns, s.quiet_ns, s.persist_ns, s.silent_ns
+
+
+def test_a_runtime_change_gets_the_floors_and_conversions_of_start_up():
+    """update() (a runtime parameter change) gives the same limits as building the stage with the new values:
+    the silence (stale_timeout_s) and the count-mismatch persistence never below a stall (sync.stall_s, 2 x
+    sync.quiet_s); sync.gap_s 0 is automatic; sync.max_backlog_s at least 8 samples."""
+    s = make(stall_s=4.0, silent_s=1.0)
+    assert s.silent_ns == 4_000_000_000                     # start-up floor: a stall
+    s.update(silent_s=0.5)                                  # a runtime stale_timeout_s below the stall
+    assert s.silent_ns == 4_000_000_000 == make(stall_s=4.0, silent_s=0.5).silent_ns
+    s.update(quiet_s=3.0)                                   # the persistence follows quiet_s as at start-up
+    assert (s.persist_ns, s.silent_ns) == (6_000_000_000, 6_000_000_000)
+    assert _limits(s) == _limits(make(stall_s=4.0, silent_s=0.5, quiet_s=3.0))
+    params = {"stale_timeout_s": 0.2, "sync.max_backlog_s": 0.001, "sync.gap_s": 0.0, "sync.quiet_s": 0.05,
+              "sync.hold_s": 0.3}
+    new = settings(params, RATE)
+    assert new == {"silent_s": 0.2, "max_backlog": 8, "gap_s": 0.1, "quiet_s": 0.05, "hold_s": 0.3}
+    s.update(**new)
+    assert _limits(s) == _limits(make(stall_s=4.0, **new))
+    assert settings({"sync.hold_s": 0.1}, RATE) == {"hold_s": 0.1}      # only what changed
+
+
+def test_input_stage_answers_what_the_node_asks_without_probes():
+    s = make()
+    assert s.pairing == "arrival order" and make(stamped=True).pairing == "stamped"
+    assert s.extra_values() == {} and s.lasting_reasons() == [] and s.queue_reasons() == [] and s.wake is None
+

@@ -75,7 +75,7 @@ class BlockSync(InputSync):
                          gap_s=gap_s, hold_s=0.0, silent_s=silent_s, stall_s=0.0, max_queue=max_queue,
                          labels=(label,), rate_window_s=rate_window_s, rate_tolerance=rate_tolerance)
         self.signals = ("block",)
-        self.silent_ns = int(silent_s * 1e9)
+        self.update(silent_s=silent_s)
         self.closed_loop = bool(closed_loop)
         self.convert = convert
         self.reorder_ns = int(max(0.0, reorder_s) * 1e9)
@@ -111,6 +111,15 @@ class BlockSync(InputSync):
     @property
     def pairing(self) -> str:
         return "block rows paired by the controller's index"
+
+    def update(self, *, silent_s: float | None = None, max_backlog: int | None = None, gap_s: float | None = None,
+               quiet_s: float | None = None, hold_s: float | None = None) -> None:
+        """Settings as at start-up: the gap and the silence apply (the silence without the stall floor of Float64
+        topics: rows are paired by index); backlog, quiet and hold are Float64-topic settings, unused here."""
+        if gap_s is not None:
+            self.gap_ns = int(gap_s * 1e9)
+        if silent_s is not None:
+            self.silent_ns = int(silent_s * 1e9)
 
     # ------------------------------------------------------------------------------------------- callback side
     def enqueue(self, msg: Any, arrival_ns: int) -> None:

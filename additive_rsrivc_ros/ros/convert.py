@@ -1,4 +1,4 @@
-"""Conversions between the parameter table / pipeline reports and ROS 2 messages."""
+"""Conversions between the parameter table / status records / pipeline reports and ROS 2 messages."""
 
 from __future__ import annotations
 
@@ -13,6 +13,7 @@ from rclpy.parameter import Parameter
 from std_msgs.msg import Float64MultiArray, MultiArrayDimension
 
 from ..config import Param
+from ..status import StatusRecord
 
 PARAM_TYPE = {
     "bool": Parameter.Type.BOOL, "int": Parameter.Type.INTEGER, "double": Parameter.Type.DOUBLE,
@@ -75,20 +76,20 @@ def num(v: float) -> str:
     return repr(v) if math.isfinite(v) else ("nan" if math.isnan(v) else ("inf" if v > 0 else "-inf"))
 
 
-def mode_status(name: str, hardware_id: str, values: dict[str, Any], level: int, message: str) -> DiagnosticStatus:
+def mode_status(record: StatusRecord, hardware_id: str) -> DiagnosticStatus:
     """One ``<node>: mode <i>`` status with exactly the CONTRACT keys (flags 'true'/'false')."""
     kv = []
     for k in MODE_KEYS:
-        v = values.get(k, math.nan if k not in FLAG_FIELDS else False)
+        v = record.values.get(k, math.nan if k not in FLAG_FIELDS else False)
         kv.append(KeyValue(key=k, value=("true" if v else "false") if k in FLAG_FIELDS else num(v)))
-    return DiagnosticStatus(level=bytes([int(level)]), name=name, message=message, hardware_id=hardware_id,
-                            values=kv)
+    return DiagnosticStatus(level=bytes([int(record.level)]), name=record.name, message=record.message,
+                            hardware_id=hardware_id, values=kv)
 
 
-def status(name: str, hardware_id: str, values: dict[str, Any], level: int, message: str) -> DiagnosticStatus:
+def status(record: StatusRecord, hardware_id: str) -> DiagnosticStatus:
     """A status with arbitrary key/values (numbers as decimal strings, bools as 'true'/'false')."""
     kv = []
-    for k, v in values.items():
+    for k, v in record.values.items():
         if isinstance(v, bool):
             s = "true" if v else "false"
         elif isinstance(v, int | float):
@@ -96,8 +97,8 @@ def status(name: str, hardware_id: str, values: dict[str, Any], level: int, mess
         else:
             s = str(v)
         kv.append(KeyValue(key=k, value=s))
-    return DiagnosticStatus(level=bytes([int(level)]), name=name, message=message, hardware_id=hardware_id,
-                            values=kv)
+    return DiagnosticStatus(level=bytes([int(record.level)]), name=record.name, message=record.message,
+                            hardware_id=hardware_id, values=kv)
 
 
 def modes_array(modal: Any) -> Float64MultiArray:

@@ -37,14 +37,37 @@ message (the samples were not taken in time, e.g. a reader history overflow), ne
 from __future__ import annotations
 
 import bisect
+import math
+import threading
 from collections import deque
 from dataclasses import dataclass, field
+from typing import Any
 
 import numpy as np
 
 # bytes one queued sample costs at most: a 2- or 3-tuple (56-64 B), a float (24 B), one or two ints (<= 36 B
 # each), a deque/list slot (8 B); measured with tracemalloc in test/test_node_sync.py
 BYTES_PER_SAMPLE = 200
+
+
+def backlog_samples(max_backlog_s: float, rate_hz: float) -> int:
+    """``sync.max_backlog_s`` in samples (at least 8)."""
+    return max(8, int(math.ceil(max_backlog_s * rate_hz)))
+
+
+def pause_gap_s(gap_s: float, rate_hz: float) -> float:
+    """``sync.gap_s``, with 0 meaning automatic: ten sample periods, at least 0.1 s."""
+    return gap_s if gap_s > 0.0 else max(0.1, 10.0 / rate_hz)
+
+
+def settings(values: dict[str, Any], rate_hz: float) -> dict[str, Any]:
+    """:meth:`InputSync.update` arguments from the parameters in ``values`` (at start-up all of them, on a runtime
+    change the changed ones): ``stale_timeout_s`` and ``sync.{max_backlog,gap,quiet,hold}_s``."""
+    convert = {"stale_timeout_s": ("silent_s", float),
+               "sync.max_backlog_s": ("max_backlog", lambda s: backlog_samples(float(s), rate_hz)),
+               "sync.gap_s": ("gap_s", lambda s: pause_gap_s(float(s), rate_hz)),
+               "sync.quiet_s": ("quiet_s", float), "sync.hold_s": ("hold_s", float)}
+    return {arg: f(values[name]) for name, (arg, f) in convert.items() if name in values}
 
 
 @dataclass
@@ -88,6 +111,8 @@ class InputSync:
     or ``("input", "output")`` in open loop.
     """
 
+    wake: threading.Event | None = None   # block input sets it per message; None: the worker polls every period
+
     def __init__(self, signals: tuple[str, ...], rate_hz: float, *, stamped: bool, max_backlog: int,
                  quiet_s: float, gap_s: float, hold_s: float, skew_s: float | None = None,
                  silent_s: float | None = None, stall_s: float = 4.0, max_queue: int = 1 << 20,
@@ -106,10 +131,9 @@ class InputSync:
         self.rate = float(rate_hz)
         self.h_ns = 1e9 / self.rate
         self.stamped = stamped
-        self.max_backlog = int(max_backlog)
-        self.quiet_ns = int(quiet_s * 1e9)
-        self.gap_ns = int(gap_s * 1e9)
-        self.hold_ns = int(hold_s * 1e9)
+        self._stall_ns = int(stall_s * 1e9)
+        InputSync.update(self, max_backlog=max_backlog, quiet_s=quiet_s, gap_s=gap_s, hold_s=hold_s,
+                         silent_s=quiet_s if silent_s is None else silent_s)
         self.skew_ns = int((0.5 / self.rate if skew_s is None else skew_s) * 1e9)
         self.labels = tuple(labels) if labels is not None else self.signals
         self.max_queue = int(max_queue)
@@ -142,13 +166,33 @@ class InputSync:
         self._align_heads = False
         self._imbalance_since: int | None = None
         self._last_lag = 0
-        # a topic may stall while the others continue: reliable DDS recovers a lost datagram only at the writer's
-        # next heartbeat (Fast DDS: every 3 s); an imbalance is a count mismatch only after it outlasts that
-        self.persist_ns = max(int(stall_s * 1e9), 2 * self.quiet_ns)
-        # a topic behind the others is lost only after a silence longer than a stall too
-        self.silent_ns = max(int((quiet_s if silent_s is None else silent_s) * 1e9), self.persist_ns)
 
     # ----------------------------------------------------------------------------------------- control
+    def update(self, *, silent_s: float | None = None, max_backlog: int | None = None, gap_s: float | None = None,
+               quiet_s: float | None = None, hold_s: float | None = None) -> None:
+        """Apply (validated) settings, at start-up and on a runtime parameter change alike: the same conversions and
+        floors (``silent_s`` and the count-mismatch persistence never below a stall). None leaves a setting as is."""
+        if max_backlog is not None:
+            self.max_backlog = int(max_backlog)
+        if gap_s is not None:
+            self.gap_ns = int(gap_s * 1e9)
+        if hold_s is not None:
+            self.hold_ns = int(hold_s * 1e9)
+        if quiet_s is not None:
+            self.quiet_ns = int(quiet_s * 1e9)
+        if silent_s is not None:
+            self._silent_req_ns = int(silent_s * 1e9)
+        # a topic may stall while the others continue: reliable DDS recovers a lost datagram only at the writer's
+        # next heartbeat (Fast DDS: every 3 s); an imbalance is a count mismatch only after it outlasts that
+        self.persist_ns = max(self._stall_ns, 2 * self.quiet_ns)
+        # a topic behind the others is lost only after a silence longer than a stall too
+        self.silent_ns = max(self._silent_req_ns, self.persist_ns)
+
+    @property
+    def pairing(self) -> str:
+        """How samples are paired (the node's start-up line)."""
+        return "stamped" if self.stamped else "arrival order"
+
     def _restart_grid(self) -> None:
         self._anchor_k = 0
         self._anchor_t: float | None = None
@@ -218,6 +262,11 @@ class InputSync:
     def queue_bytes(self) -> int:
         """Upper bound of the memory the queued samples take (both bounded stages of every topic)."""
         return 2 * self.n * self.max_queue * BYTES_PER_SAMPLE
+
+    def queue_reasons(self) -> list[str]:
+        """Topics whose queue is full in an open episode: one WARN reason each."""
+        return [f"queue of {lb} full: dropping the oldest messages ({n} so far)"
+                for lb, n, ov in zip(self.labels, self.counters.queue_dropped, self._overflowing, strict=True) if ov]
 
     def _increasing(self, i: int, items: list[tuple], now_ns: int) -> list[tuple]:
         """Stamped mode: drop messages whose stamp does not increase on their topic."""
@@ -294,6 +343,14 @@ class InputSync:
                 if self._rate_good[i] >= 2 and self.rate_mismatch.pop(label, None) is not None:
                     self._event(now_ns, f"arrival rate on {label} matches loop_rate_hz again ({rate:.0f} Hz)")
         return new
+
+    def lasting_reasons(self) -> list[str]:
+        """Lasting problems specific to the input kind (none for topics; block input: the controller invariant)."""
+        return []
+
+    def extra_values(self) -> dict[str, Any]:
+        """Estimator-status values specific to the input kind (none for topics; block input: its counters)."""
+        return {}
 
     def rate_reason(self, label: str, rate: float, expected: float | None = None) -> str:
         """One line: ``arrival rate 2048 Hz on /plant_output, loop_rate_hz 4096``."""

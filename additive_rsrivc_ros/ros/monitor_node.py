@@ -1,0 +1,248 @@
+"""``MonitorNode``: the ROS 2 lifecycle node that runs :class:`MonitorPipeline` on live r, u, y topics.
+
+A thin shell (../shared/CONTRACT.md, docs/ARCHITECTURE.md), assembled from small parts: :mod:`.params`
+(declaration and runtime changes), :mod:`.inputs` (topics, subscriptions, callbacks), :mod:`.worker` (the
+estimation thread), :mod:`.publishing` (``~/modes``, ``/diagnostics``), :mod:`.state` (``state_file``). Subscription
+callbacks only append ``(value, arrival)`` to per-topic deques; the worker thread aligns the streams (:mod:`.sync`,
+block input :mod:`.blocks`) and feeds the samples in blocks to the pipeline; the publisher thread publishes. The
+executor is ``rclpy.experimental.EventsExecutor`` driven by ``spin_once`` (:func:`spin`; in this rclpy build
+``spin()`` of the EventsExecutor never returns control to Python timers or other threads; ``spin_once`` does),
+because the default executor loses Float64 messages above ~1 kHz (../shared/NOTES.md).
+
+Lifecycle: ``configure`` checks the parameters (one-line rejection), loads the numba kernels, restores the
+pipeline from ``state_file`` or builds it, creates the input stage, subscriptions, publishers and the services
+``~/reset``, ``~/rebaseline``, ``~/save_state``; ``activate`` starts the worker and publisher threads,
+``deactivate`` stops them, ``cleanup`` saves the state and destroys the interfaces, ``shutdown`` saves once.
+"""
+
+from __future__ import annotations
+
+import threading
+import time
+from typing import Any
+
+import rclpy
+from diagnostic_msgs.msg import DiagnosticArray
+from rclpy.executors import Executor
+from rclpy.lifecycle import LifecycleNode, LifecycleState, TransitionCallbackReturn
+from std_msgs.msg import Float64MultiArray
+from std_srvs.srv import Trigger
+
+from ..config import DEFAULT_NODE_NAME, MonitorConfig, ParamError, param_table
+from ..core.pipeline import MonitorPipeline, PipelineError
+from ..warmup import is_warm, load_kernels
+from .inputs import InputsMixin, signal_names
+from .params import ParametersMixin, checked_config, split_unknown, unknown_warning
+from .publishing import PublishingMixin
+from .state import StateMixin
+from .sync import InputSync
+from .worker import STALL_NS, WorkerMixin
+
+
+class MonitorNode(ParametersMixin, InputsMixin, StateMixin, WorkerMixin, PublishingMixin, LifecycleNode):
+    """Managed node around :class:`MonitorPipeline`; see the module docstring."""
+
+    def __init__(self, node_name: str = DEFAULT_NODE_NAME, **kwargs: Any) -> None:
+        super().__init__(node_name, **kwargs)
+        self._table = param_table()
+        self._declare_all()
+        self.add_pre_set_parameters_callback(self._pre_set)
+        self.add_on_set_parameters_callback(self._on_set)
+        self.add_post_set_parameters_callback(self._post_set)
+        self.lock = threading.RLock()
+        self.pipeline: MonitorPipeline | None = None
+        self.cfg: MonitorConfig | None = None
+        self.sync: InputSync | None = None
+        self.signals: tuple[str, ...] = ()
+        self.topics: dict[str, str] = {}
+        self.config_error = ""
+        self._active = False
+        self._subs: list[Any] = []
+        self._srvs: list[Any] = []
+        self._modes_pub = None
+        self._diag_pub = None
+        self._worker: threading.Thread | None = None
+        self._stop = threading.Event()
+        self.idle_since_ns = 0
+        self.looking_since_ns = 0          # start of the executor's current uninterrupted run (0: not yet)
+        self._pub_thread: threading.Thread | None = None
+        self._save_path = ""               # where save_state writes ("" -> the state_file parameter)
+        self._closed = False
+        self._reset_stats()
+
+    # ------------------------------------------------------------------------------------ lifecycle
+    def on_configure(self, state: LifecycleState) -> TransitionCallbackReturn:
+        """Check the parameters, build (or restore) the pipeline and create the interfaces; FAILURE with one log
+        line (and :attr:`config_error`) when the configuration is rejected."""
+        unknown, foreign = split_unknown(self._parameter_overrides, self._table)
+        if foreign:
+            self.get_logger().warning(unknown_warning(foreign, self._table))
+        try:
+            if unknown:
+                raise ParamError(f"unknown parameter(s): {', '.join(unknown)}")
+            values, cfg = checked_config(self.values())
+        except (ParamError, ValueError) as exc:
+            return self._reject(exc)
+        if cfg.block_input:       # block rows are paired by index: the pipeline's stream aligner stays off
+            cfg = cfg.with_block_input()
+        self.cfg = cfg
+        self._load_kernels()
+        pipeline = self._restore(cfg, values["state_file"])
+        try:
+            self.pipeline = pipeline or MonitorPipeline(cfg)
+            self.signals = signal_names(cfg)
+            self.topics = self._resolve_topics(cfg)
+        except (PipelineError, ValueError) as exc:
+            return self._reject(exc)
+        self._configure_runtime(cfg, values)
+        try:
+            qos_text = self._subscribe(cfg, values)
+        except ParamError as exc:
+            self._destroy_interfaces()
+            return self._reject(exc)
+        self._create_outputs()
+        self.get_logger().info(
+            f"configured: K={cfg.K or 'from the data'}, {cfg.loop_rate_hz:g} Hz, "
+            f"{'closed' if cfg.closed_loop else 'open'} loop, "
+            f"inputs {', '.join(self.topics[s] for s in self.signals)} ({self.sync.pairing}), QoS {qos_text}, input "
+            f"queues bounded at {self.sync.max_queue} samples per topic (<= {self.sync.queue_bytes() / 1e6:.3g} MB)")
+        return TransitionCallbackReturn.SUCCESS
+
+    def _reject(self, exc: Exception) -> TransitionCallbackReturn:
+        self.config_error = str(exc)
+        self.get_logger().error(f"configuration rejected: {exc}")
+        return TransitionCallbackReturn.FAILURE
+
+    def _configure_runtime(self, cfg: MonitorConfig, values: dict[str, Any]) -> None:
+        """The input stage and the worker/publisher periods of a configuration; statistics start afresh."""
+        self.sync = self._make_sync(cfg, values)
+        self._use_sim_time = bool(self.get_parameter("use_sim_time").value)
+        if self.pipeline.t_last is not None:
+            self.sync.set_time_floor(self.pipeline.t_last)
+        self._stale_timeout_s = values["stale_timeout_s"]
+        self._publish_period_s = 1.0 / cfg.publish_rate_hz
+        self._diag_period_s = values["diagnostics_period_s"]
+        self._block_period_s = values["block_period_s"]
+        self._block_batch_s, self._block_step_due = values["block.batch_s"], 0.0
+        self._reset_stats()
+
+    def _create_outputs(self) -> None:
+        self._modes_pub = self.create_lifecycle_publisher(Float64MultiArray, "~/modes", 10)
+        self._diag_pub = self.create_lifecycle_publisher(DiagnosticArray, "/diagnostics", 10)
+        self._srvs = [self.create_service(Trigger, "~/reset", self._srv_reset),
+                      self.create_service(Trigger, "~/rebaseline", self._srv_rebaseline),
+                      self.create_service(Trigger, "~/save_state", self._srv_save)]
+
+    def _load_kernels(self) -> None:
+        """numba's one-time start (1-2 s, or a compilation without the cache) before any data, not mid-stream."""
+        if not is_warm():
+            self.get_logger().warning("the numba kernels of this version are not cached yet: compiling them now "
+                                      "(once, about a minute; run rsrivc_warmup after installing to avoid this)")
+        seconds = load_kernels()
+        self.get_logger().info(f"kernels loaded in {seconds:.2f} s")
+
+    def on_activate(self, state: LifecycleState) -> TransitionCallbackReturn:
+        self._stop.clear()
+        self._active = True
+        self._worker = threading.Thread(target=self._run_worker, name="rsrivc_worker", daemon=True)
+        self._worker.start()
+        self._pub_thread = threading.Thread(target=self._run_publisher, name="rsrivc_publisher", daemon=True)
+        self._pub_thread.start()
+        return super().on_activate(state)
+
+    def on_deactivate(self, state: LifecycleState) -> TransitionCallbackReturn:
+        self._stop_worker()
+        return super().on_deactivate(state)
+
+    def on_cleanup(self, state: LifecycleState) -> TransitionCallbackReturn:
+        self._stop_worker()
+        self.save_state()
+        self._destroy_interfaces()
+        return TransitionCallbackReturn.SUCCESS
+
+    def on_shutdown(self, state: LifecycleState) -> TransitionCallbackReturn:
+        self.close()
+        return TransitionCallbackReturn.SUCCESS
+
+    def _stop_worker(self) -> None:
+        self._active = False
+        self._stop.set()
+        for th in (self._worker, self._pub_thread):
+            if th is not None and th is not threading.current_thread():
+                th.join(timeout=10.0)
+        self._worker = self._pub_thread = None
+
+    def _destroy_interfaces(self) -> None:
+        for s in self._subs:
+            self.destroy_subscription(s)
+        for s in self._srvs:
+            self.destroy_service(s)
+        for p in (self._modes_pub, self._diag_pub):
+            if p is not None:
+                self.destroy_lifecycle_publisher(p)
+        self._subs, self._srvs, self._modes_pub, self._diag_pub = [], [], None, None
+        self.pipeline = self.sync = None
+
+    def close(self) -> None:
+        """Stop the worker and save the state once; called on shutdown."""
+        self._stop_worker()
+        if not self._closed:
+            self._closed = True
+            self.save_state()
+
+    # ------------------------------------------------------------------------------------ services
+    def _srv_reset(self, request: Trigger.Request, response: Trigger.Response) -> Trigger.Response:
+        with self.lock:
+            if self.pipeline is None:
+                response.success, response.message = False, "not configured"
+                return response
+            self.pipeline.reset()
+            self.sync.resync(time.monotonic_ns(), "reset requested", count=False)
+            self.sync.set_time_floor(None)
+        response.success, response.message = True, "estimator, baseline and fault state reset"
+        return response
+
+    def _srv_rebaseline(self, request: Trigger.Request, response: Trigger.Response) -> Trigger.Response:
+        with self.lock:
+            if self.pipeline is None:
+                response.success, response.message = False, "not configured"
+                return response
+            closed = self.pipeline.rebaseline()
+        response.success = True
+        response.message = f"learning a new baseline; {len(closed)} open fault event(s) closed"
+        return response
+
+    def _srv_save(self, request: Trigger.Request, response: Trigger.Response) -> Trigger.Response:
+        path = self.get_parameter("state_file").value
+        if not path:
+            response.success, response.message = False, "parameter state_file is empty"
+            return response
+        try:
+            response.message = self.save_state()
+            response.success = True
+        except OSError as exc:
+            response.success, response.message = False, f"cannot write {path}: {exc}"
+        return response
+
+
+def spin(node: MonitorNode, executor: Executor, started_ns: int, stop: threading.Event) -> None:
+    """``spin_once`` loop until ``stop`` is set (see the module docstring); records when the executor was idle
+    (input pause checks) and when it did not run (the node's own stalls, from ``started_ns``: start-up counts as
+    one)."""
+    last = started_ns
+    node.looking_since_ns = 0
+    while rclpy.ok() and not stop.is_set():
+        t0 = time.monotonic_ns()
+        if t0 - last > STALL_NS:
+            node.note_stall(last, t0)
+            node.looking_since_ns = t0
+        elif not node.looking_since_ns:
+            node.looking_since_ns = t0
+        executor.spin_once(timeout_sec=0.05)
+        t1 = time.monotonic_ns()
+        if t1 - t0 > STALL_NS + 50_000_000:
+            node.note_stall(t0, t1)
+            node.looking_since_ns = t1
+        if t1 - t0 >= 40_000_000:
+            node.idle_since_ns = t1
+        last = t1

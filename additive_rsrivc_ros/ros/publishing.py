@@ -1,0 +1,280 @@
+"""Outputs of the monitor node: ``~/modes`` and ``/diagnostics``, published by their own thread.
+
+A separate publisher thread publishes every report's estimate on ``~/modes`` (in order, once per
+``1/publish_rate_hz`` cycle) and one ``/diagnostics`` array per ``diagnostics_period_s`` (1 s by default) from the
+newest report, so publishing never holds up the consumption of the inputs (``~/modes`` messages are coalesced, and
+counted, only past ``MODES_QUEUE``). ``/diagnostics`` holds one ``<node>: mode <i>`` status per mode with exactly the
+CONTRACT keys and one ``<node>: estimator`` status with counters, condition numbers, real-time factor, CPU, and the
+delay from a sample's arrival to the return of the pipeline update that includes it; levels and messages are
+composed by :mod:`..status` (ROS-free) and converted by :mod:`.convert`. ``<node>`` is the node name in the root
+namespace and the full name without its leading '/' under a namespace (``axis1/additive_rsrivc_monitor``).
+"""
+
+from __future__ import annotations
+
+import math
+import time
+from collections.abc import Mapping
+from typing import Any
+
+import numpy as np
+from diagnostic_msgs.msg import DiagnosticArray
+
+from ..core.faults import Level
+from ..core.pipeline import Report
+from ..status import Finding, StatusRecord, estimator_summary, mode_summary
+from . import convert as cv
+from .sync import InputSync
+
+MODES_QUEUE = 10_000        # ~/modes messages the publisher may fall behind before the oldest are coalesced (counted)
+QUANTITIES = ("natural_frequency", "damping", "gain")   # the fault flags' quantities in a mode's message
+
+
+class RingStats:
+    """Last ``n`` values of a float series (the delays)."""
+
+    def __init__(self, n: int = 1 << 16) -> None:
+        self.buf = np.empty(n)
+        self.i = 0
+        self.full = False
+
+    def extend(self, x: np.ndarray) -> None:
+        x = np.asarray(x, dtype=float).ravel()[-self.buf.size:]
+        n = x.size
+        j = self.i + n
+        if j <= self.buf.size:
+            self.buf[self.i:j] = x
+        else:
+            k = self.buf.size - self.i
+            self.buf[self.i:] = x[:k]
+            self.buf[: n - k] = x[k:]
+            self.full = True
+        self.i = j % self.buf.size
+        if j == self.buf.size:
+            self.full = True
+
+    def values(self) -> np.ndarray:
+        return self.buf if self.full else self.buf[: self.i]
+
+
+def alignment_values(al: Mapping[str, Any]) -> dict[str, Any]:
+    """Estimator-status values of the stream aligner (controller invariant; core/alignment.py)."""
+    if al.get("mode") != "invariant":
+        return {"alignment": al.get("mode", "off")}
+    return {"alignment": "verified" if al.get("verified") else "approximate",
+            "alignment_offset_u_r": " ".join(str(v) for v in al.get("offset", [])),
+            "alignment_realignments": int(al.get("realignments", 0)),
+            "alignment_refilled": int(al.get("reconstructed", 0)),
+            "alignment_set_aside": int(al.get("invalidated", 0)) + int(al.get("late", 0)),
+            "alignment_relative_residual": float(al.get("relative_residual", math.nan))}
+
+
+def mode_message(rep: Report, i: int) -> str:
+    """``fault: natural_frequency down, ...`` for a mode with fault flags, else the pipeline's phase."""
+    faults = [f"{QUANTITIES[j]} {rep.directions[i][j]}".strip() for j in range(3) if rep.flags[i, j]]
+    if faults:
+        return "fault: " + ", ".join(faults)
+    return rep.phase
+
+
+class PublishingMixin:
+    """The publisher thread and the composition of ``/diagnostics`` (part of :class:`.monitor_node.MonitorNode`)."""
+
+    def _run_publisher(self) -> None:
+        """Publish the newest report on ~/modes once per ``1/publish_rate_hz`` and one /diagnostics array once
+        per ``diagnostics_period_s``, each on its own schedule (no catch-up burst after falling behind)."""
+        start = time.monotonic()
+        due = {"modes": start + self._publish_period_s, "diagnostics": start + self._diag_period_s}
+        while not self._stop.is_set():
+            now = time.monotonic()
+            if self._stop.wait(max(0.0, min(due.values()) - now)):
+                break
+            now = time.monotonic()
+            for out, period in (("modes", self._publish_period_s), ("diagnostics", self._diag_period_s)):
+                if now < due[out]:
+                    continue
+                due[out] = max(due[out] + period, now)   # fell behind (loaded CPU): no catch-up burst
+                self._publish_guarded(out)
+
+    def _publish_guarded(self, out: str) -> None:
+        """Publish ``out`` (modes | diagnostics); an exception is counted and logged once, never raised."""
+        try:
+            if out == "modes":
+                self._publish_modes()
+            else:
+                self._publish_diagnostics()
+        except Exception as exc:  # noqa: BLE001 - reported like a worker error
+            self._errors += 1
+            msg = f"publishing failed: {type(exc).__name__}: {exc}"
+            if msg != self._last_error:
+                self.get_logger().error(msg)
+            self._last_error = msg
+
+    def _current(self) -> tuple[Report | None, np.ndarray | None]:
+        """(report, modal) for /diagnostics: the newest report (the same vetted estimate as the last ~/modes
+        message), else, before any report (a state restored from ``state_file``), the live estimate when the worker
+        lets go of the lock within 20 ms, else the last snapshot."""
+        rep = self._latest_report          # read once; the worker only ever replaces it (no lost update)
+        if rep is not None:
+            return rep, rep.modal
+        if self.lock.acquire(timeout=0.02):
+            try:
+                if self.pipeline is not None:
+                    self._snapshot = (self.pipeline.last_report, self.pipeline.modal())
+            finally:
+                self.lock.release()
+        return self._snapshot
+
+    def _publish_modes(self) -> None:
+        """~/modes: every report's estimate not published yet, in order."""
+        modes_pub = self._modes_pub
+        if self.sync is None or modes_pub is None or not self._active:
+            return
+        while self._modes_queue:
+            modes_pub.publish(cv.modes_array(self._modes_queue.popleft()))
+            self._reports_published += 1
+
+    def _publish_diagnostics(self) -> None:
+        """/diagnostics: one status per mode and the estimator status, always (STALE without data)."""
+        sync, diag_pub = self.sync, self._diag_pub
+        if sync is None or diag_pub is None or not self._active:
+            return
+        rep, modal = self._current()
+        silent = sync.silent(time.monotonic_ns(), self._stale_timeout_s, self.looking_since_ns)
+        hw = self.get_fully_qualified_name()
+        arr = DiagnosticArray()
+        arr.header.stamp = self.get_clock().now().to_msg()
+        arr.status = [cv.mode_status(r, hw) for r in self._mode_records(rep, modal, silent)]
+        arr.status.append(cv.status(self._estimator_record(rep, silent), hw))
+        diag_pub.publish(arr)
+
+    def status_prefix(self) -> str:
+        """Name prefix of this node's /diagnostics statuses: the node name in the root namespace (as ever), the
+        full name without its leading '/' under a namespace (``axis1/additive_rsrivc_monitor``), so that the
+        monitors of several axes publishing on the one /diagnostics topic never share a status name."""
+        return self.get_fully_qualified_name().lstrip("/")
+
+    def _mode_records(self, rep: Report | None, modal: np.ndarray | None, silent: list[str]) -> list[StatusRecord]:
+        """One ``<node>: mode <i>`` record per mode (none while the modes are being found)."""
+        n_modes = self.cfg.K if modal is None else len(modal)
+        silent_text = "no data on " + ", ".join(self.topics[s] for s in silent) if silent else ""
+        out = []
+        for i in range(n_modes):
+            vals = {f: math.nan for f in cv.MODE_FIELDS} if modal is None else \
+                {f: float(modal[i, j]) for j, f in enumerate(cv.MODE_FIELDS)}
+            found = None
+            if rep is not None and rep.K == n_modes:
+                md = rep.mode_dict(i)
+                vals.update({k: md[k] for k in (*cv.BASELINE_FIELDS, *cv.FLAG_FIELDS)})
+                found = Finding(Level(int(rep.mode_levels[i])), mode_message(rep, i))
+            level, msg = mode_summary(found, silent=silent_text, estimating=rep is not None and rep.estimating,
+                                      looking=bool(self.looking_since_ns))
+            out.append(StatusRecord(f"{self.status_prefix()}: mode {i + 1}", level, msg, vals))
+        return out
+
+    def _delays(self) -> tuple[float, float, float]:
+        """Median, p95, max of the delays; recomputed at most once a second (composition stays cheap)."""
+        now = time.monotonic_ns()
+        if now - self._delay_cache_ns > 1_000_000_000 or math.isnan(self._delay_cache[0]):
+            v = self.delays_ms.values().copy()
+            self._delay_cache = tuple(float(x) for x in np.percentile(v, (50, 95, 100))) if v.size \
+                else (math.nan,) * 3
+            self._delay_cache_ns = now
+        return self._delay_cache
+
+    def _sync_values(self, sync: InputSync) -> dict[str, Any]:
+        """Key/values of the input stage (counters, queues, arrival rates)."""
+        sc = sync.counters
+        return {
+            "input_pauses": sc.gaps,
+            "misaligned_events": sc.mismatches,
+            "unmatched_messages": sc.unmatched,
+            "malformed_messages": sum(self._malformed.values()),
+            "queue_backlog": max((len(q) + len(p) for q, p in zip(sync.queues, sync.pending, strict=True)),
+                                 default=0),
+            "queue_bound_samples": sync.max_queue,
+            "queue_dropped": sum(sc.queue_dropped),
+            "queue_dropped_per_topic": " ".join(f"{lb}={n}" for lb, n in zip(sync.labels, sc.queue_dropped,
+                                                                            strict=True)),
+            "arrival_rate_hz": " ".join(f"{lb}={cv.num(round(r, 1))}" for lb, r in zip(sync.labels,
+                                                                                  sync.measured_rate, strict=True)),
+            "rate_mismatches": sc.rate_mismatches,
+        }
+
+    def _estimator_values(self, rep: Report | None, h: Mapping[str, Any], silent: list[str]) -> dict[str, Any]:
+        """Key/values of the estimator status (counters, health, timing), in the published order."""
+        sync, pipe = self.sync, self.pipeline
+        sc = sync.counters
+        est = h.get("estimator", {}) or {}
+        cond = [c for c in est.get("cond", []) if c is not None]
+        rtf = self._data_s / self._busy_s if self._busy_s > 0 else math.nan
+        d50, d95, dmax = self._delays()
+        return {
+            "phase": rep.phase if rep is not None else pipe.phase,
+            "samples_received": sum(sc.received),
+            "samples_aligned": sc.aligned,
+            "samples_processed": int(h.get("samples_processed", 0)),
+            "samples_dropped": int(h.get("samples_dropped", 0)) + sc.dropped,
+            "samples_skipped": int(h.get("samples_skipped", 0)),
+            "nonfinite_samples": int(h.get("nonfinite", 0)),
+            "out_of_order": int(h.get("out_of_order", 0)) + sc.out_of_order,
+            "duplicate_stamps": int(h.get("duplicates", 0)),
+            "gaps": int(h.get("gaps", 0)),
+            **self._sync_values(sync),
+            **alignment_values(h.get("alignment") or {}),
+            "node_stalls": self.node_stalls,
+            "node_stall_max_s": float(self.node_stall_max_s),
+            "node_stall_gaps": sc.node_stall_gaps,
+            "worker_stalls": self.worker_stalls,
+            "worker_stall_max_s": float(self.worker_stall_max_s),
+            "reports_coalesced": max(0, self._reports_made - self._reports_published),
+            "projections": int(sum(est.get("projections", []) or [0])),
+            "reprimes": int(est.get("reprimes", 0) or 0),
+            "condition_number": float(max(cond)) if cond else math.nan,
+            "condition_number_per_mode": " ".join(cv.num(c) for c in cond),
+            "residual_variance": float(est.get("residual_var", math.nan) or math.nan),
+            "initializations": int(h.get("initializations", 0)),
+            "reinitializations": int(h.get("reinitializations", 0)),
+            "real_time_factor": float(rtf),
+            "cpu_fraction": float(self._cpu_fraction),
+            "delay_median_ms": d50,
+            "delay_p95_ms": d95,
+            "delay_max_ms": dmax,
+            "internal_errors": self._errors,
+            "silent_topics": " ".join(self.topics[s] for s in silent),
+            "wrong_types": "; ".join(self._wrong_types),
+            **sync.extra_values(),
+        }
+
+    def _input_reasons(self, sync: InputSync) -> list[str]:
+        """Open input problems that last (rate mismatch, queue overflow, a busy estimator): WARN reasons."""
+        out = [sync.rate_reason(lb, r, sync.expected_rate) for lb, r in list(sync.rate_mismatch.items())]
+        out += sync.lasting_reasons()
+        out += sync.queue_reasons()
+        busy = self._push_started_ns
+        if busy and time.monotonic_ns() - busy > 500_000_000:
+            out.append(f"estimator busy for {(time.monotonic_ns() - busy) * 1e-9:.1f} s (the node, not the "
+                       "inputs: samples wait in the queues)")
+        return out
+
+    def _estimator_record(self, rep: Report | None, silent: list[str]) -> StatusRecord:
+        """The ``<node>: estimator`` record: values, and level and reasons composed by :func:`estimator_summary`."""
+        sync = self.sync
+        h = dict(rep.health) if rep is not None else {}
+        h.update(self.pipeline.counters.to_dict())      # live counters (the report may be older)
+        vals = self._estimator_values(rep, h, silent)
+        lasting = self._input_reasons(sync)
+        recent = time.monotonic_ns() - sync.last_event_ns < 5e9 and sync.last_event_ns > 0
+        event = None
+        if recent:     # the newest input event of the last 5 s (its text once: not when it is a lasting reason)
+            event = Finding(Level.WARN, sync.events[-1] if sync.events and sync.events[-1] not in lasting else None)
+        level, text = estimator_summary(
+            Finding(Level(int(h.get("level", 0))) if rep is not None else Level.STALE),
+            list(h.get("reasons", [])), recent_event=event, lasting=lasting,
+            internal_error=self._last_error if self._errors else "",
+            silent="no data on " + ", ".join(f"{self.topics[s]} for more than {self._stale_timeout_s:g} s"
+                                             for s in silent) if silent else "",
+            wrong_types="wrong message type: " + "; ".join(self._wrong_types) if self._wrong_types else "")
+        vals["reasons"] = text
+        msg = text or (vals["phase"] if rep is not None else "no data")
+        return StatusRecord(f"{self.status_prefix()}: estimator", level, msg, vals)

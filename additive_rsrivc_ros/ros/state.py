@@ -1,0 +1,80 @@
+"""``state_file`` persistence of the monitor node: restore at configuration, atomic save on request and at the end.
+
+The file is ``{"node": <full name>, "saved_unix_s": <time>, "pipeline": MonitorPipeline.get_state()}``. A file
+refused at start (other model, rate or corrupt) is never overwritten; this run's state is saved beside it
+(``<stem>.<UTC time>.json``).
+"""
+
+from __future__ import annotations
+
+import json
+import os
+import time
+from pathlib import Path
+
+from ..config import MonitorConfig
+from ..core.pipeline import MonitorPipeline, PipelineError
+
+
+def beside(path: str) -> str:
+    """Where this run saves when ``path`` was refused: ``<stem>.<UTC time>.json`` next to it (never ``path``)."""
+    p = Path(path)
+    stamp = time.strftime("%Y%m%dT%H%M%SZ", time.gmtime())
+    out = p.with_name(f"{p.stem}.{stamp}.json")
+    k = 1
+    while out.exists():
+        out = p.with_name(f"{p.stem}.{stamp}-{k}.json")
+        k += 1
+    return str(out)
+
+
+def write_atomic(path: str, text: str) -> None:
+    """Write ``text`` to ``path`` so that it is either the old or the complete new file (temp, fsync, replace)."""
+    d = os.path.dirname(os.path.abspath(path))
+    tmp = os.path.join(d, f".{os.path.basename(path)}.tmp{os.getpid()}")
+    try:
+        with open(tmp, "w") as f:
+            f.write(text)
+            f.flush()
+            os.fsync(f.fileno())
+        os.replace(tmp, path)
+    finally:
+        if os.path.exists(tmp):
+            os.unlink(tmp)
+
+
+class StateMixin:
+    """Restore and save of the pipeline state (part of :class:`.monitor_node.MonitorNode`)."""
+
+    def _restore(self, cfg: MonitorConfig, state_file: str) -> MonitorPipeline | None:
+        """The pipeline restored from ``state_file``, or None. A refused file (corrupt, other K, rate,
+        controller, delay, loop or structures) is kept untouched: this run saves beside it (one log line)."""
+        self._save_path = state_file
+        if not state_file or not Path(state_file).exists():
+            return None
+        try:
+            saved = json.loads(Path(state_file).read_text())
+            pipeline = MonitorPipeline(cfg, state=saved["pipeline"])
+        except (OSError, ValueError, KeyError, TypeError, PipelineError) as exc:
+            reason = str(exc) if isinstance(exc, PipelineError) else f"unreadable: {type(exc).__name__}: {exc}"
+            self._save_path = beside(state_file)
+            self.get_logger().warning(f"state file {state_file} refused ({reason}); starting fresh, the file is "
+                                      f"kept unchanged and this run's state will be saved to {self._save_path}")
+            return None
+        self.get_logger().info(f"state restored from {state_file} (estimating: {pipeline.initialized})")
+        return pipeline
+
+    def save_state(self) -> str:
+        """Write the pipeline state atomically (temp file, fsync, ``os.replace``) to ``state_file`` or, when
+        that file was refused at start, beside it; returns a one-line result."""
+        path = self._save_path if self.pipeline is not None else self.get_parameter("state_file").value
+        if not path:
+            return "state_file is empty: nothing saved"
+        with self.lock:
+            if self.pipeline is None:
+                return "not configured: nothing saved"
+            doc = {"node": self.get_fully_qualified_name(), "saved_unix_s": time.time(),
+                   "pipeline": self.pipeline.get_state()}
+        write_atomic(path, json.dumps(doc))
+        self.get_logger().info(f"state saved to {path}")
+        return f"state saved to {path}"
