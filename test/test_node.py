@@ -9,6 +9,7 @@ validated error level (sim/experiments.py LIMITS, 10-seed mean RMS relative erro
 """
 import math
 import subprocess
+import sys
 import time
 from pathlib import Path
 

@@ -203,7 +203,8 @@ def _sandwich_step(S: np.ndarray, i: int, full: bool, l2: float, z0: float, z1: 
 
 
 @njit(cache=True)
-def run_block(r: np.ndarray,  # noqa: C901 - one compiled per-sample loop (test/test_code_shape.py) u: np.ndarray, y: np.ndarray, valid: np.ndarray, allow_update: bool,
+def run_block(  # noqa: C901 - one compiled per-sample loop (test/test_code_shape.py)
+              r: np.ndarray, u: np.ndarray, y: np.ndarray, valid: np.ndarray, allow_update: bool,
               kind: np.ndarray, lam: np.ndarray, muf: np.ndarray, cnum: np.ndarray, cden: np.ndarray,
               cfg_i: np.ndarray, cfg_f: np.ndarray, p0diag: np.ndarray,
               theta: np.ndarray, thf: np.ndarray, P: np.ndarray, S: np.ndarray, xs: np.ndarray, vin: np.ndarray,
