@@ -82,8 +82,12 @@ def test_noise_free_converges_from_offset_start(closed, sweeps, refine, sub):
 
 
 def test_rigid_body_and_mode_open_loop():
-    """000 §4.6: a rigid-body submodel b0/p^2 plus a flexible mode; exact at truth, converges from 10 % off."""
-    rate, n = 100.0, 3000
+    """000 §4.6: a rigid-body submodel b0/p^2 plus a flexible mode; exact at truth, converges from 10 % off.
+
+    The estimator also estimates the rigid body's free response (its initial state, issue 17 item 1): over the 2 s
+    memory of this test a smooth drift of ``1/p^2 u`` looks much like an offset and a ramp, so ``b0`` converges after
+    ~45 s instead of ~20 s (scripts/study_rigid_attach.py is the case this buys: a machine already in motion)."""
+    rate, n = 100.0, 6000
     structures = [SubmodelStructure(0, 0, 2), SubmodelStructure()]
     truth = [np.array([0.5]), np.array([2 * 0.05 / 30.0, 1 / 30.0**2, 0.2])]
     rng = np.random.default_rng(5)

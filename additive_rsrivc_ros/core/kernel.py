@@ -47,6 +47,18 @@ covariance for white ``v`` is ``sigma^2 P_bar S P_bar^T``. Updated only when ``P
 capped update uses ``lam = 1`` for both).
 Stability projection (000 §4.7) reflects right-half-plane roots of ``A_i`` in closed form.
 
+Free response of a rigid body (issue 17 item 1; the papers start every filter from rest): the integrator chain
+``b0/p^l`` never forgets the plant's position and velocity at the sample its filters started from rest, so the
+simulated output ``b0 w`` (``w = 1/p^l u`` from rest) would miss ``c0 + c1 t`` for ever (``l = 1``: ``c0``), in the
+rigid body's and in every other mode's residual output, and ``w`` would carry the ramp of the controller's reaction to
+that initial state, which the instrument does not (IV-RLS then breaks down). So the free response is estimated with
+``b0`` (theta slots 1, 2: regressor and instrument ``[1, 0]`` in coordinates centred at the current sample,
+re-centred every sample: ``P <- F P F^T``, ``S <- F^-T S F^-1``, ``F = [[1, h], [0, 1]]`` on ``(c0, c1)``, so the
+basis stays well conditioned however long the run) and folded into the rigid body's input filter state as
+``[c0/b0, c1/b0]`` after every sample (:func:`fold_free_response`): ``w`` then starts from the plant's state and
+stays free of the ramp. Samples without an update (priming, hold, subsampling) still estimate it alone
+(:func:`free_response_step`); whenever the filters start from rest its ``P`` restarts (:func:`restart_free_response`).
+
 Safeguards (counted, never silent): an update is rejected (theta, P, filter model and its ``Phi, Gamma`` keep the
 previous iterate of that mode only; the other modes go on updating) and counted per mode and reason in ``rejr``
 when its filter discretization is not finite (``R_DISC``), when the IV denominator ``lam + phi^T P phi^`` is below
@@ -85,6 +97,9 @@ N_REJ = 3
 # DEN_ROUNDOFF times the sum of the magnitudes of its terms (below that its sign and size are round-off)
 DEN_FLOOR = 1e-3
 DEN_ROUNDOFF = 1e-12
+# P(0) of a rigid body's free response (offset c0, slope c1 in 1/s): the weight of one sample, so the first samples
+# determine it (its P then settles at about 1 - lam)
+P0_FREE = 1.0
 # float state slots (fst)
 F_SIGACC, F_SIGW, F_RLAST, F_ULAST, F_YHAT = range(5)
 N_FST = 5
@@ -202,6 +217,74 @@ def _sandwich_step(S: np.ndarray, i: int, full: bool, l2: float, z0: float, z1: 
     S[i, 2, 1] = s12
 
 
+def n_kernel_params(kind: int) -> int:
+    """Parameters of a mode in the kernel: ``a1, a2, b0``, or a rigid body's ``b0`` and free response ``c0`` (``1/p``)
+    or ``c0, c1`` (``1/p^2``); the model's own parameters are the first ``SubmodelStructure.n_theta``."""
+    return NT if kind == 0 else 1 + int(kind)
+
+
+@njit(cache=True)
+def restart_free_response(kind: np.ndarray, theta: np.ndarray, thf: np.ndarray, P: np.ndarray, S: np.ndarray,
+                          p0diag: np.ndarray) -> None:
+    """The filters start from rest: a rigid body's initial state is unknown again (``c = 0``, ``P(0)``, no cross or
+    sandwich terms)."""
+    for i in range(kind.shape[0]):
+        if kind[i] == 0:
+            continue
+        for a in range(1, NT):
+            theta[i, a] = 0.0
+            thf[i, a] = 0.0
+            for c in range(NT):
+                P[i, a, c] = 0.0
+                P[i, c, a] = 0.0
+                S[i, a, c] = 0.0
+                S[i, c, a] = 0.0
+        for a in range(1, 1 + kind[i]):
+            P[i, a, a] = p0diag[i, a]
+
+
+@njit(cache=True)
+def free_response_step(i: int, lam: float, e: float, theta: np.ndarray, P: np.ndarray) -> None:
+    """RLS of the rigid body's free response alone on the output error ``e = y - sum_i x_i`` (regressor ``[1, 0]``),
+    for a sample without an IV update; ``1/p``: ``c1`` and its P stay 0."""
+    p00 = P[i, 1, 1]
+    p01 = P[i, 1, 2]
+    den = lam + p00
+    if not (math.isfinite(e) and math.isfinite(den) and den > 0.0):
+        return
+    g0 = p00 / den
+    g1 = p01 / den
+    theta[i, 1] += g0 * e
+    theta[i, 2] += g1 * e
+    p11 = P[i, 2, 2]
+    P[i, 1, 1] = (p00 - g0 * p00) / lam
+    P[i, 1, 2] = (p01 - g0 * p01) / lam
+    P[i, 2, 1] = P[i, 1, 2]
+    P[i, 2, 2] = (p11 - g1 * p01) / lam
+
+
+@njit(cache=True)
+def fold_free_response(i: int, h: float, theta: np.ndarray, thf: np.ndarray, xs: np.ndarray, P: np.ndarray,
+                       S: np.ndarray) -> None:
+    """End of a sample: the estimated free response ``c0 + c1 t`` joins the rigid body's input filter state as
+    ``[c0/b0, c1/b0]`` (``c = 0`` after; kept when ``b0`` is 0 or not finite), and ``P, S`` move to the next sample's
+    coordinates (``c0 <- c0 + h c1``: ``P <- F P F^T``, ``S <- F^-T S F^-1``)."""
+    b0 = thf[i, 0]
+    if b0 != 0.0 and math.isfinite(b0) and math.isfinite(theta[i, 1]) and math.isfinite(theta[i, 2]):
+        xs[i, BU, 0] += theta[i, 1] / b0
+        xs[i, BU, 1] += theta[i, 2] / b0
+        theta[i, 1] = 0.0
+        theta[i, 2] = 0.0
+        thf[i, 1] = 0.0
+        thf[i, 2] = 0.0
+    for c in range(NT):
+        P[i, 1, c] += h * P[i, 2, c]
+        S[i, 2, c] -= h * S[i, 1, c]
+    for a in range(NT):
+        P[i, a, 1] += h * P[i, a, 2]
+        S[i, a, 2] -= h * S[i, a, 1]
+
+
 @njit(cache=True)
 def run_block(  # noqa: C901 - one compiled per-sample loop (test/test_code_shape.py)
               r: np.ndarray, u: np.ndarray, y: np.ndarray, valid: np.ndarray, allow_update: bool,
@@ -265,7 +348,7 @@ def run_block(  # noqa: C901 - one compiled per-sample loop (test/test_code_shap
             ntk[i] = 3
         else:
             ib0[i] = 0
-            ntk[i] = 1
+            ntk[i] = 1 + kind[i]   # b0 and the free response c0 (, c1)
 
     for k in range(n):
         rk = r[k]
@@ -315,9 +398,12 @@ def run_block(  # noqa: C901 - one compiled per-sample loop (test/test_code_shap
             T[:, :, :] = 0.0
             ist[I_HOLD] = max(ist[I_HOLD], hold_len)
             ist[I_REPRIMES] += 1
+            restart_free_response(kind, theta, thf, P, S, p0diag)
         yhat = 0.0
         for i in range(K):
             xu[i] = thf[i, ib0[i]] * T[i, BU, 0]
+            if kind[i] != 0:
+                xu[i] += thf[i, 1]   # the rigid body's free response not yet folded (0 unless b0 = 0)
             xh[i] = thf[i, ib0[i]] * T[i, zb, 0]
             yhat += xh[i]
         ysim = 0.0
@@ -363,6 +449,8 @@ def run_block(  # noqa: C901 - one compiled per-sample loop (test/test_code_shap
                         for j in range(K):
                             if j != i:
                                 yt -= tf_it[j, ib0[j]] * T[j, BU, 0]
+                                if kind[j] != 0:
+                                    yt -= tf_it[j, 1]
                         ytil[i] = yt
                         if not zoh_ok[i]:
                             rej[i] += 1    # no filters for this mode (counted per sample in R_DISC above)
@@ -385,6 +473,10 @@ def run_block(  # noqa: C901 - one compiled per-sample loop (test/test_code_shap
                             yf = yt                                   # eqs. 34-35, A_1 = 1
                             ph[0] = T[i, BU, 0]
                             phh[0] = T[i, zb, 0]
+                            ph[1] = 1.0                               # free response c0 + c1 t (module docstring)
+                            phh[1] = 1.0
+                            ph[2] = 0.0
+                            phh[2] = 0.0
                         # IV-RLS from theta_bar(t_{k-1}), P_bar(t_{k-1}) (Algorithm 2 lines 7-9)
                         capped = False
                         for a in range(nt):
@@ -419,7 +511,8 @@ def run_block(  # noqa: C901 - one compiled per-sample loop (test/test_code_shap
                                 thn[a] = theta[i, a] + gain[a] * eps
                                 if not math.isfinite(thn[a]):
                                     good = False
-                                if max_step > 0.0 and abs(thn[a] - theta[i, a]) > max_step * abs(theta[i, a]):
+                                if max_step > 0.0 and (kind[i] == 0 or a == 0) and \
+                                        abs(thn[a] - theta[i, a]) > max_step * abs(theta[i, a]):
                                     good = False
                                 for c in range(nt):
                                     Pn[a, c] = (P[i, a, c] - gain[a] * phP[c]) / lam_eff
@@ -481,7 +574,7 @@ def run_block(  # noqa: C901 - one compiled per-sample loop (test/test_code_shap
                     for c in range(NT):
                         P[i, a, c] = P_it[i, a, c]
                 if lz[i] > 0.0:   # S follows P: lam^2 S + zeta zeta^T (IV sandwich, see the module docstring)
-                    _sandwich_step(S, i, kind[i] == 0, lz[i] * lz[i], zl[i, 0], zl[i, 1], zl[i, 2])
+                    _sandwich_step(S, i, ntk[i] > 1, lz[i] * lz[i], zl[i, 0], zl[i, 1], zl[i, 2])
                 for a in range(2):
                     gam[i, a] = gam_it[i, a]
                     for c in range(2):
@@ -498,6 +591,10 @@ def run_block(  # noqa: C901 - one compiled per-sample loop (test/test_code_shap
                 xs[i, b, 1] = T[i, b, 1]
             vin[i, 0] = ytil[i]
             vin[i, 1] = xh[i]
+            if kind[i] != 0:   # the rigid body's input filter follows the plant's state (module docstring)
+                if ok and not do_update:
+                    free_response_step(i, lam[i], yk - ysim, theta, P)
+                fold_free_response(i, h, theta, thf, xs, P, S)
 
         # closed-loop instrument input z_k = C_d(q) (r_k - y^_k), 000 eq. 33 (NOTES erratum 3)
         if closed:

@@ -221,6 +221,11 @@ def _held_out_error(thetas, structures, rate_hz: float, u, y, r, controller, inp
     e = y - y_hat
     if not np.all(np.isfinite(e)):
         return np.inf, np.inf
+    integrators = max((st.integrators for st in structures), default=0)
+    if integrators and controller is None:   # open loop: a rigid body keeps the plant's initial state for ever
+        from .offline import integrator_free_response
+        q = integrator_free_response(e.size, integrators, 1.0 / rate_hz)
+        e = e - q @ (q.T @ e)
     return float(np.mean(e[:split] ** 2)), float(np.mean(e[split:] ** 2))
 
 

@@ -40,7 +40,9 @@ _INT_KEYS = ("kind", "cfg_i", "ist", "proj", "rej", "rejr")
 # 2: filter model "thf", "muf"; version-1 snapshots load with thf = theta, muf = 0 (Algorithm 2)
 # 3: rejections per reason "rejr" and the non-finite instrument counter in "ist"; older snapshots load with zeros
 # 4: IV sandwich accumulator "S" (issue 17 item 4); older snapshots load with S = P^-1 / (1 + lambda) (stationary)
-STATE_VERSION = 4
+# 5: a rigid body's free response c0, c1 in slots 1, 2 of theta, P, S (issue 17 item 1); older snapshots start it
+#    unknown
+STATE_VERSION = 5
 FILTER_PERIODS = 1.0  # default filter-model time constant in periods of each mode (set_filter_memory)
 # "auto" filter policy: smooth the prefilter denominator of a mode only where the slow-variation approximation of
 # 000 Remark 4.4 fails, i.e. where the forgetting memory is shorter than this many decay times 1/(zeta omega)
@@ -89,6 +91,7 @@ def p0_diagonal(theta: np.ndarray, kind: int, p0_relative: tuple[float, float]) 
         out[:3] = [ra * th[0] ** 2, ra * th[1] ** 2, rb * th[2] ** 2]
     else:
         out[0] = rb * th[0] ** 2
+        out[1:1 + kind] = kn.P0_FREE   # the free response c0 (, c1): core/kernel.py free_response_step
     return out
 
 
@@ -412,7 +415,7 @@ class RecursiveAdditiveSRIVC:
             diag = p0_diagonal(s["theta"][i], int(s["kind"][i]), self.p0_relative)
             s["p0diag"][i] = diag
             s["P"][i] = np.diag(diag)
-            nt = kn.NT if s["kind"][i] == 0 else 1
+            nt = kn.n_kernel_params(int(s["kind"][i]))
             s["S"][i] = 0.0
             s["S"][i][:nt, :nt] = stationary_sandwich(s["P"][i][:nt, :nt], float(s["lam"][i]))
 
@@ -425,11 +428,13 @@ class RecursiveAdditiveSRIVC:
             kn.discretize_mode(int(s["kind"][i]), float(th[0]), float(th[1]), h, s["phi"][i], s["gam"][i])
 
     def _reset_filters(self) -> None:
-        """Filters, delay line and controller memory from rest (before priming)."""
+        """Filters, delay line and controller memory from rest (before priming); a rigid body's free response is
+        unknown again (core/kernel.py ``restart_free_response``)."""
         s = self._s
         for key in ("xs", "vin", "ubuf", "zbuf", "ce", "cz"):
             s[key][...] = 0.0
         s["ist"][kn.I_POS] = 0
+        kn.restart_free_response(s["kind"], s["theta"], s["thf"], s["P"], s["S"], s["p0diag"])
 
     # ------------------------------------------------------------------ properties
     @property
@@ -479,10 +484,10 @@ class RecursiveAdditiveSRIVC:
         sig2 = self.residual_variance
         out = []
         for i, s in enumerate(self.structures):
-            nt = s.n_theta
-            p = self._s["P"][i, :nt, :nt]
+            nk, nt = kn.n_kernel_params(int(self._s["kind"][i])), s.n_theta   # a rigid body: b0's marginal
+            p = self._s["P"][i, :nk, :nk]
             with np.errstate(over="ignore", invalid="ignore"):   # a broken P: non-finite, flagged in modal()
-                c = p @ self._s["S"][i, :nt, :nt] @ p.T
+                c = (p @ self._s["S"][i, :nk, :nk] @ p.T)[:nt, :nt]
             out.append(sig2 * 0.5 * (c + c.T))
         return out
 
@@ -831,6 +836,7 @@ class RecursiveAdditiveSRIVC:
             s["P"][i][:nt, :nt] = p0
             s["p0diag"][i][...] = 0.0
             s["p0diag"][i][:nt] = np.diag(p0)
+            s["p0diag"][i][nt:1 + int(s["kind"][i])] = kn.P0_FREE if s["kind"][i] else 0.0
             covs = getattr(result, "covariances", None) or []
             s0 = sandwich_from_offline(p0, covs[i], float(getattr(result, "residual_variance", math.nan))) \
                 if i < len(covs) else None
@@ -878,6 +884,12 @@ class RecursiveAdditiveSRIVC:
         for k in STATE_KEYS:
             dtype = np.int64 if k in _INT_KEYS else np.float64
             self._s[k][...] = np.asarray(state[k], dtype=dtype)
+        if int(np.asarray(state.get("version", [0])).ravel()[0]) < 5:   # no free response: estimate it from now on
+            s = self._s
+            for i in range(self.K):
+                if s["kind"][i]:
+                    s["p0diag"][i][1:1 + int(s["kind"][i])] = kn.P0_FREE
+            kn.restart_free_response(s["kind"], s["theta"], s["thf"], s["P"], s["S"], s["p0diag"])
 
     def save(self, path: str | Path) -> None:
         """Write the state to an ``.npz`` file."""

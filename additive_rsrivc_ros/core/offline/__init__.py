@@ -11,6 +11,7 @@ from .stable import (
     TransientTest,
     identify,
     initial_transient_test,
+    integrator_free_response,
     match_order,
     min_cost_assignment,
     model_frf,
@@ -23,5 +24,6 @@ from .stable import (
 from .types import METHODS, IdentificationResult, OfflineData
 
 __all__ = ["METHODS", "TRANSIENT_FALSE_ALARM", "WARMUP_DECAY_TIMES", "IdentificationResult", "OfflineData",
-           "TransientTest", "identify", "initial_transient_test", "match_order", "min_cost_assignment", "model_frf",
+           "TransientTest", "identify", "initial_transient_test",
+           "integrator_free_response", "match_order", "min_cost_assignment", "model_frf",
            "relative_change", "split_additive", "to_unfactored", "unfactored_structure", "warmup_samples"]

@@ -175,7 +175,35 @@ def _build(data: OfflineData, thetas, structures, closed_loop: bool, only: int |
         else:
             dss[i].run(z, rows=range(st.m + 1), out=Z[:, sl.start + st.n: sl.stop])
     s = data.skip  # the filters start from rest: leave their warm-up out (see warmup_samples)
-    return _Step(Z[s:], Phi[s:], Ups[s:], xhat, (data.y - total)[s:])
+    step = _Step(Z[s:], Phi[s:], Ups[s:], xhat, (data.y - total)[s:])
+    return _without_free_response(step, max(st.integrators for st in structures), data.h, s)
+
+
+def integrator_free_response(n: int, integrators: int, h: float, start: int = 0) -> np.ndarray:
+    """``(n, l)`` orthonormal basis of ``1, t, ..., t^(l-1)``: the free response of ``l`` integrators from the state the
+    plant had at the first sample (a rigid body attached in motion: position offset, velocity ramp; issue 17
+    item 1). Submodel outputs simulated from rest never contain it, and it never decays."""
+    t = (np.arange(n) + start) * h
+    t = t / max(float(t[-1]), h) if n else t
+    q, _ = np.linalg.qr(np.vander(t, integrators, increasing=True))
+    return q
+
+
+def _without_free_response(step: _Step, integrators: int, h: float, start: int) -> _Step:
+    """Project the integrators' free response out of instrument, regressor, filtered outputs and output error.
+
+    With the basis ``B`` among both regressors and instruments of every equation (001 eq. 21 plus the free response
+    ``c^T B``, which enters every residual output ``y~_i`` through the rigid body's simulated output), the IV
+    estimate of the model parameters equals the IV estimate on the data with ``B`` projected out (Frisch-Waugh-Lovell):
+    ``c`` need not be carried. No integrators: the step unchanged."""
+    if integrators == 0 or step.eps.size == 0:
+        return step
+    q = integrator_free_response(step.eps.size, integrators, h, start)
+
+    def out(x: np.ndarray) -> np.ndarray:
+        return x - q @ (q.T @ x)
+
+    return _Step(out(step.Z), out(step.Phi), out(step.Ups), step.xhat, out(step.eps))
 
 
 def _iv_update(step: _Step, structures: list[SubmodelStructure], only: int | None = None) -> tuple[list, float]:
