@@ -37,8 +37,7 @@ from .simulate import (
     time_vector,
     white_noise,
 )
-
-QUANTITY_NAMES = {"frequency": "natural_frequency", "damping": "damping", "gain": "gain"}  # events.csv vocabulary
+from .vocabulary import quantity_of
 
 # 000 §5 (NOTES): a2 = [0.25, 0.04, 0.0025], a1 = [0.25, 0.01, 0.01], b0 = [3, 0.5, 1]
 PAPER_MODES = (PlantMode(1.0 / (2 * math.pi * 0.5), 0.25, 3.0), PlantMode(1.0 / (2 * math.pi * 0.2), 0.025, 0.5),
@@ -118,7 +117,7 @@ def _json(obj: Any) -> str:
 # Fault truth encoding
 # ----------------------------------------------------------------------------------------------------------------
 def _change_desc(c: ModalChange) -> dict:
-    return {"kind": "structural", "mode": c.mode + 1, "quantity": QUANTITY_NAMES[c.quantity],
+    return {"kind": "structural", "mode": c.mode + 1, "quantity": quantity_of(c.quantity),
             "direction": "down" if c.relative_change < 0 else "up", "relative_change": c.relative_change,
             "shape": c.shape, "start_s": c.start_s,
             "end_s": c.start_s + (0.0 if c.shape == "step" else c.duration_s)}

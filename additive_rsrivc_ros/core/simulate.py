@@ -31,9 +31,9 @@ from numba import njit
 
 from .controller import DiscreteController
 from .model import TWO_PI, SubmodelStructure
+from .vocabulary import SIM_QUANTITIES
 from .zoh import integrator_chain_zoh, second_order_zoh
 
-QUANTITIES = ("frequency", "damping", "gain")
 SHAPES = ("step", "ramp", "raised_cosine", "bump")
 SENSOR_FAULTS = ("bias", "drift", "stuck", "drop", "nan")
 
@@ -99,8 +99,8 @@ class ModalChange:
     shape: str = "step"
 
     def __post_init__(self) -> None:
-        if self.quantity not in QUANTITIES:
-            raise ValueError(f"quantity must be one of {QUANTITIES}, got {self.quantity!r}")
+        if self.quantity not in SIM_QUANTITIES:
+            raise ValueError(f"quantity must be one of {SIM_QUANTITIES}, got {self.quantity!r}")
         if self.shape not in SHAPES:
             raise ValueError(f"shape must be one of {SHAPES}, got {self.shape!r}")
         if not (math.isfinite(self.relative_change) and self.relative_change > -1.0):
@@ -172,7 +172,7 @@ def modal_trajectories(modes: Sequence[PlantMode], t: np.ndarray,
             raise ValueError(f"change refers to mode {c.mode}, the plant has {len(modes)} modes (0-based)")
         if modes[c.mode].rigid and c.quantity != "gain":
             raise ValueError(f"mode {c.mode} is rigid-body: only its gain can change")
-        out[c.mode, :, QUANTITIES.index(c.quantity)] *= 1.0 + c.relative_change * c.profile(t)
+        out[c.mode, :, SIM_QUANTITIES.index(c.quantity)] *= 1.0 + c.relative_change * c.profile(t)
     return out
 
 
