@@ -14,7 +14,7 @@ from __future__ import annotations
 
 from collections.abc import Mapping, Sequence
 from dataclasses import asdict, dataclass
-from typing import TYPE_CHECKING, Any, Protocol
+from typing import TYPE_CHECKING, Any, Protocol, runtime_checkable
 
 import numpy as np
 
@@ -55,6 +55,7 @@ class EstimatorHealth:
         return {k: list(v) if isinstance(v, tuple) else v for k, v in asdict(self).items()}
 
 
+@runtime_checkable
 class RecursiveEstimator(Protocol):
     """A streaming estimator of K modes as :class:`.pipeline.MonitorPipeline` drives it (000 Algorithm 2)."""
 
