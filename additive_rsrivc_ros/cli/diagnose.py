@@ -45,9 +45,11 @@ from ..core.vocabulary import (
 )
 
 if TYPE_CHECKING:
+    from ..bagio import Signals
     from ..config import MonitorConfig
     from ..core.faults import FaultEvent
     from ..core.pipeline import MonitorPipeline, Report
+    from ..report import DiagnosisSeries, ReportInput
 
 PROG = "rsrivc_diagnose"
 
@@ -124,7 +126,7 @@ def _print_notices(reports: Sequence[Report], stderr: TextIO) -> None:
               file=stderr)
 
 
-def run_pipeline(sig: Any, cfg: MonitorConfig, *, chunk_s: float = 1.0, progress: Progress | None = None,
+def run_pipeline(sig: Signals, cfg: MonitorConfig, *, chunk_s: float = 1.0, progress: Progress | None = None,
                  pipeline: MonitorPipeline | None = None) -> tuple[list[Report], list[FaultEvent]]:
     """Feed the bag's samples through a fresh :class:`MonitorPipeline` (or ``pipeline``); return
     ``(reports, events)``. Without mode guesses the pipeline finds the modes first (``core/autostart.py``);
@@ -206,12 +208,12 @@ def _out_dir(bag: Path, out: str | None) -> Path:
 # ------------------------------------------------------------------------------------------------- table
 def format_table(rows: Sequence[dict[str, Any]]) -> str:
     """Plain-text per-mode summary (rows from :func:`..report.summary_rows`)."""
-    def num(v: Any, d: int = 6) -> str:
+    def short(v: Any, d: int = 6) -> str:
         return "-" if v is None or not math.isfinite(float(v)) else f"{float(v):.{d}g}"
 
     head = ("mode", "quantity", "final", "± std", "baseline", "change", "truth", "fault")
-    body = [(str(r["mode"]), r["quantity"], num(r["final"]), num(r["std"], 3), num(r["baseline"]),
-             "-" if r["change_pct"] is None else f"{r['change_pct']:+.2f} %", num(r["truth"]), r["fault"])
+    body = [(str(r["mode"]), r["quantity"], short(r["final"]), short(r["std"], 3), short(r["baseline"]),
+             "-" if r["change_pct"] is None else f"{r['change_pct']:+.2f} %", short(r["truth"]), r["fault"])
             for r in rows]
     widths = [max(len(h), *(len(b[j]) for b in body)) if body else len(h) for j, h in enumerate(head)]
     lines = ["  ".join(h.ljust(w) for h, w in zip(head, widths, strict=True)),
@@ -225,7 +227,7 @@ def format_table(rows: Sequence[dict[str, Any]]) -> str:
 OUTPUT_FILES = ("estimates.csv", "events.csv", "summary.json", "report.html", "modes.png")
 
 
-def _warn_bad_samples(sig: Any, stderr: TextIO) -> None:
+def _warn_bad_samples(sig: Signals, stderr: TextIO) -> None:
     """One warning line per category of bad samples the reader found (the pipeline handles them)."""
     import numpy as np
 
@@ -250,7 +252,7 @@ def _warn_bad_samples(sig: Any, stderr: TextIO) -> None:
               f"is a skipped sample on a kept grid, a surplus one is left out ({by})", file=stderr)
 
 
-def _frf_estimates(inp: Any, sig: Any, cfg: MonitorConfig) -> None:
+def _frf_estimates(inp: ReportInput, sig: Signals, cfg: MonitorConfig) -> None:
     """Nonparametric FRFs of the first and last data windows for the report (None where too short)."""
     from .. import report as rp
 
@@ -265,7 +267,7 @@ def _frf_estimates(inp: Any, sig: Any, cfg: MonitorConfig) -> None:
         setattr(inp, attr, est)
 
 
-def _mode_summaries(series: Any, rows: Sequence[dict], sig: Any, K: int) -> list[dict[str, Any]]:
+def _mode_summaries(series: DiagnosisSeries, rows: Sequence[dict], sig: Signals, K: int) -> list[dict[str, Any]]:
     j = series.last_estimate()
     modes = []
     for i in range(K):
@@ -417,7 +419,7 @@ def diagnose_bag(bag: str | Path, params_file: str | Path, out_dir: str | Path, 
     return summary
 
 
-def _alignment_summary(last: Any) -> dict[str, Any]:
+def _alignment_summary(last: Report | None) -> dict[str, Any]:
     """summary.json ``alignment``: what the pipeline's stream aligner verified and corrected (core/alignment.py)."""
     al = (last.health.get("alignment") if last is not None else None) or {"mode": "off"}
     if al.get("mode") != "invariant":
