@@ -531,7 +531,7 @@ class MonitorPipeline:
         """Longest gap (missing samples) filled with invalid samples instead of a re-prime: 5 % of the shortest
         period of the modelled modes (the held input then barely moves the filter states), at least one sample."""
         f = self._modal()[:, 0] if self.initialized else np.array(
-            [m.natural_frequency_hz for m in self.cfg.modes if getattr(m, "natural_frequency_hz", None)], float)
+            [m.natural_frequency_hz for m in self.cfg.modes if m.natural_frequency_hz], float)
         f = f[np.isfinite(f) & (f > 0)] if f.size else f
         if f.size == 0:
             return 1
