@@ -38,8 +38,8 @@ from .simulate import (
     time_vector,
     white_noise,
 )
+from .vocabulary import quantity_of
 
-QUANTITY_NAMES = {"frequency": "natural_frequency", "damping": "damping", "gain": "gain"}  # events.csv vocabulary
 
 def config_dir() -> Path:
     """The params files: ``config/`` of a source tree (checkout, editable install, colcon --symlink-install), else
@@ -103,7 +103,7 @@ def _json(obj: Any) -> str:
 # Fault truth encoding
 # ----------------------------------------------------------------------------------------------------------------
 def _change_desc(c: ModalChange) -> dict:
-    return {"kind": "structural", "mode": c.mode + 1, "quantity": QUANTITY_NAMES[c.quantity],
+    return {"kind": "structural", "mode": c.mode + 1, "quantity": quantity_of(c.quantity),
             "direction": "down" if c.relative_change < 0 else "up", "relative_change": c.relative_change,
             "shape": c.shape, "start_s": c.start_s,
             "end_s": c.start_s + (0.0 if c.shape == "step" else c.duration_s)}
