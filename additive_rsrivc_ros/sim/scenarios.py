@@ -24,6 +24,7 @@ from typing import Any
 import numpy as np
 
 from ..config import MonitorConfig, load_config
+from ..core.vocabulary import quantity_of
 from .plants import BEAM_MODES, BEAM_NOISE_STD, PAPER_MODES
 from .simulate import (
     ModalChange,
@@ -38,7 +39,6 @@ from .simulate import (
     time_vector,
     white_noise,
 )
-from .vocabulary import quantity_of
 
 
 def config_dir() -> Path:
