@@ -45,6 +45,7 @@ from rosbags.rosbag2.enums import CompressionFormat, CompressionMode, StoragePlu
 from rosbags.typesys import Stores, get_typestore
 
 from .config import MonitorConfig
+from .core.vocabulary import one_line
 
 FLOAT64 = "std_msgs/msg/Float64"
 MULTIARRAY = "std_msgs/msg/Float64MultiArray"
@@ -53,8 +54,7 @@ JOINTSTATE = "sensor_msgs/msg/JointState"
 TRUTH_MODES_TOPIC = "/truth/modes"
 TRUTH_FAULT_TOPIC = "/truth/fault"
 DEFAULT_TOPICS = {"reference": "/reference", "input": "/plant_input", "output": "/plant_output"}
-MODE_FIELDS = ("natural_frequency_hz", "damping_ratio", "gain", "natural_frequency_hz_std", "damping_ratio_std",
-               "gain_std")
+ERROR_CHARS = 300  # a reader's message quoted in a BagError is cut to this many characters
 DEFAULT_T0_NS = 1_700_000_000 * 10**9  # fixed start time: bags are reproducible byte for byte
 SIGNAL_QOS_DEPTH = 1000
 SPACING_TOLERANCE = 0.002  # relative tolerance of the mean sample spacing against 1/loop_rate_hz (stated offline)
@@ -239,11 +239,6 @@ def write_bag_atomic(path: str | Path, **kwargs: Any) -> Path:
 # ----------------------------------------------------------------------------------------------------------------
 # Reading and validation
 # ----------------------------------------------------------------------------------------------------------------
-def _one_line(exc: BaseException) -> str:
-    text = str(exc).strip().splitlines()
-    return (text[0] if text else type(exc).__name__)[:300]
-
-
 def _resolve(bag: str | Path) -> Path:
     bag = Path(bag)
     if not bag.exists():
@@ -390,8 +385,8 @@ def read_signals(bag: str | Path, config: MonitorConfig) -> Signals:
     except BagError:
         raise
     except Exception as exc:  # noqa: BLE001 - rosbags raises many types for damaged files
-        raise BagError(f"{path}: unreadable, truncated or corrupt bag ({type(exc).__name__}: {_one_line(exc)})")\
-            from None
+        raise BagError(f"{path}: unreadable, truncated or corrupt bag "
+                       f"({type(exc).__name__}: {one_line(exc, ERROR_CHARS)})") from None
     return _assemble(path, config, sigcfg, raw, log_ns, truth_raw, fault_raw)
 
 
@@ -411,7 +406,7 @@ def _assemble(path: Path, config: MonitorConfig, sigcfg: dict, raw: dict, log_ns
         except BagError:
             raise
         except Exception as exc:  # noqa: BLE001
-            raise BagError(f"{path}: {s.topic}: cannot decode {s.type} ({_one_line(exc)})") from None
+            raise BagError(f"{path}: {s.topic}: cannot decode {s.type} ({one_line(exc, ERROR_CHARS)})") from None
     for name, st in stamps.items():
         if st.size >= 2 and np.any(np.diff(st) < 0):
             raise BagError(f"{path}: {sigcfg[name].topic}: sample times go backwards")
@@ -437,7 +432,7 @@ def _assemble(path: Path, config: MonitorConfig, sigcfg: dict, raw: dict, log_ns
             try:
                 msg = _TYPESTORE.deserialize_cdr(data, MULTIARRAY)
             except Exception as exc:  # noqa: BLE001
-                raise BagError(f"{path}: {TRUTH_MODES_TOPIC}: cannot decode ({_one_line(exc)})") from None
+                raise BagError(f"{path}: {TRUTH_MODES_TOPIC}: cannot decode ({one_line(exc, ERROR_CHARS)})") from None
             dims = msg.layout.dim
             if len(dims) != 2 or dims[1].size != 6 or len(msg.data) != dims[0].size * 6:
                 raise BagError(f"{path}: {TRUTH_MODES_TOPIC}: layout is not (mode K, field 6)")
@@ -454,7 +449,7 @@ def _assemble(path: Path, config: MonitorConfig, sigcfg: dict, raw: dict, log_ns
                 text = _TYPESTORE.deserialize_cdr(data, STRING).data
                 truth_fault.append(json.loads(text))
             except Exception as exc:  # noqa: BLE001
-                raise BagError(f"{path}: {TRUTH_FAULT_TOPIC}: not JSON ({_one_line(exc)})") from None
+                raise BagError(f"{path}: {TRUTH_FAULT_TOPIC}: not JSON ({one_line(exc, ERROR_CHARS)})") from None
     return Signals(
         t=(t_ns - t0) * 1e-9, t0_ns=t0, r=values.get("reference"), u=values["input"], y=values["output"],
         truth_t=truth_t, truth_modes=truth_modes, truth_fault=truth_fault, nonfinite=sum(nonfinite.values()),
@@ -571,6 +566,6 @@ def bag_info(bag: str | Path) -> dict[str, Any]:
                     "start_time_ns": reader.start_time,
                     "topics": {c.topic: (c.msgtype, c.msgcount) for c in reader.connections}}
     except Exception as exc:  # noqa: BLE001
-        raise BagError(f"{path}: unreadable bag ({type(exc).__name__}: {_one_line(exc)})") from None
+        raise BagError(f"{path}: unreadable bag ({type(exc).__name__}: {one_line(exc, ERROR_CHARS)})") from None
 
 

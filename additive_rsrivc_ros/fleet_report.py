@@ -16,7 +16,9 @@ from collections.abc import Iterable, Mapping
 from datetime import UTC, datetime
 from typing import Any
 
-LABELS = {"natural_frequency": "natural frequency [Hz]", "damping": "damping ratio [-]", "gain": "gain (DC)"}
+from .core.vocabulary import QUANTITIES
+
+LABELS = dict(zip(QUANTITIES, ("natural frequency [Hz]", "damping ratio [-]", "gain (DC)"), strict=True))
 _CSS = ("body{font-family:sans-serif;margin:1.5em;max-width:1200px}table{border-collapse:collapse;margin:.5em 0}"
         "td,th{border:1px solid #ccc;padding:2px 6px;font-size:90%}td.num{text-align:right}.drift{color:#b00;"
         "font-weight:bold}.note{color:#444;font-size:90%}.ok{color:#070}")
@@ -38,7 +40,7 @@ def trend_png(machine: Mapping[str, Any], dpi: int = 80) -> bytes:
     axes = fig.subplots(3, k, squeeze=False, sharex=True)
     x = list(range(len(bags)))
     for test in tests:
-        i, q = test["mode"] - 1, ("natural_frequency", "damping", "gain").index(test["quantity"])
+        i, q = test["mode"] - 1, QUANTITIES.index(test["quantity"])
         if i >= k:
             continue
         ax = axes[q, i]

@@ -32,12 +32,11 @@ from typing import Any
 import numpy as np
 
 from .core.model import SubmodelStructure, theta_from_modal
+from .core.vocabulary import LEVEL_NAMES, QUANTITIES
 from .verdict import Verdict, assess, relative_change
 
-QUANTITIES = ("natural_frequency", "damping", "gain")
 QUANTITY_LABELS = ("natural frequency [Hz]", "damping ratio [-]", "gain (DC) [y/u]")
 QUANTITY_SHORT = ("f", "zeta", "gain")
-LEVEL_NAMES = ("OK", "WARN", "ERROR", "STALE")
 LEVEL_COLORS = ("#2e7d32", "#f9a825", "#c62828", "#757575")
 HEALTH_KEYS = ("residual_var", "condition", "max_relative_std", "projection_fraction", "residual_ratio")
 

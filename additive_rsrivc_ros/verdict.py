@@ -27,7 +27,8 @@ from collections.abc import Iterable, Mapping, Sequence
 from dataclasses import dataclass, field
 from typing import Any
 
-LEVELS = ("OK", "FAULT", "DEGRADED", "NO ESTIMATE")
+from .core.vocabulary import EVENTS_HEADER, VERDICTS
+
 STARTUP_ISSUES = ("initializing",)       # health issue kinds of a normal start (not a disruption)
 STARTUP_REASONS = ("initializing", "starting: finding modes", "no mode guesses: found")   # their reasons
 ADVISORY_ISSUES = ("residual_jump", "projection_storm")   # = core.faults.HealthMonitor.ADVISORY_KINDS: never hold
@@ -52,12 +53,16 @@ class BlindInterval:
 
 @dataclass
 class Verdict:
-    level: str
+    level: str                 # one of vocabulary.VERDICTS
     text: str
     duration_s: float
     monitored_s: float
     monitoring_start_s: float | None
     blind_intervals: list[BlindInterval] = field(default_factory=list)
+
+    def __post_init__(self) -> None:
+        if self.level not in VERDICTS:
+            raise ValueError(f"verdict must be one of {', '.join(VERDICTS)}, got {self.level!r}")
 
     def to_dict(self) -> dict[str, Any]:
         """The summary.json keys: ``verdict``, ``verdict_text``, ``monitored_s``, ``blind_intervals`` ..."""
@@ -225,9 +230,7 @@ def _events_from_reports(reports: Iterable[Any]) -> list[dict[str, Any]]:
     seen: dict[tuple, dict[str, Any]] = {}
     for rep in reports:
         for e in (*getattr(rep, "events_opened", ()), *getattr(rep, "events_closed", ())):
-            seen[(e.mode, e.quantity, e.alarm_time_s)] = {
-                "onset_time_s": e.onset_time_s, "clear_time_s": e.clear_time_s, "mode": e.mode,
-                "quantity": e.quantity, "direction": e.direction, "baseline": e.baseline, "value": e.value}
+            seen[(e.mode, e.quantity, e.alarm_time_s)] = {k: getattr(e, k) for k in EVENTS_HEADER}
     return sorted(seen.values(), key=lambda d: (d["onset_time_s"], d["mode"], d["quantity"]))
 
 

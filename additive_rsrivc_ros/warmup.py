@@ -49,6 +49,10 @@ def load_kernels() -> float:
     return time.monotonic() - t0
 
 
+# independent reference implementations the tests and validate_* scripts compare against; no tool runs them
+VALIDATION_ONLY = ("additive_rsrivc_ros.sim.independent", "additive_rsrivc_ros.sim.zoh_reference")
+
+
 def kernel_dispatchers() -> dict[str, object]:
     """Every numba dispatcher defined in the package's modules, by ``module.name``."""
     import importlib
@@ -62,6 +66,8 @@ def kernel_dispatchers() -> dict[str, object]:
     for info in pkgutil.walk_packages(pkg.__path__, "additive_rsrivc_ros."):
         if info.name.endswith((".node", "warmup")) or ".ros" in info.name:
             continue                                   # the ROS shell defines no kernels (and needs rclpy)
+        if info.name in VALIDATION_ONLY:
+            continue
         module = importlib.import_module(info.name)
         for name, obj in vars(module).items():
             if isinstance(obj, CPUDispatcher) and obj.py_func.__module__ == info.name:

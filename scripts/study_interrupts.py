@@ -36,7 +36,8 @@ from pathlib import Path
 
 REPO = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(REPO))
-from additive_rsrivc_ros.cli.diagnose import ESTIMATES_HEADER, EVENTS_HEADER, OUTPUT_FILES  # noqa: E402
+from additive_rsrivc_ros.cli.diagnose import OUTPUT_FILES  # noqa: E402
+from additive_rsrivc_ros.core.vocabulary import ESTIMATES_HEADER, EVENTS_HEADER  # noqa: E402
 
 
 def _cmd(bag: Path, params: Path, out: Path) -> list[str]:

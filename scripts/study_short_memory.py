@@ -114,7 +114,7 @@ def run(seed: int, mem2: float, refine: int = 0, chunk: int = 64, diag: bool = F
     modal = np.array([[modal_from_theta(thetas[k, i]) for i in range(2)] for k in range(len(thetas))])
     truth = np.transpose(sc.truth[:, idx, :], (1, 0, 2))
     rel = modal / truth - 1.0
-    out = {"t": tt, "rel": rel, "proj": est.health["projections"], "health": est.health, "thetas": thetas,
+    out = {"t": tt, "rel": rel, "proj": est.health.projections, "health": est.health.to_dict(), "thetas": thetas,
            "sc": sc}
     if diag:
         out["diag"] = np.array(rows)

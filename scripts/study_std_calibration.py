@@ -133,7 +133,7 @@ def run_seed(case: Case, seed: int, duration_s: float) -> dict:
         old.append([modal_std(th, c, st) for th, c, st in zip(est.thetas, est.information_covariances,
                                                                est.structures, strict=True)])
         times.append((k + chunk - n0) / case.rate)
-        problems += sum(1 for p in est.health["covariance_problems"] if p)
+        problems += sum(1 for p in est.health.covariance_problems if p)
     return {"modal": np.array(modal), "old_std": np.array(old), "t": np.array(times), "truth": truth,
             "problems": problems, "init": est.init_message}
 

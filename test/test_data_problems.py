@@ -91,7 +91,7 @@ def test_data_problem_never_hides_the_fault(bag, kind, t_at):
     if kind == "huge_sample":
         assert c.outliers == 1 and c.nonfinite == 0 and c.reinitializations == 0
     if kind == "lost_sample":
-        assert c.filled == 1 and c.gaps == 0 and pipe.est.health["reprimes"] == 0
+        assert c.filled == 1 and c.gaps == 0 and pipe.est.health.reprimes == 0
 
 
 def test_single_absurd_sample_does_not_move_any_estimate(bag):

@@ -15,9 +15,8 @@ import pytest
 from scipy import signal
 
 from additive_rsrivc_ros.config import validate_params
+from additive_rsrivc_ros.core.estimator import EstimatorHealth
 from additive_rsrivc_ros.core.faults import (
-    EVENTS_CSV_HEADER,
-    QUANTITIES,
     FaultConfigError,
     FaultMonitor,
     FaultSettings,
@@ -25,6 +24,7 @@ from additive_rsrivc_ros.core.faults import (
     Level,
 )
 from additive_rsrivc_ros.core.model import SubmodelStructure
+from additive_rsrivc_ros.core.vocabulary import EVENTS_HEADER, QUANTITIES
 
 DT = 0.1                               # publish interval (s)
 MEMORY = np.array([2.44, 0.244])       # beam-like memories (000 §6: lambda 0.9999 / 0.999 at 4096 Hz)
@@ -152,7 +152,7 @@ def test_fault_clears_with_hysteresis_and_reports_clear_time():
     assert ev.clear_time_s is not None and t1 < ev.clear_time_s <= t1 + 2 * MEMORY[1]
     assert not mon.flags.any()
     row = ev.csv_row()
-    assert tuple(row) == EVENTS_CSV_HEADER and row["quantity"] == "natural_frequency"
+    assert tuple(row) == EVENTS_HEADER and row["quantity"] == "natural_frequency"
 
 
 def test_slow_drift_is_detected_with_onset_near_relevance_crossing():
@@ -310,23 +310,23 @@ def test_health_divergence_and_holdoff():
 
 def test_health_excitation_projection_residual():
     h = HealthMonitor(MEMORY, reference_modal=TRUTH)
-    est = {"samples": 1000, "projections": [0, 0], "cond": 1e3, "residual_var": 0.01}
+    est = EstimatorHealth(updates=1000, projections=(0, 0), cond=(1e3,), residual_var=0.01)
     assert h.assess(0.0, _modal_ok(), est).ok
-    est = {"samples": 2000, "projections": [30, 0], "cond": 1e3, "residual_var": 0.011}
+    est = EstimatorHealth(updates=2000, projections=(30, 0), cond=(1e3,), residual_var=0.011)
     st = h.assess(0.1, _modal_ok(), est)
     # advisory: reported, does not hold (an abrupt structural change causes it too), marks the stress start
     assert not st.hold and any("projection storm" in r for r in st.reasons)
     assert st.values["advisory_since"] == 0.1 and st.level == Level.WARN
     h2 = HealthMonitor(MEMORY)
-    st = h2.assess(0.0, _modal_ok(), {"cond": 1e14})
+    st = h2.assess(0.0, _modal_ok(), EstimatorHealth(cond=(1e14,)))
     assert st.hold and "IV condition" in st.reasons[0]
     wide = _modal_ok()
     wide[1, 3] = 0.5 * wide[1, 0]
     assert "relative std" in HealthMonitor(MEMORY).assess(0.0, wide).reasons[0]
     h3 = HealthMonitor(MEMORY)
-    assert h3.assess(0.0, _modal_ok(), {"residual_var": 0.01}).ok
-    assert h3.assess(0.1, _modal_ok(), {"residual_var": 0.015}).ok
-    st = h3.assess(0.2, _modal_ok(), {"residual_var": 1.0})
+    assert h3.assess(0.0, _modal_ok(), EstimatorHealth(residual_var=0.01)).ok
+    assert h3.assess(0.1, _modal_ok(), EstimatorHealth(residual_var=0.015)).ok
+    st = h3.assess(0.2, _modal_ok(), EstimatorHealth(residual_var=1.0))
     assert not st.hold and "residual variance" in st.reasons[0] and st.level == Level.WARN
     h3.note("data_gap", 0.3, "data gap of 0.5 s")
     assert h3.assess(0.3, _modal_ok()).to_dict()["counts"]["data_gap"] == 1

@@ -171,7 +171,7 @@ est = RecursiveAdditiveSRIVC([SubmodelStructure()] * 3, list(d["start"]), 20.0, 
                              controller=DiscreteController(tuple(d["cnum"]), tuple(d["cden"])), input_delay=2,
                              block_sweeps=2, refinements=1)
 np.save(sys.argv[2], est.update(d["r"], d["u"], d["y"], trace=True))
-print(json.dumps(est.health["samples"]))
+print(json.dumps(est.health.samples))
 """
 
 
@@ -218,8 +218,8 @@ def test_stiff_iterate_does_not_freeze_the_other_modes():
     stiff, data = _closed_loop_estimates(stiff_start)
     stiff.update(*data)
     h = stiff.health
-    assert h["updates"] == 4000 and h["reprimes"] == 0 and h["held_samples"] == 0
-    assert h["rejected_discretization"] == [0, 0, 0]       # exact for every admissible iterate: nothing to reject
+    assert h.updates == 4000 and h.reprimes == 0 and h.held_samples == 0
+    assert h.rejected_discretization == (0, 0, 0)       # exact for every admissible iterate: nothing to reject
     assert all(np.all(np.isfinite(t)) for t in stiff.thetas)
     for i in range(2):
         assert np.max(np.abs(stiff.thetas[i] / stiff_start[i] - 1)) > 1e-3       # they do move
@@ -240,9 +240,9 @@ def test_invalid_discretization_is_rejected_per_mode_and_counted():
     est.set_state(st)
     est.update(r, u, y)
     h = est.health
-    assert h["updates"] == 2000 and h["reprimes"] == 0
-    assert h["rejected_discretization"][2] >= 2000 and h["rejected_discretization"][:2] == [0, 0]
-    assert h["rejected_updates"][2] >= 2000
+    assert h.updates == 2000 and h.reprimes == 0
+    assert h.rejected_discretization[2] >= 2000 and h.rejected_discretization[:2] == (0, 0)
+    assert h.rejected_updates[2] >= 2000
     assert est.thetas[2][1] == 0.0 and est.thetas[2][0] == st["theta"][2, 0]
     for i in range(2):
         assert np.max(np.abs(est.thetas[i] / far[i] - 1)) > 1e-3
@@ -273,9 +273,9 @@ def test_bad_iv_denominators_are_rejected_and_counted():
     est.set_state(st)
     est.update(r, u, y)
     h = est.health
-    assert h["rejected_iv_denominator"][1] > 0
-    assert h["rejected_updates"][1] >= h["rejected_iv_denominator"][1]
-    assert h["samples"] == 2000 and h["updates"] > 0
+    assert h.rejected_iv_denominator[1] > 0
+    assert h.rejected_updates[1] >= h.rejected_iv_denominator[1]
+    assert h.samples == 2000 and h.updates > 0
     assert all(np.all(np.isfinite(t)) for t in est.thetas)
 
 
@@ -287,5 +287,5 @@ def test_nonfinite_instrument_is_counted():
     est, data = _closed_loop_estimates(far, n=3000, controller=DiscreteController((1.0,), (1.0, -2.0)))
     est.update(*data)
     h = est.health
-    assert h["nonfinite_instrument"] >= 1
+    assert h.nonfinite_instrument >= 1
     assert all(np.all(np.isfinite(t)) for t in est.thetas)

@@ -25,6 +25,7 @@ from bag_variants import damage, write_stamped_bag
 from additive_rsrivc_ros.bagio import DEFAULT_T0_NS, read_signals, write_bag
 from additive_rsrivc_ros.cli import diagnose, identify
 from additive_rsrivc_ros.config import load_config
+from additive_rsrivc_ros.core.vocabulary import json_clean
 from additive_rsrivc_ros.sim.independent import MODE, PAPER_THETAS, PID_DEN, PID_NUM, simulate
 
 REPO = Path(__file__).resolve().parents[1]
@@ -109,7 +110,7 @@ def test_identify_refuses_a_record_without_a_clean_stretch(sim20: dict, tmp_path
 
 
 def test_identify_json_is_strict_when_numbers_are_not_finite() -> None:
-    doc = identify.json_safe({"a": float("nan"), "b": np.float64(np.inf), "c": np.array([1.0, np.nan]),
+    doc = json_clean({"a": float("nan"), "b": np.float64(np.inf), "c": np.array([1.0, np.nan]),
                               "d": [np.int64(3), -np.inf]})
     assert strict_json(json.dumps(doc, allow_nan=False)) == {"a": None, "b": None, "c": [1.0, None], "d": [3, None]}
 

@@ -122,7 +122,7 @@ def test_sensor_problems_are_health_not_structural(healthy_sim):
         assert h["hold"] and issue in h["issues"] and h["level"] >= 1
     c = pipe.counters
     assert c.nonfinite == 30 and c.gaps == 1 and c.stuck_episodes == 1
-    assert pipe.est.health["reprimes"] >= 2                              # after the stuck episode and the gap
+    assert pipe.est.health.reprimes >= 2                              # after the stuck episode and the gap
     assert np.all(np.isfinite(reps[-1].modal))
     # the estimate after recovery is still the healthy plant's (closed-loop bias within 5 %, NOTES)
     assert reps[-1].modal[1, 0] == pytest.approx(PAPER_MODES[1].natural_frequency_hz, rel=0.05)

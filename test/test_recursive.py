@@ -41,7 +41,7 @@ def test_exact_at_truth_noise_free(closed):
     for i, th in enumerate(PAPER_THETA):
         assert np.max(np.abs(tr[:, i, :] / th - 1.0)) < 1e-9
     h = est.health
-    assert h["samples"] == n and h["updates"] == n and h["rejected_updates"] == [0, 0, 0]
+    assert h.samples == n and h.updates == n and h.rejected_updates == (0, 0, 0)
     assert est.residual_variance < 1e-20
 
 
@@ -52,7 +52,7 @@ def test_exact_at_truth_with_refinements_and_subsampling():
     tr = est.update(r, u, y, trace=True)
     for i, th in enumerate(PAPER_THETA):
         assert np.max(np.abs(tr[:, i, :] / th - 1.0)) < 1e-9
-    assert est.health["updates"] == n // 4
+    assert est.health.updates == n // 4
 
 
 @pytest.mark.parametrize("closed,sweeps,refine,sub", [(False, 1, 0, 1), (False, 3, 2, 1), (False, 1, 0, 3),
@@ -163,7 +163,7 @@ def test_bad_samples_never_corrupt_theta_or_p():
     est = _est(start, True)
     est.update(bad_r, bad_u, bad_y, valid=mask)
     h = est.health
-    assert h["skipped_samples"] == 6 and h["updates"] == n - 6
+    assert h.skipped_samples == 6 and h.updates == n - 6
     for th, P in zip(est.thetas, est.get_state()["P"], strict=True):
         assert np.all(np.isfinite(th)) and np.all(np.isfinite(P))
     for th, th_c, cov in zip(est.thetas, clean.thetas, clean.covariances, strict=True):
@@ -177,12 +177,12 @@ def test_gap_reprimes_and_holds_updates():
     est.update(r[:3000], u[:3000], y[:3000])
     before = [th.copy() for th in est.thetas]
     est.mark_gap()
-    hold = est.health["hold_remaining"]
-    assert hold >= 10 and est.health["reprimes"] == 1
+    hold = est.health.hold_remaining
+    assert hold >= 10 and est.health.reprimes == 1
     est.update(r[3500:3500 + hold], u[3500:3500 + hold], y[3500:3500 + hold])  # data resume after a gap
     assert all(np.array_equal(a, b) for a, b in zip(before, est.thetas, strict=True))
     est.update(r[3500 + hold:], u[3500 + hold:], y[3500 + hold:])
-    assert est.health["held_samples"] == hold and est.health["hold_remaining"] == 0
+    assert est.health.held_samples == hold and est.health.hold_remaining == 0
     for th, th0 in zip(est.thetas, PAPER_THETA, strict=True):
         assert np.all(np.isfinite(th)) and np.max(np.abs(th / th0 - 1)) < 0.2
 
@@ -213,7 +213,7 @@ def test_modal_and_health_outputs():
     # residual variance estimates the output noise variance 0.01 (EW mean of ~1000 effective samples)
     assert 0.008 < est.residual_variance < 0.0125
     h = est.health
-    assert len(h["cond"]) == 3 and all(c >= 1 for c in h["cond"])
+    assert len(h.cond) == 3 and all(c >= 1 for c in h.cond)
     est.set_memory([10.0, 20.0, 30.0])
     np.testing.assert_allclose(est.forgetting, 1 - 1 / (np.array([10.0, 20.0, 30.0]) * 20.0))
     with pytest.raises(ValueError):
@@ -234,7 +234,7 @@ def test_from_config_and_initialize():
     r, u, y = _data(4000, True, noise_std=0.1, seed=2)
     guesses = [th.copy() for th in est.thetas]
     est.initialize(r[:2000], u[:2000], y[:2000])
-    assert est.health["updates"] == 0 and est.health["samples"] == 2000
+    assert est.health.updates == 0 and est.health.samples == 2000
     def f_err(thetas):
         return max(abs(modal_from_theta(g)[0] / modal_from_theta(t)[0] - 1)
                    for g, t in zip(thetas, PAPER_THETA, strict=True))
@@ -367,6 +367,6 @@ def test_skipped_outputs_keep_the_known_input_driving_the_filters():
     y[10_000:10_040] = np.nan
     est = _est(PAPER_THETA, True)
     tr = est.update(r, u, y, trace=True)
-    assert est.health["skipped_samples"] == 40
+    assert est.health.skipped_samples == 40
     for i in range(3):
         np.testing.assert_allclose(tr[:, i, :3], np.broadcast_to(PAPER_THETA[i], (n, 3)), rtol=1e-9, atol=1e-12)

@@ -72,4 +72,4 @@ def test_beam_short_memory_with_filter_model():
     assert np.max(np.abs(rel[:, 1, 0])) < 0.02
     assert np.max(np.abs(rel[:, 0, 0])) < 0.01
     assert np.max(np.abs(rel[:, 1, 1])) < 0.10
-    assert est.health["projections"] == [0, 0]
+    assert est.health.projections == (0, 0)

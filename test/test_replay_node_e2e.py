@@ -20,6 +20,7 @@ from pathlib import Path
 import numpy as np
 
 from additive_rsrivc_ros.cli import diagnose
+from additive_rsrivc_ros.core.vocabulary import MODE_FIELDS
 
 REPO = Path(__file__).resolve().parents[1]
 BAG = REPO / "bags" / "beam_fault"
@@ -35,7 +36,7 @@ def test_replay_into_node_matches_offline(tmp_path: Path, ros_env: dict) -> None
     with (out / "events.csv").open() as fh:
         events = list(csv.DictReader(fh))
     K = 2
-    offline = np.array([[float(r[k]) for k in diagnose.ESTIMATES_HEADER[2:8]] for r in rows]).reshape(-1, K, 6)
+    offline = np.array([[float(r[k]) for k in MODE_FIELDS] for r in rows]).reshape(-1, K, 6)
     # DDS between two Python processes at 12288 msg/s on this 2-core machine occasionally loses a burst of one
     # topic (measured: 1 run in 4 to 6, also with the node tolerating 12 s stalls and a 50 ms writer heartbeat).
     # The node must then say so (count mismatch, resynchronized): that is asserted, and the replay is run again

@@ -85,7 +85,7 @@ def _short_estimator(duration_s: float = 60.0) -> RecursiveAdditiveSRIVC:
 @pytest.mark.parametrize(("corrupt", "problem"), [("indefinite", "indefinite"), ("nan", "non-finite")])
 def test_invalid_covariance_block_is_flagged_never_zero(corrupt: str, problem: str) -> None:
     est = _short_estimator()
-    assert est.health["covariance_problems"] == ["", ""]
+    assert est.health.covariance_problems == ("", "")
     assert np.all(np.isfinite(est.modal()[:, 3:])) and np.all(est.modal()[:, 3:] > 0)
     st = est.get_state()
     if corrupt == "indefinite":
@@ -99,7 +99,7 @@ def test_invalid_covariance_block_is_flagged_never_zero(corrupt: str, problem: s
     assert np.all(np.isnan(m[1, 3:])), m[1]                  # NaN, never 0
     assert np.all(np.isfinite(m[0, 3:])) and np.all(m[0, 3:] > 0)
     health = est.health
-    assert health["covariance_problems"] == ["", problem]
+    assert health.covariance_problems == ("", problem)
     mon = HealthMonitor([MEMORY_S, MEMORY_S])
     status = mon.assess(100.0, m, health)
     assert any("no valid uncertainty" in reason and "mode 2" in reason for reason in status.reasons)

@@ -29,12 +29,29 @@ import sys
 import time
 from collections.abc import Sequence
 from pathlib import Path
-from typing import Any, TextIO
+from typing import TYPE_CHECKING, Any, TextIO
+
+from ..core.vocabulary import (
+    BASELINE_KEYS,
+    ESTIMATES_HEADER,
+    EVENTS_HEADER,
+    LEVEL_NAMES,
+    MODE_FIELDS,
+    QUANTITIES,
+    events_csv_cells,
+    json_clean,
+    num,
+    one_line,
+)
+
+if TYPE_CHECKING:
+    from ..bagio import Signals
+    from ..config import MonitorConfig
+    from ..core.faults import FaultEvent
+    from ..core.pipeline import MonitorPipeline, Report
+    from ..report import DiagnosisSeries, ReportInput
 
 PROG = "rsrivc_diagnose"
-ESTIMATES_HEADER = ("time_s", "mode", "natural_frequency_hz", "damping_ratio", "gain", "natural_frequency_hz_std",
-                    "damping_ratio_std", "gain_std", "fault_natural_frequency", "fault_damping", "fault_gain")
-EVENTS_HEADER = ("onset_time_s", "clear_time_s", "mode", "quantity", "direction", "baseline", "value")
 
 
 class _Parser(argparse.ArgumentParser):
@@ -99,7 +116,7 @@ class Progress:
 NOTICES_SHOWN = 5   # automatic-start lines printed (a long record without excitation retries many times)
 
 
-def _print_notices(reports: Sequence[Any], stderr: TextIO) -> None:
+def _print_notices(reports: Sequence[Report], stderr: TextIO) -> None:
     """The pipeline's automatic-start lines (modes found; windows without modes) on stderr."""
     notes = [n for rep in reports for n in getattr(rep, "notices", [])]
     for note in notes[:NOTICES_SHOWN]:
@@ -109,8 +126,8 @@ def _print_notices(reports: Sequence[Any], stderr: TextIO) -> None:
               file=stderr)
 
 
-def run_pipeline(sig: Any, cfg: Any, *, chunk_s: float = 1.0, progress: Progress | None = None,
-                 pipeline: Any = None) -> tuple[list[Any], list[Any]]:
+def run_pipeline(sig: Signals, cfg: MonitorConfig, *, chunk_s: float = 1.0, progress: Progress | None = None,
+                 pipeline: MonitorPipeline | None = None) -> tuple[list[Report], list[FaultEvent]]:
     """Feed the bag's samples through a fresh :class:`MonitorPipeline` (or ``pipeline``); return
     ``(reports, events)``. Without mode guesses the pipeline finds the modes first (``core/autostart.py``);
     ``pipeline.cfg`` then holds the modes found.
@@ -124,8 +141,8 @@ def run_pipeline(sig: Any, cfg: Any, *, chunk_s: float = 1.0, progress: Progress
     pipe = pipeline if pipeline is not None else MonitorPipeline(cfg)
     n = sig.t.size
     step = max(1, int(round(chunk_s * cfg.loop_rate_hz)))
-    reports: list[Any] = []
-    events: dict[tuple, Any] = {}
+    reports: list[Report] = []
+    events: dict[tuple, FaultEvent] = {}
     r = sig.r if cfg.closed_loop else None
     for a in range(0, n, step):
         b = min(a + step, n)
@@ -144,13 +161,7 @@ def run_pipeline(sig: Any, cfg: Any, *, chunk_s: float = 1.0, progress: Progress
     return reports, ordered
 
 
-def _f(v: Any) -> str:
-    """Lossless decimal for CSV (shortest round-trip repr); NaN as ``nan``."""
-    x = float(v)
-    return repr(x) if math.isfinite(x) else ("nan" if math.isnan(x) else ("inf" if x > 0 else "-inf"))
-
-
-def write_estimates_csv(path: Path, reports: Sequence[Any]) -> int:
+def write_estimates_csv(path: Path, reports: Sequence[Report]) -> int:
     """CONTRACT estimates.csv; one row per mode per report with an estimate. Returns the row count."""
     import numpy as np
 
@@ -164,12 +175,12 @@ def write_estimates_csv(path: Path, reports: Sequence[Any]) -> int:
             m = np.asarray(rep.modal, float)
             fl = np.asarray(rep.flags, bool)
             for i in range(m.shape[0]):
-                w.writerow([_f(rep.time_s), i + 1, *(_f(v) for v in m[i, :6]), *(int(x) for x in fl[i, :3])])
+                w.writerow([num(rep.time_s), i + 1, *(num(v) for v in m[i, :6]), *(int(x) for x in fl[i, :3])])
                 rows += 1
     return rows
 
 
-def event_dict(e: Any) -> dict[str, Any]:
+def event_dict(e: FaultEvent) -> dict[str, Any]:
     """An event as plain data: the events.csv columns plus alarm time and z."""
     return {"onset_time_s": float(e.onset_time_s), "clear_time_s": None if e.clear_time_s is None else
             float(e.clear_time_s), "mode": int(e.mode), "quantity": str(e.quantity), "direction": str(e.direction),
@@ -177,33 +188,13 @@ def event_dict(e: Any) -> dict[str, Any]:
             "z": float(getattr(e, "z", math.nan))}
 
 
-def write_events_csv(path: Path, events: Sequence[dict[str, Any]]) -> None:
+def write_events_csv(path: Path, events: Sequence[FaultEvent]) -> None:
     """CONTRACT events.csv (empty clear time while open)."""
     with path.open("w", newline="", encoding="utf-8") as fh:
         w = csv.writer(fh, lineterminator="\n")
         w.writerow(EVENTS_HEADER)
         for e in events:
-            w.writerow([_f(e["onset_time_s"]), "" if e["clear_time_s"] is None else _f(e["clear_time_s"]), e["mode"],
-                        e["quantity"], e["direction"], _f(e["baseline"]), _f(e["value"])])
-
-
-def _json_safe(v: Any) -> Any:
-    """Plain JSON data; non-finite floats as None (strict JSON, no NaN tokens)."""
-    import numpy as np
-
-    if isinstance(v, dict):
-        return {str(k): _json_safe(x) for k, x in v.items()}
-    if isinstance(v, list | tuple):
-        return [_json_safe(x) for x in v]
-    if isinstance(v, np.ndarray):
-        return _json_safe(v.tolist())
-    if isinstance(v, np.generic):
-        return _json_safe(v.item())
-    if isinstance(v, float) and not math.isfinite(v):
-        return None
-    if isinstance(v, Path):
-        return str(v)
-    return v
+            w.writerow(events_csv_cells(e.csv_row()))
 
 
 def _out_dir(bag: Path, out: str | None) -> Path:
@@ -217,12 +208,12 @@ def _out_dir(bag: Path, out: str | None) -> Path:
 # ------------------------------------------------------------------------------------------------- table
 def format_table(rows: Sequence[dict[str, Any]]) -> str:
     """Plain-text per-mode summary (rows from :func:`..report.summary_rows`)."""
-    def num(v: Any, d: int = 6) -> str:
+    def short(v: Any, d: int = 6) -> str:
         return "-" if v is None or not math.isfinite(float(v)) else f"{float(v):.{d}g}"
 
     head = ("mode", "quantity", "final", "± std", "baseline", "change", "truth", "fault")
-    body = [(str(r["mode"]), r["quantity"], num(r["final"]), num(r["std"], 3), num(r["baseline"]),
-             "-" if r["change_pct"] is None else f"{r['change_pct']:+.2f} %", num(r["truth"]), r["fault"])
+    body = [(str(r["mode"]), r["quantity"], short(r["final"]), short(r["std"], 3), short(r["baseline"]),
+             "-" if r["change_pct"] is None else f"{r['change_pct']:+.2f} %", short(r["truth"]), r["fault"])
             for r in rows]
     widths = [max(len(h), *(len(b[j]) for b in body)) if body else len(h) for j, h in enumerate(head)]
     lines = ["  ".join(h.ljust(w) for h, w in zip(head, widths, strict=True)),
@@ -236,7 +227,7 @@ def format_table(rows: Sequence[dict[str, Any]]) -> str:
 OUTPUT_FILES = ("estimates.csv", "events.csv", "summary.json", "report.html", "modes.png")
 
 
-def _warn_bad_samples(sig: Any, stderr: TextIO) -> None:
+def _warn_bad_samples(sig: Signals, stderr: TextIO) -> None:
     """One warning line per category of bad samples the reader found (the pipeline handles them)."""
     import numpy as np
 
@@ -261,7 +252,7 @@ def _warn_bad_samples(sig: Any, stderr: TextIO) -> None:
               f"is a skipped sample on a kept grid, a surplus one is left out ({by})", file=stderr)
 
 
-def _frf_estimates(inp: Any, sig: Any, cfg: Any) -> None:
+def _frf_estimates(inp: ReportInput, sig: Signals, cfg: MonitorConfig) -> None:
     """Nonparametric FRFs of the first and last data windows for the report (None where too short)."""
     from .. import report as rp
 
@@ -276,9 +267,7 @@ def _frf_estimates(inp: Any, sig: Any, cfg: Any) -> None:
         setattr(inp, attr, est)
 
 
-def _mode_summaries(series: Any, rows: Sequence[dict], sig: Any, K: int) -> list[dict[str, Any]]:
-    from .. import report as rp
-
+def _mode_summaries(series: DiagnosisSeries, rows: Sequence[dict], sig: Signals, K: int) -> list[dict[str, Any]]:
     j = series.last_estimate()
     modes = []
     for i in range(K):
@@ -286,12 +275,12 @@ def _mode_summaries(series: Any, rows: Sequence[dict], sig: Any, K: int) -> list
         modes.append({
             "mode": i + 1,
             "final": {k: (float(series.modal[j, i, q]) if j is not None else None)
-                      for q, k in enumerate(ESTIMATES_HEADER[2:8])},
+                      for q, k in enumerate(MODE_FIELDS)},
             "baseline": {k: float(series.baseline[-1, i, q]) if series.n else None
-                         for q, k in enumerate(ESTIMATES_HEADER[2:5])},
-            "truth_final": ({k: float(sig.truth_modes[-1, i, q]) for q, k in enumerate(ESTIMATES_HEADER[2:5])}
+                         for q, k in enumerate(BASELINE_KEYS)},
+            "truth_final": ({k: float(sig.truth_modes[-1, i, q]) for q, k in enumerate(BASELINE_KEYS)}
                             if sig.truth_modes is not None and i < sig.truth_modes.shape[1] else None),
-            "fault": {q: bool(series.flags[-1, i, k]) if series.n else False for k, q in enumerate(rp.QUANTITIES)},
+            "fault": {q: bool(series.flags[-1, i, k]) if series.n else False for k, q in enumerate(QUANTITIES)},
             "change_percent": {r["quantity"]: r["change_pct"] for r in mr},
         })
     return modes
@@ -339,7 +328,7 @@ def diagnose(args: argparse.Namespace, stdout: TextIO, stderr: TextIO, state: di
     tmp = state["out"] = AtomicDir(out, OUTPUT_FILES)
     tmp.open()
     n_rows = write_estimates_csv(tmp.tmp / "estimates.csv", reports)
-    write_events_csv(tmp.tmp / "events.csv", events)
+    write_events_csv(tmp.tmp / "events.csv", ev_objs)
 
     series = rp.DiagnosisSeries.from_reports(reports, cfg.K)
     truth = rp.TruthData(sig.truth_t, sig.truth_modes, sig.truth_fault)
@@ -378,7 +367,7 @@ def diagnose(args: argparse.Namespace, stdout: TextIO, stderr: TextIO, state: di
         "modes": _mode_summaries(series, rows, sig, cfg.K), "events": events, "nonfinite_samples": sig.nonfinite,
         "unmatched_messages": dict(sig.unmatched_by_signal),
         "health": {"final": last.health if last is not None else None,
-                   "level_counts": {rp.LEVEL_NAMES[k]: int(np.sum(series.health_level == k)) for k in range(4)}},
+                   "level_counts": {LEVEL_NAMES[k]: int(np.sum(series.health_level == k)) for k in range(4)}},
         "phase_final": last.phase if last is not None else None,
         "timings_s": timings,
         "realtime_factor": duration / timings["estimate_s"] if timings["estimate_s"] > 0 else None,
@@ -387,7 +376,7 @@ def diagnose(args: argparse.Namespace, stdout: TextIO, stderr: TextIO, state: di
                   if k in ("estimates.csv", "events.csv", "summary.json") or not args.no_report},
     }
     summary["alignment"] = _alignment_summary(last)
-    (tmp.tmp / "summary.json").write_text(json.dumps(_json_safe(summary), indent=2, allow_nan=False) + "\n",
+    (tmp.tmp / "summary.json").write_text(json.dumps(json_clean(summary), indent=2, allow_nan=False) + "\n",
                                           encoding="utf-8")
     tmp.commit()
     al = summary["alignment"]
@@ -430,7 +419,7 @@ def diagnose_bag(bag: str | Path, params_file: str | Path, out_dir: str | Path, 
     return summary
 
 
-def _alignment_summary(last: Any) -> dict[str, Any]:
+def _alignment_summary(last: Report | None) -> dict[str, Any]:
     """summary.json ``alignment``: what the pipeline's stream aligner verified and corrected (core/alignment.py)."""
     al = (last.health.get("alignment") if last is not None else None) or {"mode": "off"}
     if al.get("mode") != "invariant":
@@ -497,22 +486,17 @@ def _diagnose_or_error(args: argparse.Namespace, state: dict[str, Any]) -> int:
     try:
         return _diagnose_or_interrupt(args, state)
     except (BagError, ParamError, PipelineError) as exc:
-        print(f"{PROG}: error: {_line(exc)}", file=sys.stderr)
+        print(f"{PROG}: error: {one_line(exc)}", file=sys.stderr)
         return 2
     except (OSError, ValueError) as exc:
-        print(f"{PROG}: error: {_line(exc)}", file=sys.stderr)
+        print(f"{PROG}: error: {one_line(exc)}", file=sys.stderr)
         return 2
     except Exception as exc:  # noqa: BLE001 - never a traceback for users; RSRIVC_DEBUG=1 shows it
         if os.environ.get("RSRIVC_DEBUG"):
             raise
-        print(f"{PROG}: internal error: {type(exc).__name__}: {_line(exc)} (set RSRIVC_DEBUG=1 for a traceback)",
+        print(f"{PROG}: internal error: {type(exc).__name__}: {one_line(exc)} (set RSRIVC_DEBUG=1 for a traceback)",
               file=sys.stderr)
         return 1
-
-
-def _line(exc: BaseException) -> str:
-    text = str(exc).strip().splitlines()
-    return text[0] if text else type(exc).__name__
 
 
 if __name__ == "__main__":

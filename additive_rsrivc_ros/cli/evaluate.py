@@ -26,6 +26,7 @@ import numpy as np
 
 from ..core.faults import FaultEvent
 from ..core.pipeline import MonitorPipeline
+from ..core.vocabulary import quantity_of, sim_quantity_of
 
 DRIFT_OFF = {"drift1_start_s": 1e9, "drift1_end_s": 1e9 + 1.0, "drift2_start_s": 1e9, "drift2_end_s": 1e9 + 1.0}
 
@@ -92,8 +93,7 @@ def simulate_case(case: Case) -> Any:
     cfg_path = sc.config_dir() / "paper_example.yaml"
     cfg = load_config(cfg_path)
     mode, quantity, rel, start = case.paper_change
-    sim_q = {"natural_frequency": "frequency"}.get(quantity, quantity)
-    changes = [ModalChange(mode, sim_q, rel, start)] if rel != 0.0 else []
+    changes = [ModalChange(mode, sim_quantity_of(quantity), rel, start)] if rel != 0.0 else []
     rng = np.random.default_rng([case.seed, 7])
     t = time_vector(cfg.loop_rate_hz, case.duration_s)
     # the paper's four sines plus a white dither (std 1, as the 001 §5.2 reference): with the sines alone each
@@ -125,7 +125,7 @@ def _beam_change_case(case: Case) -> Any:
     cfg_path = sc.config_dir() / "beam_healthy.yaml"
     cfg = load_config(cfg_path)
     mode, quantity, rel, start = case.beam_change
-    changes = [ModalChange(mode, {"natural_frequency": "frequency"}.get(quantity, quantity), rel, start)]
+    changes = [ModalChange(mode, sim_quantity_of(quantity), rel, start)]
     rng = np.random.default_rng([case.seed, 11])
     t = time_vector(cfg.loop_rate_hz, case.duration_s)
     r = square_wave(t, 2.0, 0.1)
@@ -155,15 +155,13 @@ def run_pipeline(data: Any, block_s: float = 0.1) -> tuple[list[FaultEvent], lis
 
 def score(data: Any, events: list[FaultEvent], reports: list[dict[str, Any]]) -> dict[str, Any]:
     """Detection, isolation, false alarms and sensor-fault handling of one run (see module docstring)."""
-    from ..sim.scenarios import QUANTITY_NAMES
-
     memory = [m.memory_s for m in data.config.modes]
     changes = [c for c in data.changes if c.mode < data.config.K and c.start_s < data.t[-1]]
     first_change = min((c.start_s for c in changes), default=math.inf)
     injected = []
     matched: set[int] = set()
     for c in changes:
-        want = (c.mode + 1, QUANTITY_NAMES[c.quantity], "down" if c.relative_change < 0 else "up")
+        want = (c.mode + 1, quantity_of(c.quantity), "down" if c.relative_change < 0 else "up")
         hit = next((j for j, e in enumerate(events) if (e.mode, e.quantity, e.direction) == want
                     and e.alarm_time_s >= c.start_s), None)
         rec: dict[str, Any] = {"mode": want[0], "quantity": want[1], "direction": want[2],

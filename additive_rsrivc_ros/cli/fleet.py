@@ -42,13 +42,11 @@ from dataclasses import dataclass
 from pathlib import Path
 from typing import Any, TextIO
 
+from ..core.vocabulary import BASELINE_KEYS, FINDING_KEYS, FLEET_HEADER, QUANTITIES, json_clean, num, one_line
+
 PROG = "rsrivc_fleet"
-FLEET_HEADER = ("bag", "start_time_s", "mode", "natural_frequency_hz", "damping_ratio", "gain",
-                "baseline_natural_frequency_hz", "baseline_damping_ratio", "baseline_gain", "events", "verdict")
-FINDING_KEYS = ("mode", "quantity", "direction", "first_bag", "change_percent")
 DASK_HINT = ("dask.distributed is not installed; rsrivc_fleet needs the optional extra: "
              "pip install 'additive_rsrivc_ros[fleet]' (or: pip install 'dask[distributed]')")
-_MODAL = ("natural_frequency_hz", "damping_ratio", "gain")
 
 
 class ArgError(ValueError):
@@ -176,7 +174,7 @@ def _check_params(files: set[str], node_name: str | None) -> None:
         try:
             load_config(f, node_name or DEFAULT_NODE_NAME)
         except (ParamError, OSError, ValueError) as exc:
-            raise ArgError(f"params file {f}: {_line(exc)}") from None
+            raise ArgError(f"params file {f}: {one_line(exc)}") from None
 
 
 def make_tasks(args: argparse.Namespace) -> tuple[list[BagTask], list[dict[str, str]]]:
@@ -215,8 +213,8 @@ def run_bag(task: BagTask) -> dict[str, Any]:
                                report=task.report, stderr=err)
         res.update(_bag_result(summary, Path(task.out_dir)), ok=True)
     except Exception as exc:  # noqa: BLE001 - a failed bag is reported and skipped, never the whole run
-        res["error"] = f"{type(exc).__name__}: {_line(exc)}" if not isinstance(exc, ValueError | OSError) \
-            else _line(exc)
+        res["error"] = f"{type(exc).__name__}: {one_line(exc)}" if not isinstance(exc, ValueError | OSError) \
+            else one_line(exc)
     res["warnings"] = [ln for ln in err.getvalue().splitlines() if ln.strip()]
     res["elapsed_s"] = time.monotonic() - t_start
     return res
@@ -246,7 +244,7 @@ def _monitored_mask(t: Any, blind: Sequence[dict[str, Any]]) -> Any:
 
 def _bag_result(summary: dict[str, Any], out_dir: Path) -> dict[str, Any]:
     """What the fleet needs of one diagnosed bag: verdict, events, first sample time, levels per mode."""
-    from ..core.faults import QUANTITIES, FaultSettings
+    from ..core.faults import FaultSettings
     from ..core.params import settings_from_params
     from ..core.trend import bag_level
 
@@ -266,10 +264,10 @@ def _bag_result(summary: dict[str, Any], out_dir: Path) -> dict[str, Any]:
         i = int(m["mode"]) - 1
         final = m.get("final") or {}
         value = ([float(level.value[i, q]) for q in range(3)] if level is not None else
-                 [_num(final.get(c)) for c in _MODAL])
+                 [_num(final.get(c)) for c in BASELINE_KEYS])
         modes.append({"mode": i + 1, "value": value,
                       "std": [float(level.std[i, q]) for q in range(3)] if level is not None else [math.nan] * 3,
-                      "baseline": [_num((m.get("baseline") or {}).get(c)) for c in _MODAL]})
+                      "baseline": [_num((m.get("baseline") or {}).get(c)) for c in BASELINE_KEYS]})
     return {"start_time_ns": int(summary["start_time_ns"]), "verdict": summary["verdict"],
             "verdict_text": summary.get("verdict_text", ""), "events": len(summary.get("events", [])),
             "K": k, "monitored_s": float(summary.get("monitored_s") or 0.0), "duration_s": summary.get("duration_s"),
@@ -294,11 +292,6 @@ def _num(v: Any) -> float:
         return float(v)
     except (TypeError, ValueError):
         return math.nan
-
-
-def _line(exc: BaseException) -> str:
-    text = str(exc).strip().splitlines()
-    return text[0] if text else type(exc).__name__
 
 
 # ------------------------------------------------------------------------------------------------- cluster
@@ -354,7 +347,7 @@ def start_client(scheduler: str | None, workers: int | None) -> tuple[Any, Any]:
         try:
             return Client(scheduler, timeout="20s"), None
         except (OSError, TimeoutError) as exc:
-            raise ArgError(f"--scheduler {scheduler}: cannot connect ({_line(exc)})") from None
+            raise ArgError(f"--scheduler {scheduler}: cannot connect ({one_line(exc)})") from None
     n = workers or default_workers()
     # no dashboard; the scheduler's HTTP endpoint on a free port (8787 may belong to another cluster)
     cluster = LocalCluster(n_workers=n, threads_per_worker=1, processes=True, dashboard_address=None,
@@ -401,7 +394,7 @@ def run_tasks(client: Any, tasks: Sequence[BagTask], stderr: TextIO, show: bool,
                 res = fut.result()
             except Exception as exc:  # noqa: BLE001 - the worker died (killed, out of memory): this bag failed
                 res = {"name": t.name, "bag": t.bag, "params_file": t.params_file, "ok": False, "warnings": [],
-                       "error": f"task lost ({type(exc).__name__}: {_line(exc)})"}
+                       "error": f"task lost ({type(exc).__name__}: {one_line(exc)})"}
             failed += not res["ok"]
             bar.clear()
             if on_done is not None:
@@ -448,8 +441,8 @@ def machine_trend(bags: Sequence[dict[str, Any]], alpha: float) -> dict[str, Any
                      "std": [m["std"] for m in b["modes"]], "baseline": [m["baseline"] for m in b["modes"]]})
     ref = next((b for b in bags if b["exclusion"] is None), bags[0])
     tests = fleet_drift(levels, ref["min_change"], spread_factor=ref["spread_factor"], alpha=alpha)
-    findings = [{"mode": t.mode, "quantity": t.quantity, "direction": t.direction,
-                 "first_bag": bags[t.first_index]["name"], "change_percent": round(t.change_percent, 6)}
+    findings = [dict(zip(FINDING_KEYS, (t.mode, t.quantity, t.direction, bags[t.first_index]["name"],
+                                        round(t.change_percent, 6)), strict=True))
                 for t in tests if t.flagged and t.first_index is not None]
     return {"machine": bags[0]["machine"], "params_file": bags[0]["params_file"], "K": k,
             "alpha": alpha, "min_change": ref["min_change"],
@@ -471,8 +464,6 @@ def fleet_summary(results: Sequence[dict[str, Any]], alpha: float) -> dict[str, 
 
 def write_fleet_csv(path: Path, results: Sequence[dict[str, Any]]) -> int:
     """CONTRACT fleet.csv: one row per bag and mode, bags in order of their first sample's time."""
-    from .diagnose import _f
-
     ok = sorted((r for r in results if r["ok"]), key=lambda r: (r["start_time_ns"], r["name"]))
     rows = 0
     with path.open("w", newline="", encoding="utf-8") as fh:
@@ -480,16 +471,14 @@ def write_fleet_csv(path: Path, results: Sequence[dict[str, Any]]) -> int:
         w.writerow(FLEET_HEADER)
         for r in ok:
             for m in r["modes"]:
-                w.writerow([r["name"], _f(r["start_time_ns"] / 1e9), m["mode"], *(_f(v) for v in m["value"]),
-                            *(_f(v) for v in m["baseline"]), r["events"], r["verdict"]])
+                w.writerow([r["name"], num(r["start_time_ns"] / 1e9), m["mode"], *(num(v) for v in m["value"]),
+                            *(num(v) for v in m["baseline"]), r["events"], r["verdict"]])
                 rows += 1
     return rows
 
 
 def _json_text(obj: Any) -> str:
-    from .diagnose import _json_safe
-
-    return json.dumps(_json_safe(obj), indent=2, allow_nan=False) + "\n"
+    return json.dumps(json_clean(obj), indent=2, allow_nan=False) + "\n"
 
 
 def write_outputs(out: Path, results: Sequence[dict[str, Any]], summary: dict[str, Any]) -> None:
@@ -599,12 +588,12 @@ def main(argv: list[str] | None = None) -> int:
                  "complete, no fleet summary written")
             return exit_code(exc)
         except ArgError as exc:
-            _say(f"{PROG}: error: {_line(exc)}")
+            _say(f"{PROG}: error: {one_line(exc)}")
             return 2
         except Exception as exc:  # noqa: BLE001 - never a traceback for users; RSRIVC_DEBUG=1 shows it
             if os.environ.get("RSRIVC_DEBUG"):
                 raise
-            _say(f"{PROG}: internal error: {type(exc).__name__}: {_line(exc)} (set RSRIVC_DEBUG=1 for a traceback)")
+            _say(f"{PROG}: internal error: {type(exc).__name__}: {one_line(exc)} (set RSRIVC_DEBUG=1 for a traceback)")
             return 1
         finally:
             if state.get("client") is not None:

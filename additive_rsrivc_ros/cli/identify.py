@@ -22,18 +22,20 @@ from __future__ import annotations
 
 import argparse
 import json
-import math
 import os
 import sys
 from collections.abc import Callable
 from pathlib import Path
 from typing import TYPE_CHECKING, Any
 
+from ..core.vocabulary import BASELINE_KEYS, json_clean
 from .atomic import Interrupted, atomic_write_text, exit_code, interrupts, raise_if_interrupted, received
 
 if TYPE_CHECKING:   # the numerical modules are imported inside the functions: SIGINT/SIGTERM handling comes first
     import numpy as np
 
+    from ..bagio import Signals
+    from ..config import MonitorConfig
     from ..core.faults import FaultSettings
     from ..core.screening import Screening
 
@@ -95,7 +97,7 @@ def _by(counts: dict[str, int]) -> str:
     return ", ".join(f"{k}: {v}" for k, v in counts.items() if v)
 
 
-def screen_record(sig: Any, cfg: Any, settings: FaultSettings, warn: Callable[[str], None]) -> Screening:
+def screen_record(sig: Signals, cfg: MonitorConfig, settings: FaultSettings, warn: Callable[[str], None]) -> Screening:
     """Screen the bag's samples (:func:`..core.screening.screen`), one warning line per category of bad samples;
     raise ``ValueError`` (one line) when no clean stretch long enough for a fit is left."""
     import numpy as np
@@ -134,7 +136,8 @@ def screen_record(sig: Any, cfg: Any, settings: FaultSettings, warn: Callable[[s
     return sc
 
 
-def write_params_file(cfg, doc: dict, path: str, node_name: str | None, baseline: bool, source: str) -> None:
+def write_params_file(cfg: MonitorConfig, doc: dict, path: str, node_name: str | None, baseline: bool,
+                      source: str) -> None:
     """The input params with the identified ``modes.*`` (and ``faults.baseline.*`` when ``baseline``) as a complete,
     commented params YAML for the node, written atomically."""
     import numpy as np
@@ -143,7 +146,7 @@ def write_params_file(cfg, doc: dict, path: str, node_name: str | None, baseline
 
     p = dict(cfg.params)
     modes = doc["modes"]
-    for key in ("natural_frequency_hz", "damping_ratio", "gain"):
+    for key in BASELINE_KEYS:
         vals = [m[key] for m in modes]
         if any(v is None or not np.isfinite(v) for v in vals):
             raise ValueError(f"identified {key} is not finite: no params file written")
@@ -201,7 +204,7 @@ def run(bag: str, params_file: str, out: str, method: str = "auto", max_iteratio
                    input_delay=cfg.input_delay_samples, method=method, max_iterations=iters, tol=tol,
                    projection=cfg.estimator.stability_projection)
     raise_if_interrupted()
-    doc = json_safe(res.to_dict())
+    doc = json_clean(res.to_dict())
     doc["data_gaps"] = sc.gaps
     doc["screening"] = {**sc.to_dict(), "segment_s": [float(sig.t[k[0]]), float(sig.t[k[-1]])]}
     if sc.used < sc.n:
@@ -209,14 +212,14 @@ def run(bag: str, params_file: str, out: str, method: str = "auto", max_iteratio
                           f"samples [{float(sig.t[k[0]]):.6g}, {float(sig.t[k[-1]]):.6g}] s ({sc.used} of {sig.n} "
                           "samples)").lstrip("; ")
     _add_mode_finding(doc, found, cfg, sig.r[k] if closed else None, sig.u[k], sig.y[k])
-    doc = json_safe(doc)
+    doc = json_clean(doc)
     atomic_write_text(out_path, json.dumps(doc, indent=2, allow_nan=False) + "\n")
     if out_params:
         write_params_file(cfg, doc, out_params, node_name, baseline, f"{bag} with {params_file}")
     return doc
 
 
-def align_record_signals(sig: Any, cfg: Any, warn: Callable[[str], None]) -> Any:
+def align_record_signals(sig: Signals, cfg: MonitorConfig, warn: Callable[[str], None]) -> Signals:
     """Closed loop: the record through the pipeline's stream aligner (``core/alignment.py``), one warning line
     when it re-aligned or refilled anything; the pairing is then what the live pipeline would have used."""
     import dataclasses
@@ -237,7 +240,7 @@ def align_record_signals(sig: Any, cfg: Any, warn: Callable[[str], None]) -> Any
     return dataclasses.replace(sig, t=blk.t, r=blk.r, u=blk.u, y=blk.y)
 
 
-def _add_mode_finding(doc: dict, found, cfg, r, u, y) -> None:
+def _add_mode_finding(doc: dict, found, cfg: MonitorConfig, r, u, y) -> None:
     """JSON keys ``frf`` (summary of the nonparametric FRF: band, peaks) and ``order_selection`` (the table; empty
     when the guesses were used), plus ``mode_finding`` (message, candidates, identifiable flags)."""
     if found is not None:
@@ -258,21 +261,6 @@ def _add_mode_finding(doc: dict, found, cfg, r, u, y) -> None:
         doc["frf"]["peaks_hz"] = [c.natural_frequency_hz for c in find_candidates(frf, cfg.input_delay_samples)
                                   if c.natural_frequency_hz > 0]
     doc["order_selection"] = []
-
-
-def json_safe(v: Any) -> Any:
-    """Plain, strict-JSON data: numpy scalars/arrays to Python, non-finite floats to None."""
-    import numpy as np
-
-    if isinstance(v, dict):
-        return {str(k): json_safe(x) for k, x in v.items()}
-    if isinstance(v, list | tuple | np.ndarray):
-        return [json_safe(x) for x in (v.tolist() if isinstance(v, np.ndarray) else v)]
-    if isinstance(v, np.generic):
-        return json_safe(v.item())
-    if isinstance(v, float) and not math.isfinite(v):
-        return None
-    return v
 
 
 def _num(v: Any) -> str:

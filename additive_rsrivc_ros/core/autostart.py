@@ -27,6 +27,9 @@ from typing import Any
 
 import numpy as np
 
+from .estimator import MonitorSettings
+from .vocabulary import one_line
+
 MIN_WINDOW_S = 2.0
 """Shortest window the modes are searched on (the FRF needs a few averages at a resolution below 1 Hz)."""
 MIN_CONTIGUOUS_S = 2.0
@@ -80,7 +83,7 @@ class FoundModes:
 class ModeSearch:
     """Window buffer, attempts and back-off of the automatic start (see the module docstring)."""
 
-    cfg: Any                                  # MonitorConfig without guesses
+    cfg: MonitorSettings                      # MonitorConfig without guesses
     blocks: list[_Block] = field(default_factory=list)
     n: int = 0
     t_start_s: float = math.nan               # window start (s since the first sample)
@@ -131,7 +134,7 @@ class ModeSearch:
             line += f" ({self.n / self.rate:.1f} s so far)"
         return line
 
-    def run(self, t_end_rel: float) -> tuple[Any | None, str]:
+    def run(self, t_end_rel: float) -> tuple[MonitorSettings | None, str]:
         """Search the full window: ``(configuration with the modes found, notice)`` or ``(None, failure line)``."""
         self.attempts += 1
         window_s = (self.t_start_s, self.t_start_s + self.n / self.rate)
@@ -151,8 +154,7 @@ class ModeSearch:
                                     if not ok)
                     new, problem = None, f"mode(s) outside the band the window excites ({bad}): window too short"
             except Exception as exc:  # noqa: BLE001 - a failed search is a health line, never a crash
-                text = str(exc).strip().splitlines()
-                problem = text[0] if text else type(exc).__name__
+                problem = one_line(exc)
                 if not isinstance(exc, ValueError):
                     problem = f"{type(exc).__name__}: {problem}"
         seconds = time.perf_counter() - c0

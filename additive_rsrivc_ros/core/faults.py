@@ -45,13 +45,10 @@ from typing import Any
 
 import numpy as np
 
+from .estimator import EstimatorHealth
 from .model import SubmodelStructure
 from .params import from_param, settings_as_params, settings_from_params
-
-QUANTITIES: tuple[str, ...] = ("natural_frequency", "damping", "gain")
-"""Quantity names as in ../shared/CONTRACT.md events.csv; index q matches columns q and q+3 of modal()."""
-
-BASELINE_KEYS: tuple[str, ...] = ("natural_frequency_hz", "damping_ratio", "gain")
+from .vocabulary import BASELINE_KEYS, EVENTS_HEADER, QUANTITIES
 
 
 class Level(IntEnum):
@@ -281,17 +278,16 @@ class FaultEvent:
         return self.clear_time_s is None
 
     def csv_row(self) -> dict[str, Any]:
-        """The events.csv columns: onset_time_s, clear_time_s, mode, quantity, direction, baseline, value."""
-        return {"onset_time_s": self.onset_time_s,
-                "clear_time_s": "" if self.clear_time_s is None else self.clear_time_s,
-                "mode": self.mode, "quantity": self.quantity, "direction": self.direction,
-                "baseline": self.baseline, "value": self.value}
+        """The events.csv columns (``vocabulary.EVENTS_HEADER``); an empty clear time while open
+        (``vocabulary.events_csv_cells`` writes them)."""
+        row = {k: getattr(self, k) for k in EVENTS_HEADER}
+        if self.clear_time_s is None:
+            row["clear_time_s"] = ""
+        return row
 
     def to_dict(self) -> dict[str, Any]:
         return asdict(self)
 
-
-EVENTS_CSV_HEADER = ("onset_time_s", "clear_time_s", "mode", "quantity", "direction", "baseline", "value")
 
 
 @dataclass
@@ -948,10 +944,11 @@ class HealthMonitor:
         self.reference_modal = None if modal is None else np.asarray(modal, float)[:, :3].copy()
         self.residual_ref = math.nan
 
-    def assess(self, t: float, modal: np.ndarray, est_health: Mapping[str, Any] | None = None) -> HealthStatus:
-        """Check the estimate and the estimator's health dict at time ``t`` and return the status (S5)."""
+    def assess(self, t: float, modal: np.ndarray, est_health: EstimatorHealth | None = None) -> HealthStatus:
+        """Check the estimate and the estimator's health record at time ``t`` and return the status (S5); a check
+        whose item the estimator does not report (empty, ``None``) is skipped."""
         s = self.settings
-        est = dict(est_health or {})
+        est = est_health if est_health is not None else EstimatorHealth()
         values: dict[str, Any] = {}
         modal = np.asarray(modal, dtype=float)
         # divergence: non-finite or blown-up parameters (000 §4.7 projection keeps A_i stable, not bounded)
@@ -975,33 +972,28 @@ class HealthMonitor:
         with np.errstate(divide="ignore", invalid="ignore"):
             rel_std = np.abs(modal[:, 3:6] / modal[:, :3])
         rel = np.array([[rel_std[i, 0] if self.structures[i].n == 2 else 0.0, rel_std[i, 2]] for i in range(self.K)])
-        info_rel = est.get("information_relative_std")
-        if info_rel is not None and np.shape(info_rel) == (self.K,):
-            rel = np.asarray(info_rel, dtype=float)[:, None]
+        if np.shape(est.information_relative_std) == (self.K,):
+            rel = np.asarray(est.information_relative_std, dtype=float)[:, None]
         values["max_relative_std"] = float(np.nanmax(rel)) if np.any(np.isfinite(rel)) else math.nan
         if np.any(rel > s.health_max_relative_std):
             i = int(np.argwhere(rel > s.health_max_relative_std)[0][0])
             self.note("loss_of_excitation", t, f"loss of excitation: mode {i + 1} relative std "
                       f"{np.nanmax(rel[i]):.2g} > {s.health_max_relative_std:g}")
         # published std unavailable: a non-finite or indefinite covariance block reports NaN, never 0 (issue 17)
-        problems = est.get("covariance_problems") or []
-        bad_cov = [f"mode {i + 1} {p}" for i, p in enumerate(problems) if p]
+        bad_cov = [f"mode {i + 1} {p}" for i, p in enumerate(est.covariance_problems) if p]
         if bad_cov:
             self.note("invalid_uncertainty", t, "no valid uncertainty (std NaN): covariance block "
                       + ", ".join(bad_cov))
-        cond = _first(est, ("condition", "cond", "condition_number", "iv_condition"))
-        if cond is not None:
-            c = float(np.nanmax(np.atleast_1d(np.asarray(cond, float))))
+        if est.cond:
+            c = float(np.nanmax(np.asarray(est.cond, float)))
             values["condition"] = c
             if not c <= s.health_max_condition:
                 self.note("loss_of_excitation", t, f"loss of excitation: IV condition number {c:.3g} > "
                           f"{s.health_max_condition:.3g}")
         # projection storm: fraction of updates that needed the stability projection (000 §4.7)
-        proj = _first(est, ("projections",))
-        samples = _first(est, ("updates", "samples"))
-        if proj is not None and samples is not None:
-            p_now = float(np.sum(np.asarray(proj, float)))
-            n_now = float(samples)
+        if est.projections:
+            p_now = float(np.sum(np.asarray(est.projections, float)))
+            n_now = float(est.updates)
             if self.last_projections is not None and self.last_samples is not None and n_now > self.last_samples:
                 frac = (p_now - self.last_projections) / (n_now - self.last_samples)
                 values["projection_fraction"] = frac
@@ -1010,9 +1002,8 @@ class HealthMonitor:
                               "stability projection")
             self.last_projections, self.last_samples = p_now, n_now
         # residual variance jump against a slow reference learned while healthy
-        res = _first(est, ("residual_var", "residual_variance"))
-        if res is not None:
-            rv = float(np.nanmax(np.atleast_1d(np.asarray(res, float))))
+        if est.residual_var is not None:
+            rv = float(est.residual_var)
             values["residual_var"] = rv
             if math.isfinite(rv) and rv >= 0:
                 if math.isnan(self.residual_ref):
@@ -1079,9 +1070,3 @@ class HealthMonitor:
         rm = d.get("reference_modal")
         self.reference_modal = None if rm is None else np.asarray(rm, float)
 
-
-def _first(d: Mapping[str, Any], keys: Sequence[str]) -> Any:
-    for k in keys:
-        if k in d and d[k] is not None:
-            return d[k]
-    return None

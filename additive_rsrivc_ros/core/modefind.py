@@ -33,6 +33,7 @@ from typing import Any
 
 import numpy as np
 
+from .estimator import MonitorSettings
 from .frf import FRFEstimate, estimate_frf, longest_finite
 from .model import TWO_PI, SubmodelStructure, guess_structure, guess_theta, modal_from_theta
 
@@ -426,7 +427,8 @@ def find_modes(u, y, rate_hz: float, *, r=None, controller=None, input_delay: in
                           frf, candidates, res, message)
 
 
-def autostart_config(cfg: Any, r, u, y, count: int | None = None) -> tuple[Any, ModeFindResult]:
+def autostart_config(cfg: MonitorSettings, r, u, y,
+                     count: int | None = None) -> tuple[MonitorSettings, ModeFindResult]:
     """The automatic start of a :class:`config.MonitorConfig` without guesses (issue 12): modes found on the given
     data (the longest finite stretch; ``count`` None: ``modes.count``), returned as the configuration with those
     modes as guesses, and the evidence. Raises ``ValueError`` (one line) when no mode can be found."""

@@ -48,15 +48,9 @@ import numpy as np
 
 from .alignment import AlignedBlock, InvariantAligner
 from .autostart import FoundModes, ModeSearch
-from .faults import (
-    BASELINE_KEYS,
-    QUANTITIES,
-    FaultEvent,
-    FaultMonitor,
-    FaultSettings,
-    HealthMonitor,
-    Level,
-)
+from .estimator import EstimatorHealth, MonitorSettings, RecursiveEstimator
+from .faults import FaultEvent, FaultMonitor, FaultSettings, HealthMonitor, Level
+from .vocabulary import BASELINE_FIELDS, FLAG_FIELDS, MODE_FIELDS, QUANTITIES, plain
 
 STATE_VERSION = 1
 FLOAT64_TYPE = "std_msgs/msg/Float64"
@@ -84,6 +78,8 @@ class Report:
     estimating: bool                  # False before the first initialization (modal is NaN)
     notices: list[str] = field(default_factory=list)   # one-line news since the last report (modes found, a failed
                                                         # automatic start) for the node's log / the CLI's stderr
+    estimator_health: EstimatorHealth | None = None     # the estimator's own record (None while not estimating);
+                                                        # health["estimator"] is its to_dict()
 
     @property
     def K(self) -> int:
@@ -102,12 +98,10 @@ class Report:
         """Mode ``i`` (0-based) with the CONTRACT diagnostics keys (numbers; flags bool)."""
         m, b = self.modal[i], self.baseline[i]
         return {
-            "natural_frequency_hz": float(m[0]), "damping_ratio": float(m[1]), "gain": float(m[2]),
-            "natural_frequency_hz_std": float(m[3]), "damping_ratio_std": float(m[4]), "gain_std": float(m[5]),
-            **{f"baseline_{k}": float(b[q]) for q, k in enumerate(BASELINE_KEYS)},
-            **{f"baseline_{k}_std": float(self.baseline_std[i, q]) for q, k in enumerate(BASELINE_KEYS)},
-            "fault_natural_frequency": bool(self.flags[i, 0]), "fault_damping": bool(self.flags[i, 1]),
-            "fault_gain": bool(self.flags[i, 2]),
+            **{k: float(m[j]) for j, k in enumerate(MODE_FIELDS)},
+            **{k: float(b[q]) for q, k in enumerate(BASELINE_FIELDS)},
+            **{f"{k}_std": float(self.baseline_std[i, q]) for q, k in enumerate(BASELINE_FIELDS)},
+            **{k: bool(self.flags[i, q]) for q, k in enumerate(FLAG_FIELDS)},
             **{f"level_{q}": int(self.levels[i, j]) for j, q in enumerate(QUANTITIES)},
             **{f"direction_{q}": self.directions[i][j] for j, q in enumerate(QUANTITIES)},
         }
@@ -143,7 +137,8 @@ class _Counters:
         return dict(self.__dict__)
 
 
-EstimatorFactory = Callable[[Any], Any]
+EstimatorFactory = Callable[[MonitorSettings], RecursiveEstimator]
+"""Builds the estimator for a configuration's modes (default :meth:`.recursive.RecursiveAdditiveSRIVC.from_config`)."""
 
 ABSOLUTE_BOUND = 1e15
 """|value| above which a sample is never data (about 1e9 x any physical signal in SI units)."""
@@ -205,7 +200,7 @@ class MagnitudeGuard:
         self._scale, self._n_at_median = math.nan, 0
 
 
-def _default_factory(cfg: Any) -> Any:
+def _default_factory(cfg: MonitorSettings) -> RecursiveEstimator:
     from .recursive import RecursiveAdditiveSRIVC
     return RecursiveAdditiveSRIVC.from_config(cfg)
 
@@ -217,7 +212,7 @@ class MonitorPipeline:
     numbering in events is 1-based (CONTRACT ``mode <i>``).
     """
 
-    def __init__(self, cfg: Any, *, state: Mapping[str, Any] | None = None,
+    def __init__(self, cfg: MonitorSettings, *, state: Mapping[str, Any] | None = None,
                  estimator_factory: EstimatorFactory | None = None) -> None:
         self.cfg_given = cfg                  # as configured (no guesses: the modes are found from the data)
         self.cfg = cfg                        # with the modes the estimator uses (found ones after an automatic start)
@@ -237,10 +232,9 @@ class MonitorPipeline:
             self.set_state(state)
 
     # ------------------------------------------------------------------------------------------- lifecycle
-    def _new_estimator(self) -> Any:
+    def _new_estimator(self) -> RecursiveEstimator:
         est = self._factory(self.cfg)
-        if hasattr(est, "set_memory"):
-            est.set_memory(self.memory_s)
+        est.set_memory(self.memory_s)
         return est
 
     @property
@@ -248,7 +242,7 @@ class MonitorPipeline:
         """No guesses and the automatic start has not found the modes yet (K = 0, nothing is estimated)."""
         return self.search is not None and self.search.found is None
 
-    def _set_modes(self, cfg: Any) -> None:
+    def _set_modes(self, cfg: MonitorSettings) -> None:
         """Estimator, fault and health monitors for the modes of ``cfg`` (none while the modes are searched)."""
         self.cfg = cfg
         self.K = cfg.K
@@ -263,7 +257,7 @@ class MonitorPipeline:
         self.faults = FaultMonitor(self.memory_s, self.settings, structures=cfg.structures)
         self.health = HealthMonitor(self.memory_s, self.settings, structures=cfg.structures, rate_hz=self.rate)
 
-    def _switch_modes(self, cfg: Any, closed: tuple[str, ...] = ()) -> None:
+    def _switch_modes(self, cfg: MonitorSettings, closed: tuple[str, ...] = ()) -> None:
         """:meth:`_set_modes` for new modes in the middle of a run: the health notes so far are kept (except the
         ``closed`` kinds), and their counts."""
         old = self.health
@@ -537,7 +531,7 @@ class MonitorPipeline:
         """Longest gap (missing samples) filled with invalid samples instead of a re-prime: 5 % of the shortest
         period of the modelled modes (the held input then barely moves the filter states), at least one sample."""
         f = self._modal()[:, 0] if self.initialized else np.array(
-            [m.natural_frequency_hz for m in self.cfg.modes if getattr(m, "natural_frequency_hz", None)], float)
+            [m.natural_frequency_hz for m in self.cfg.modes if m.natural_frequency_hz], float)
         f = f[np.isfinite(f) & (f > 0)] if f.size else f
         if f.size == 0:
             return 1
@@ -676,7 +670,7 @@ class MonitorPipeline:
         for blk in search.take():
             self._feed(blk.r, blk.u, blk.y, blk.valid, blk.t_end)
 
-    def _adopt_modes(self, cfg: Any, t_rel: float) -> None:
+    def _adopt_modes(self, cfg: MonitorSettings, t_rel: float) -> None:
         """Build estimator and monitors for the modes found; health notes so far are kept (the failed searches'
         ones are closed)."""
         self._switch_modes(cfg, closed=("no_modes", "initializing"))
@@ -758,10 +752,7 @@ class MonitorPipeline:
         modal = np.asarray(self.est.modal(), dtype=float).reshape(self.K, 6)
         if not np.all(np.isfinite(modal[:, :3])):
             return f"{which} is not finite"
-        check = getattr(self.est, "closed_loop_max_pole", None)
-        if check is None:
-            return None
-        rho = float(check())
+        rho = float(self.est.closed_loop_max_pole())
         self.model_max_pole = rho
         if math.isnan(rho) or rho < 1.0:
             return None
@@ -805,11 +796,11 @@ class MonitorPipeline:
                 self.counters.reinitializations += 1
                 self._no_valid_model(t_rep, problem)
         modal = self._modal()
-        est_health: dict[str, Any] = {}
+        est_health: EstimatorHealth | None = None
         if self.initialized:
-            est_health = dict(getattr(self.est, "health", {}) or {})
-            if int(est_health.get("hold_remaining", 0) or 0) > 0:
-                auto = int(est_health.get("reprimes", 0) or 0) > self._marked_gaps
+            est_health = self.est.health
+            if est_health.hold_remaining > 0:
+                auto = est_health.reprimes > self._marked_gaps
                 self.health.note("repriming", t_rep, "estimator filters re-priming after non-finite filter states"
                                  if auto else "estimator filters re-priming after a data break")
             status = self.health.assess(t_rep, modal, est_health)
@@ -842,13 +833,13 @@ class MonitorPipeline:
         health["anomaly_since"] = None if self.faults is None else self.faults.anomaly_since
         self._health_extras(health, status.hold, t_rep)
         health.update(self.counters.to_dict())
-        health["estimator"] = {k: _jsonable(v) for k, v in est_health.items()}
+        health["estimator"] = {} if est_health is None else est_health.to_dict()
         health["stuck"] = self.stuck
         health["baseline_source"] = None if self.faults is None or self.faults.baseline is None else \
             self.faults.baseline.source
         rep = Report(time_s=t_rep, modal=modal, **self._fault_fields(), events_opened=self.pending_opened,
                      events_closed=self.pending_closed, health=health, phase=self.phase,
-                     estimating=self.initialized, notices=self.notices)
+                     estimating=self.initialized, notices=self.notices, estimator_health=est_health)
         reports.append(rep)
         self.last_report = rep
         self.pending_opened, self.pending_closed, self.notices = [], [], []
@@ -943,7 +934,7 @@ class MonitorPipeline:
         """
         est = None
         if self.initialized:
-            est = {k: _jsonable(v) for k, v in self.est.get_state().items()}
+            est = {k: plain(v) for k, v in self.est.get_state().items()}
         found = self.search.found if self.search is not None else None
         return {
             "version": STATE_VERSION, "K": self.K, "loop_rate_hz": self.rate, "model": self._model_record(),
@@ -958,18 +949,18 @@ class MonitorPipeline:
                          "no_model": self.no_model},
         }
 
-    def _model_record(self, cfg: Any = None) -> dict[str, Any]:
+    def _model_record(self, cfg: MonitorSettings | None = None) -> dict[str, Any]:
         """What a saved estimate is only valid for: rate, loop structure, controller, delay, mode structures."""
         cfg = self.cfg if cfg is None else cfg
-        c = getattr(cfg, "controller", None)
-        return {"loop_rate_hz": self.rate, "closed_loop": bool(getattr(cfg, "closed_loop", False)),
+        c = cfg.controller
+        return {"loop_rate_hz": self.rate, "closed_loop": bool(cfg.closed_loop),
                 "controller_numerator": None if c is None else [float(v) for v in c.numerator],
                 "controller_denominator": None if c is None else [float(v) for v in c.denominator],
-                "input_delay_samples": int(getattr(cfg, "input_delay_samples", 0)),
+                "input_delay_samples": int(cfg.input_delay_samples),
                 "integrators": [int(s.integrators) for s in cfg.structures],
                 "orders": [[int(s.n), int(s.m)] for s in cfg.structures]}
 
-    def _check_model_record(self, saved: Any, cfg: Any = None) -> None:
+    def _check_model_record(self, saved: Any, cfg: MonitorSettings | None = None) -> None:
         """Refuse (one line) a state saved under another model: another controller, delay, loop or structures."""
         if not isinstance(saved, Mapping):
             raise PipelineError("saved state does not record its controller, input delay and mode structures "
@@ -1013,7 +1004,7 @@ class MonitorPipeline:
             if state["estimator"] is not None:
                 self.est.set_state({k: np.asarray(v) for k, v in state["estimator"].items()})
                 self.initialized = True
-                self._marked_gaps = int(dict(getattr(self.est, "health", {}) or {}).get("reprimes", 0) or 0)
+                self._marked_gaps = self.est.health.reprimes
             if self.faults is not None:
                 self.faults.set_state(state["faults"])
             self.health.set_state(state["health"])
@@ -1043,13 +1034,12 @@ ALIGN_NOTE_HOLD_S = 5.0             # a re-alignment stays in the health reasons
 ALIGN_UNDECIDED_FRACTION = 0.5       # report when more than this fraction of a report period is undecidable
 
 
-def _make_aligner(cfg: Any) -> InvariantAligner | None:
+def _make_aligner(cfg: MonitorSettings) -> InvariantAligner | None:
     """The controller-invariant aligner when it applies (closed loop, Float64 signals, ``alignment.mode: auto``)."""
-    p = getattr(cfg, "params", {}) or {}
+    p = cfg.params
     if p.get("alignment.mode", "auto") == "off" or not cfg.closed_loop or cfg.controller is None:
         return None
-    signals = getattr(cfg, "signals", {}) or {}
-    if any(getattr(sc, "type", FLOAT64_TYPE) != FLOAT64_TYPE for sc in signals.values()):
+    if any(sc.type != FLOAT64_TYPE for sc in cfg.signals.values()):
         return None   # stamped inputs (JointState) are paired exactly by their header stamps
     rate = float(cfg.loop_rate_hz)
     lag = int(math.ceil(float(p.get("alignment.lag_s", 0.008)) * rate))
@@ -1064,10 +1054,3 @@ def _ffill(x: np.ndarray, first: float) -> np.ndarray:
     out = np.where(idx >= 0, x[np.maximum(idx, 0)], first)
     return out
 
-
-def _jsonable(v: Any) -> Any:
-    if isinstance(v, np.ndarray):
-        return v.tolist()
-    if isinstance(v, np.generic):
-        return v.item()
-    return v

@@ -23,13 +23,14 @@ Supported submodels: second-order modes ``b0/(a2 p^2 + a1 p + 1)`` and rigid-bod
 from __future__ import annotations
 
 import math
-from collections.abc import Sequence
+from collections.abc import Mapping, Sequence
 from pathlib import Path
 from typing import Any
 
 import numpy as np
 
 from . import kernel as kn
+from .estimator import EstimatorHealth, MonitorSettings
 from .model import SubmodelStructure, modal_from_theta, modal_std
 from .params import EstimatorOptions, core_param
 
@@ -370,7 +371,7 @@ class RecursiveAdditiveSRIVC:
 
     # ------------------------------------------------------------------ construction helpers
     @classmethod
-    def from_config(cls, cfg: Any) -> RecursiveAdditiveSRIVC:
+    def from_config(cls, cfg: MonitorSettings) -> RecursiveAdditiveSRIVC:
         """Build from a :class:`config.MonitorConfig` (modes, memories, controller, ``cfg.estimator`` options)."""
         if not cfg.modes:  # issue 12: without guesses the modes come from core.modefind.autostart_config first
             raise ValueError("no mode guesses (modes.natural_frequency_hz empty): find them first (core.modefind."
@@ -511,7 +512,7 @@ class RecursiveAdditiveSRIVC:
     def modal(self) -> np.ndarray:
         """(K, 6): ``f_hz, zeta, gain, f_std, zeta_std, gain_std`` (delta method, model.modal_std, on the IV sandwich
         :attr:`covariances`). A mode whose covariance block is non-finite or indefinite reports NaN std (see
-        :meth:`covariance_problems` and ``health["covariance_problems"]``)."""
+        :meth:`covariance_problems` and ``health.covariance_problems``)."""
         out = np.full((self.K, 6), np.nan)
         for i, (th, cov, s) in enumerate(zip(self.thetas, self.covariances, self.structures, strict=True)):
             out[i, :3] = modal_from_theta(th, s)
@@ -557,34 +558,30 @@ class RecursiveAdditiveSRIVC:
         return out
 
     @property
-    def health(self) -> dict[str, Any]:
+    def health(self) -> EstimatorHealth:
         """Samples, updates, skipped/held samples, re-primes, projections and rejections per mode (total and per
         reason, core/kernel.py "Safeguards"), non-finite instrument samples, IV condition numbers, residual variance."""
         ist = self._s["ist"]
-        return {
-            "samples": int(ist[kn.I_SAMPLES]),
-            "updates": int(ist[kn.I_UPDATES]),
-            "skipped_samples": int(ist[kn.I_SKIPPED]),
-            "held_samples": int(ist[kn.I_HELD]),
-            "hold_remaining": int(ist[kn.I_HOLD]),
-            "reprimes": int(ist[kn.I_REPRIMES]),
-            "capped_updates": int(ist[kn.I_CAPPED]),
-            "projections": [int(v) for v in self._s["proj"]],
-            "rejected_updates": [int(v) for v in self._s["rej"]],
-            # per mode: updates whose filter discretization was not finite (or samples whose filters were held at
-            # rest for that reason), whose IV denominator was below the floor, with a non-finite value/a2 = 0/step
-            "rejected_discretization": [int(v) for v in self._s["rejr"][:, kn.R_DISC]],
-            "rejected_iv_denominator": [int(v) for v in self._s["rejr"][:, kn.R_DEN]],
-            "rejected_nonfinite_or_step": [int(v) for v in self._s["rejr"][:, kn.R_STEP]],
-            "nonfinite_instrument": int(ist[kn.I_NONFINITE_Z]),
-            "cond": [float(v) for v in self.iv_condition()],
-            # per mode "" or why the std is NaN (non-finite / indefinite covariance block; never reported as 0)
-            "covariance_problems": self.covariance_problems(),
-            # relative std of (f, gain) from sigma^2 P_bar: winds up without excitation (the sandwich std does not)
-            "information_relative_std": [float(v) for v in self.information_relative_std()],
-            "residual_var": self.residual_variance,
-            "init_message": self.init_message,
-        }
+        return EstimatorHealth(
+            samples=int(ist[kn.I_SAMPLES]),
+            updates=int(ist[kn.I_UPDATES]),
+            skipped_samples=int(ist[kn.I_SKIPPED]),
+            held_samples=int(ist[kn.I_HELD]),
+            hold_remaining=int(ist[kn.I_HOLD]),
+            reprimes=int(ist[kn.I_REPRIMES]),
+            capped_updates=int(ist[kn.I_CAPPED]),
+            projections=tuple(int(v) for v in self._s["proj"]),
+            rejected_updates=tuple(int(v) for v in self._s["rej"]),
+            rejected_discretization=tuple(int(v) for v in self._s["rejr"][:, kn.R_DISC]),
+            rejected_iv_denominator=tuple(int(v) for v in self._s["rejr"][:, kn.R_DEN]),
+            rejected_nonfinite_or_step=tuple(int(v) for v in self._s["rejr"][:, kn.R_STEP]),
+            nonfinite_instrument=int(ist[kn.I_NONFINITE_Z]),
+            cond=tuple(float(v) for v in self.iv_condition()),
+            covariance_problems=tuple(self.covariance_problems()),
+            information_relative_std=tuple(float(v) for v in self.information_relative_std()),
+            residual_var=self.residual_variance,
+            init_message=self.init_message,
+        )
 
     # ------------------------------------------------------------------ runtime changes
     def set_forgetting(self, forgetting: np.ndarray | Sequence[float] | float) -> None:
@@ -852,7 +849,7 @@ class RecursiveAdditiveSRIVC:
         out["version"] = np.array([STATE_VERSION], dtype=np.int64)
         return out
 
-    def set_state(self, state: dict[str, np.ndarray]) -> None:
+    def set_state(self, state: Mapping[str, np.ndarray]) -> None:
         """Restore a :meth:`get_state` snapshot; continuation is bit-identical. Shapes must match.
 
         Version-1 snapshots (before the filter model) load with ``theta_f = theta`` and ``mu_f = 0``.

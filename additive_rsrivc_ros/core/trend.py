@@ -44,7 +44,8 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-QUANTITIES = ("natural_frequency", "damping", "gain")
+from .vocabulary import QUANTITIES
+
 MIN_RECORDINGS = 4            # a line through fewer recordings leaves < 2 degrees of freedom for its scatter
 DEFAULT_ALPHA = 0.01          # family-wise false-alarm probability per machine (all modes and quantities)
 _MAD_TO_STD = 1.482602218505602

@@ -13,6 +13,7 @@ from rclpy.parameter import Parameter
 from std_msgs.msg import Float64MultiArray, MultiArrayDimension
 
 from ..config import Param
+from ..core.vocabulary import BASELINE_FIELDS, FLAG_FIELDS, MODE_FIELDS, MODE_KEYS, num  # noqa: F401 (cv.* in ros/)
 from ..status import StatusRecord
 
 PARAM_TYPE = {
@@ -20,11 +21,6 @@ PARAM_TYPE = {
     "string": Parameter.Type.STRING, "bool[]": Parameter.Type.BOOL_ARRAY, "int[]": Parameter.Type.INTEGER_ARRAY,
     "double[]": Parameter.Type.DOUBLE_ARRAY, "string[]": Parameter.Type.STRING_ARRAY,
 }
-MODE_FIELDS = ("natural_frequency_hz", "damping_ratio", "gain", "natural_frequency_hz_std", "damping_ratio_std",
-               "gain_std")
-BASELINE_FIELDS = ("baseline_natural_frequency_hz", "baseline_damping_ratio", "baseline_gain")
-FLAG_FIELDS = ("fault_natural_frequency", "fault_damping", "fault_gain")
-MODE_KEYS = (*MODE_FIELDS, *BASELINE_FIELDS, *FLAG_FIELDS)   # exactly the CONTRACT keys of a mode status
 _INT_MAX = 2**63 - 1
 
 
@@ -68,12 +64,6 @@ def plain(value: Any) -> Any:
     if isinstance(value, tuple):
         return list(value)
     return value
-
-
-def num(v: float) -> str:
-    """Decimal string of a number (``nan`` when unknown)."""
-    v = float(v)
-    return repr(v) if math.isfinite(v) else ("nan" if math.isnan(v) else ("inf" if v > 0 else "-inf"))
 
 
 def mode_status(record: StatusRecord, hardware_id: str) -> DiagnosticStatus:

@@ -205,8 +205,8 @@ class PublishingMixin:
         """Key/values of the estimator status (counters, health, timing), in the published order."""
         sync, pipe = self.sync, self.pipeline
         sc = sync.counters
-        est = h.get("estimator", {}) or {}
-        cond = [c for c in est.get("cond", []) if c is not None]
+        est = rep.estimator_health if rep is not None else None     # core/estimator.py EstimatorHealth
+        cond = [c for c in (est.cond if est is not None else ()) if c is not None]
         rtf = self._data_s / self._busy_s if self._busy_s > 0 else math.nan
         d50, d95, dmax = self._delays()
         return {
@@ -228,11 +228,11 @@ class PublishingMixin:
             "worker_stalls": self.worker_stalls,
             "worker_stall_max_s": float(self.worker_stall_max_s),
             "reports_coalesced": max(0, self._reports_made - self._reports_published),
-            "projections": int(sum(est.get("projections", []) or [0])),
-            "reprimes": int(est.get("reprimes", 0) or 0),
+            "projections": int(sum(est.projections)) if est is not None else 0,
+            "reprimes": int(est.reprimes or 0) if est is not None else 0,
             "condition_number": float(max(cond)) if cond else math.nan,
             "condition_number_per_mode": " ".join(cv.num(c) for c in cond),
-            "residual_variance": float(est.get("residual_var", math.nan) or math.nan),
+            "residual_variance": float(est.residual_var or math.nan) if est is not None else math.nan,
             "initializations": int(h.get("initializations", 0)),
             "reinitializations": int(h.get("reinitializations", 0)),
             "real_time_factor": float(rtf),

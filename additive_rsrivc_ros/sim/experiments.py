@@ -72,7 +72,7 @@ def run_paper(seed: int, *, closed: bool = True, duration: float = 1000.0, sprea
             err[i, q] = 100.0 * np.sqrt(np.mean(rel**2))
     final = np.array([[w_hat[-1, i] / (2 * np.pi * truth[i, -1, 0]) - 1.0 for i in range(3)]])
     diverged = bool(not np.all(np.isfinite(err)) or np.any(np.abs(final) > 0.2) or np.any(err > 50.0))
-    return {"err": err, "diverged": diverged, "health": est.health}
+    return {"err": err, "diverged": diverged, "health": est.health.to_dict()}
 
 
 def run_beam(seed: int, *, duration: float = 130.0, change_start: float = 40.0, change_len: float = 60.0,
@@ -111,4 +111,4 @@ def run_beam(seed: int, *, duration: float = 130.0, change_start: float = 40.0, 
     after = tt >= change_start + change_len + 0.244
     before = (tt >= 10.0) & (tt <= change_start)
     return {"mode2_after": float(rel[after, 1].max()), "mode2_before": float(rel[before, 1].max()),
-            "mode1": float(rel[tt >= 10.0, 0].max()), "health": est.health, "init": est.init_message}
+            "mode1": float(rel[tt >= 10.0, 0].max()), "health": est.health.to_dict(), "init": est.init_message}

@@ -24,6 +24,7 @@ from typing import Any
 import numpy as np
 
 from ..config import MonitorConfig, load_config
+from ..core.vocabulary import quantity_of
 from .plants import BEAM_MODES, BEAM_NOISE_STD, PAPER_MODES
 from .simulate import (
     ModalChange,
@@ -39,7 +40,6 @@ from .simulate import (
     white_noise,
 )
 
-QUANTITY_NAMES = {"frequency": "natural_frequency", "damping": "damping", "gain": "gain"}  # events.csv vocabulary
 
 def config_dir() -> Path:
     """The params files: ``config/`` of a source tree (checkout, editable install, colcon --symlink-install), else
@@ -103,7 +103,7 @@ def _json(obj: Any) -> str:
 # Fault truth encoding
 # ----------------------------------------------------------------------------------------------------------------
 def _change_desc(c: ModalChange) -> dict:
-    return {"kind": "structural", "mode": c.mode + 1, "quantity": QUANTITY_NAMES[c.quantity],
+    return {"kind": "structural", "mode": c.mode + 1, "quantity": quantity_of(c.quantity),
             "direction": "down" if c.relative_change < 0 else "up", "relative_change": c.relative_change,
             "shape": c.shape, "start_s": c.start_s,
             "end_s": c.start_s + (0.0 if c.shape == "step" else c.duration_s)}

@@ -30,8 +30,8 @@ import numpy as np
 from ..core.controller import DiscreteController
 from ..core.model import TWO_PI, SubmodelStructure
 from ..core.plant import check_drive, pack_thetas, simulate_kernel
+from ..core.vocabulary import SIM_QUANTITIES
 
-QUANTITIES = ("frequency", "damping", "gain")
 SHAPES = ("step", "ramp", "raised_cosine", "bump")
 SENSOR_FAULTS = ("bias", "drift", "stuck", "drop", "nan")
 
@@ -95,8 +95,8 @@ class ModalChange:
     shape: str = "step"
 
     def __post_init__(self) -> None:
-        if self.quantity not in QUANTITIES:
-            raise ValueError(f"quantity must be one of {QUANTITIES}, got {self.quantity!r}")
+        if self.quantity not in SIM_QUANTITIES:
+            raise ValueError(f"quantity must be one of {SIM_QUANTITIES}, got {self.quantity!r}")
         if self.shape not in SHAPES:
             raise ValueError(f"shape must be one of {SHAPES}, got {self.shape!r}")
         if not (math.isfinite(self.relative_change) and self.relative_change > -1.0):
@@ -168,7 +168,7 @@ def modal_trajectories(modes: Sequence[PlantMode], t: np.ndarray,
             raise ValueError(f"change refers to mode {c.mode}, the plant has {len(modes)} modes (0-based)")
         if modes[c.mode].rigid and c.quantity != "gain":
             raise ValueError(f"mode {c.mode} is rigid-body: only its gain can change")
-        out[c.mode, :, QUANTITIES.index(c.quantity)] *= 1.0 + c.relative_change * c.profile(t)
+        out[c.mode, :, SIM_QUANTITIES.index(c.quantity)] *= 1.0 + c.relative_change * c.profile(t)
     return out
 
 
