@@ -42,7 +42,7 @@ def attach_errors(sd, t0: float, offset: float, open_loop: bool, init_method: st
     m, truth = est.modal(), sd.truth[:, -1, :]
     rel = np.abs(m[:, :3] - truth) / np.where(truth == 0, 1.0, np.abs(truth)) * 100.0
     return {"freq_gain": float(np.nanmax(rel[:, [0, 2]])), "damping": float(np.nanmax(rel[1:, 1])),
-            "projections": int(np.sum(est.health["projections"])), "init": est.init_message}
+            "projections": int(np.sum(est.health.projections)), "init": est.init_message}
 
 
 def main(argv: list[str] | None = None) -> int:

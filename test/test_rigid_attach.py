@@ -61,7 +61,7 @@ def test_attaching_to_a_moving_rigid_body(moving, t0, closed_loop):
     assert "offline init (" in est.init_message and "rejected" not in est.init_message
     err = _errors(est, moving)
     assert np.all(err < TOL_PERCENT), (t0, err)
-    assert sum(est.health["projections"]) == 0
+    assert sum(est.health.projections) == 0
 
 
 def test_recursion_alone_from_the_true_model_stays_exact_when_attached_in_motion():
@@ -85,7 +85,7 @@ def test_a_gap_restarts_the_free_response(moving):
     skip = ng + int(0.77 * rate)   # 0.77 s lost while the plant moves on
     est.update(r[skip:], u[skip:], y[skip:])
     assert np.all(_errors(est, moving) < TOL_PERCENT)
-    assert sum(est.health["projections"]) == 0
+    assert sum(est.health.projections) == 0
 
 
 def test_a_snapshot_without_free_response_loads_and_estimates_it(moving):
