@@ -57,7 +57,6 @@ def main(argv: list[str] | None = None) -> int:
     period = 2.0   # the setpoint's square wave (0.5 Hz)
     sd = build("rigid_body", duration_s=a.duration + 2 * period, seed=a.seed, fault_time_s=None)
     rate = sd.rate_hz
-    pos = sd.sim.modal_outputs[0] if hasattr(sd.sim, "modal_outputs") else None
     rows = [0.0] + [period * (k + 0.5) / a.phases + 0.013 for k in range(a.phases)]
     print(f"rigid_body, {'open' if a.open_loop else 'closed'} loop, guesses {a.offset:+.0%} off, init "
           f"{a.init_method}, {a.duration:g} s after each attach time, noise std {sd.parameters.get('noise_std')}")
@@ -71,7 +70,6 @@ def main(argv: list[str] | None = None) -> int:
         if t0 > 0:
             worst = max(worst, e["freq_gain"])
         print(f"{t0:9.3f} {sd.y[k]:9.4f} {dy:9.4f} {e['freq_gain']:17.4g} {e['damping']:15.4g} {e['projections']:5d}")
-    del pos
     print(f"worst attach in motion: {worst:.4g} % (start from rest {ref['freq_gain']:.4g} %)")
     return 0
 
