@@ -42,14 +42,21 @@ def _errors(est: RecursiveAdditiveSRIVC, sd) -> np.ndarray:
     return np.abs(m[:, [0, 2]] - truth[:, [0, 2]]) / np.where(truth[:, [0, 2]] == 0, 1.0, truth[:, [0, 2]]) * 100
 
 
-def _attach(sd, t0: float, cfg: MonitorConfig) -> RecursiveAdditiveSRIVC:
-    rate = cfg.loop_rate_hz
-    n0, ni = int(round(t0 * rate)), int(cfg.init_duration_s * rate)
-    r, u, y = sd.r[n0:], sd.u[n0:], sd.y[n0:]
-    est = RecursiveAdditiveSRIVC.from_config(cfg)
+def _attach(sd, t0: float, cfg: MonitorConfig, until_s: float | None = None) -> RecursiveAdditiveSRIVC:
+    """The estimator attached at ``t0``: offline initialization, then the recursion up to ``until_s`` s after
+    ``t0`` (default: the end of the record)."""
+    est, r, u, y = _signals_from(sd, t0, cfg)
+    ni = int(cfg.init_duration_s * cfg.loop_rate_hz)
+    n1 = r.size if until_s is None else int(until_s * cfg.loop_rate_hz)
     est.initialize(r[:ni], u[:ni], y[:ni])
-    est.update(r[ni:], u[ni:], y[ni:])
+    est.update(r[ni:n1], u[ni:n1], y[ni:n1])
     return est
+
+
+def _signals_from(sd, t0: float, cfg: MonitorConfig) -> tuple[RecursiveAdditiveSRIVC, np.ndarray, np.ndarray,
+                                                              np.ndarray]:
+    n0 = int(round(t0 * cfg.loop_rate_hz))
+    return RecursiveAdditiveSRIVC.from_config(cfg), sd.r[n0:], sd.u[n0:], sd.y[n0:]
 
 
 @pytest.mark.parametrize("closed_loop", [True, False], ids=["closed", "open"])
@@ -75,14 +82,10 @@ def test_recursion_alone_from_the_true_model_stays_exact_when_attached_in_motion
 def test_a_gap_restarts_the_free_response(moving):
     """After a gap the filters start from rest at a new, unknown state of the plant: estimated again."""
     cfg = _config(moving)
-    rate = cfg.loop_rate_hz
-    n0, ni, ng = int(0.113 * rate), int(cfg.init_duration_s * rate), int(18.7 * rate)
-    r, u, y = moving.r[n0:], moving.u[n0:], moving.y[n0:]
-    est = RecursiveAdditiveSRIVC.from_config(cfg)
-    est.initialize(r[:ni], u[:ni], y[:ni])
-    est.update(r[ni:ng], u[ni:ng], y[ni:ng])
+    est = _attach(moving, 0.113, cfg, until_s=18.7)
+    _, r, u, y = _signals_from(moving, 0.113, cfg)
     est.mark_gap()
-    skip = ng + int(0.77 * rate)   # 0.77 s lost while the plant moves on
+    skip = int((18.7 + 0.77) * cfg.loop_rate_hz)   # 0.77 s lost while the plant moves on
     est.update(r[skip:], u[skip:], y[skip:])
     assert np.all(_errors(est, moving) < TOL_PERCENT)
     assert sum(est.health.projections) == 0
@@ -91,12 +94,9 @@ def test_a_gap_restarts_the_free_response(moving):
 def test_a_snapshot_without_free_response_loads_and_estimates_it(moving):
     """Version-4 state files (no free-response P block) restore: the block starts at P(0), nothing else changes."""
     cfg = _config(moving)
-    rate = cfg.loop_rate_hz
-    n0, ni, nh = int(1.113 * rate), int(cfg.init_duration_s * rate), int(20.0 * rate)
-    r, u, y = moving.r[n0:], moving.u[n0:], moving.y[n0:]
-    est = RecursiveAdditiveSRIVC.from_config(cfg)
-    est.initialize(r[:ni], u[:ni], y[:ni])
-    est.update(r[ni:nh], u[ni:nh], y[ni:nh])
+    est = _attach(moving, 1.113, cfg, until_s=20.0)
+    _, r, u, y = _signals_from(moving, 1.113, cfg)
+    nh = int(20.0 * cfg.loop_rate_hz)
     old = est.get_state()
     old["version"] = np.array([4])
     old["P"][0, 1:, 1:] = 0.0
