@@ -46,6 +46,13 @@ from additive_rsrivc_ros.sim.independent import (  # noqa: E402
     second_order_gradient_covariance,
     simulate,
 )
+from additive_rsrivc_ros.sim.plants import (  # noqa: E402
+    INT_CONTROLLER_DEN,
+    INT_CONTROLLER_NUM,
+    INT_MONIC_THETA,
+    INT_STRUCTURE,
+    INT_THETA,
+)
 
 NAMES_52 = ["a11", "a12", "b10", "a21", "a22", "b20"]
 VERDICT_NOTES: dict[str, str] = {}
@@ -249,12 +256,10 @@ def case_uns(runs: int, seed: int) -> bool:
 def case_int(runs: int, seed: int) -> bool:
     h, N = 0.1, 15000
     # G = (p - 2)/(p (p + 1)): solution 2 structure B/(p A), A = 1 + p, B = -2 + p
-    st2 = SubmodelStructure(n=1, m=1, integrators=1)
-    th2 = np.array([1.0, -2.0, 1.0])
+    st2, th2 = INT_STRUCTURE, INT_THETA
     # solution 1 (monic): A = p^2 + a1 p + a0 with a0 = 0, a1 = 1; B = b0 + b1 p = -2 + p
-    st1 = SubmodelStructure(n=2, m=1)
-    th1 = np.array([0.0, 1.0, -2.0, 1.0])  # monic layout [a0, a1, b0, b1]
-    cnum, cden = (-0.249 - 2.07, 2.07), (1.0,)
+    st1, th1 = SubmodelStructure(n=2, m=1), INT_MONIC_THETA  # monic layout [a0, a1, b0, b1]
+    cnum, cden = INT_CONTROLLER_NUM, INT_CONTROLLER_DEN
     ctrl = DiscreteController(cnum, cden)
     rng = np.random.default_rng(seed)
     out = {}

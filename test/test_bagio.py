@@ -19,6 +19,7 @@ from additive_rsrivc_ros.bagio import (
 )
 from additive_rsrivc_ros.config import MonitorConfig, validate_params
 from additive_rsrivc_ros.core.controller import DiscreteController
+from additive_rsrivc_ros.sim.plants import PAPER_PID
 from additive_rsrivc_ros.sim.simulate import (
     ModalChange,
     PlantMode,
@@ -48,7 +49,7 @@ def sim():
     t = time_vector(RATE, 2.0)
     r = square_wave(t, 2.0, 0.05)
     v = white_noise(t.size, 1e-3, np.random.default_rng(2))
-    ctrl = DiscreteController((0.02329, -0.02058, 0.00454), (1.0, -1.0, 0.0))
+    ctrl = PAPER_PID
     return simulate_modes(modes, RATE, r=r, controller=ctrl, noise=v, input_delay=4,
                           changes=[ModalChange(1, "frequency", -0.05, 1.0)],
                           sensor_faults=[SensorFault("nan", 1.5, 0.2, fraction=0.05)],

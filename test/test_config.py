@@ -5,6 +5,7 @@ import numpy as np
 import pytest
 
 from additive_rsrivc_ros.config import MonitorConfig, ParamError, load_config, load_params_file, validate_params
+from additive_rsrivc_ros.sim.plants import PAPER_PID_DEN, PAPER_PID_NUM
 
 CONFIG_DIR = Path(__file__).resolve().parents[1] / "config"
 
@@ -17,7 +18,7 @@ def test_paper_example_loads_with_truth_modes():
     np.testing.assert_allclose(thetas[:, 1], [0.25, 0.04, 0.0025], rtol=1e-6)
     np.testing.assert_allclose(thetas[:, 0], [0.25, 0.01, 0.01], rtol=1e-6)
     np.testing.assert_allclose(cfg.forgetting_factors, 0.999)
-    assert cfg.controller.numerator == (0.02329, -0.02058, 0.00454)
+    assert cfg.controller.numerator == PAPER_PID_NUM and cfg.controller.denominator == PAPER_PID_DEN
 
 
 MONITOR_CONFIGS = sorted(p for p in CONFIG_DIR.glob("*.yaml") if not p.name.startswith("diagnostic_aggregator"))

@@ -10,6 +10,8 @@ from additive_rsrivc_ros.core import filters as F
 from additive_rsrivc_ros.core.controller import DiscreteController
 from additive_rsrivc_ros.core.model import SubmodelStructure, theta_from_modal
 from additive_rsrivc_ros.sim.independent import MODE, PAPER_THETAS, PID_DEN, PID_NUM, simulate
+from additive_rsrivc_ros.sim.plants import PAPER_PID
+from additive_rsrivc_ros.sim.plants import PAPER_THETAS as PAPER5_THETAS
 
 EPS = np.finfo(float).eps
 
@@ -102,9 +104,9 @@ def test_closed_loop_response_matches_an_explicit_loop(delay):
 
 def test_unstable_closed_loop_is_detected():
     """The misprinted 000 §5 controller (-0.2058) does not stabilize the 000 §5 plant; the corrected one does."""
-    thetas = [np.array([0.25, 0.25, 3.0]), np.array([0.01, 0.04, 0.5]), np.array([0.01, 0.0025, 1.0])]
+    thetas = PAPER5_THETAS
     sts = [MODE] * 3
-    good = DiscreteController((0.02329, -0.02058, 0.00454), (1.0, -1.0, 0.0))
+    good = PAPER_PID
     bad = DiscreteController((0.02329, -0.2058, 0.00454), (1.0, -1.0, 0.0))
     assert F.closed_loop_radius(thetas, sts, 0.05, good) < 1.0
     rho_bad = F.closed_loop_radius(thetas, sts, 0.05, bad)

@@ -9,6 +9,7 @@ from additive_rsrivc_ros.core.controller import DiscreteController
 from additive_rsrivc_ros.core.model import SubmodelStructure
 from additive_rsrivc_ros.core.offline import identify
 from additive_rsrivc_ros.sim.independent import MODE, simulate
+from additive_rsrivc_ros.sim.plants import INT_CONTROLLER_DEN, INT_CONTROLLER_NUM
 
 H = 0.1
 ST = SubmodelStructure(n=2, m=1)
@@ -81,10 +82,9 @@ def test_integrator_plant_both_solutions(loop):
         u, y = simulate([th2], [st2], H, u=rng.standard_normal(n))
         r = c = None
     else:
-        cnum = (-0.249 - 2.07, 2.07)
         r = rng.standard_normal(n)
-        u, y = simulate([th2], [st2], H, r=r, controller=(cnum, (1.0,)))
-        c = DiscreteController(cnum, (1.0,))
+        u, y = simulate([th2], [st2], H, r=r, controller=(INT_CONTROLLER_NUM, INT_CONTROLLER_DEN))
+        c = DiscreteController(INT_CONTROLLER_NUM, INT_CONTROLLER_DEN)
     pre = "srivc" if loop == "open" else "clsrivc"
     res2 = identify(u, y, 1 / H, [st2], [th2 * 1.05], r=r, controller=c, method=f"{pre}-uns", tol=1e-11)
     assert res2.converged, res2.message
