@@ -226,8 +226,8 @@ def n_kernel_params(kind: int) -> int:
 @njit(cache=True)
 def restart_free_response(kind: np.ndarray, theta: np.ndarray, thf: np.ndarray, P: np.ndarray, S: np.ndarray,
                           p0diag: np.ndarray) -> None:
-    """The filters start from rest: a rigid body's initial state is unknown again (``c = 0``, ``P(0)``, no cross or
-    sandwich terms)."""
+    """The filters start from rest: a rigid body's initial state is unknown again (``c = 0``, ``P(0) = P0_FREE``
+    (also its wind-up reference ``p0diag``), no cross or sandwich terms)."""
     for i in range(kind.shape[0]):
         if kind[i] == 0:
             continue
@@ -240,7 +240,8 @@ def restart_free_response(kind: np.ndarray, theta: np.ndarray, thf: np.ndarray, 
                 S[i, a, c] = 0.0
                 S[i, c, a] = 0.0
         for a in range(1, 1 + kind[i]):
-            P[i, a, a] = p0diag[i, a]
+            p0diag[i, a] = P0_FREE
+            P[i, a, a] = P0_FREE
 
 
 @njit(cache=True)

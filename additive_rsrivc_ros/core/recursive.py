@@ -833,7 +833,6 @@ class RecursiveAdditiveSRIVC:
             s["P"][i][:nt, :nt] = p0
             s["p0diag"][i][...] = 0.0
             s["p0diag"][i][:nt] = np.diag(p0)
-            s["p0diag"][i][nt:1 + int(s["kind"][i])] = kn.P0_FREE if s["kind"][i] else 0.0
             covs = getattr(result, "covariances", None) or []
             s0 = sandwich_from_offline(p0, covs[i], float(getattr(result, "residual_variance", math.nan))) \
                 if i < len(covs) else None
@@ -883,9 +882,6 @@ class RecursiveAdditiveSRIVC:
             self._s[k][...] = np.asarray(state[k], dtype=dtype)
         if int(np.asarray(state.get("version", [0])).ravel()[0]) < 5:   # no free response: estimate it from now on
             s = self._s
-            for i in range(self.K):
-                if s["kind"][i]:
-                    s["p0diag"][i][1:1 + int(s["kind"][i])] = kn.P0_FREE
             kn.restart_free_response(s["kind"], s["theta"], s["thf"], s["P"], s["S"], s["p0diag"])
 
     def save(self, path: str | Path) -> None:
