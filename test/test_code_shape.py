@@ -16,7 +16,7 @@ PACKAGE = Path(__file__).resolve().parents[1] / "additive_rsrivc_ros"
 NAME = PACKAGE.name
 CORE_ALLOWED = {"numpy", "scipy", "numba"}
 MAX_FUNCTION_LINES = 120
-# The numba kernel's per-sample loop (000 Algorithm 2) stays one function: split into njit functions it ran 1.5-2.5x
+# The numba kernel's per-sample loop (000 Algorithm 2) stays one function: split into njit functions it ran 1.5-3.8x
 # slower (measured on the rsrivc_bench cases: K = 4 (1, 0) 0.68 -> 1.7-2.6 us/sample, 1.0 with inline="always"), since
 # every call passes tens of array arguments per sample. It must stay a compiled kernel to keep this exception.
 COMPILED_HOT_LOOPS = {("core/kernel.py", "run_block")}
