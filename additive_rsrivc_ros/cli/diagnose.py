@@ -343,6 +343,9 @@ def diagnose(args: argparse.Namespace, stdout: TextIO, stderr: TextIO, state: di
         info["modes found from the data"] = pipe.search.found.describe()
     if pipe.counters.data_starts:
         info["start"] = "the mode guesses gave no valid model: started from the modes found in the data"
+    identifiability = identifiability_timeline(reports)
+    if identifiability:
+        info.update(identifiability_info(identifiability))
     inp = rp.ReportInput(title=_out_dir(bag, None).name, series=series, events=events, structures=cfg.structures,
                          rate_hz=cfg.loop_rate_hz, closed_loop=cfg.closed_loop,
                          input_delay_samples=cfg.input_delay_samples, duration_s=duration, params=dict(cfg.params),
@@ -376,6 +379,7 @@ def diagnose(args: argparse.Namespace, stdout: TextIO, stderr: TextIO, state: di
                   if k in ("estimates.csv", "events.csv", "summary.json") or not args.no_report},
     }
     summary["alignment"] = _alignment_summary(last)
+    summary["identifiability"] = identifiability
     (tmp.tmp / "summary.json").write_text(json.dumps(json_clean(summary), indent=2, allow_nan=False) + "\n",
                                           encoding="utf-8")
     tmp.commit()
@@ -417,6 +421,38 @@ def diagnose_bag(bag: str | Path, params_file: str | Path, out_dir: str | Path, 
     summary = json.loads((Path(out_dir) / "summary.json").read_text(encoding="utf-8"))
     summary["start_time_ns"] = state["t0_ns"]
     return summary
+
+
+def identifiability_timeline(reports: list[Report]) -> list[dict[str, Any]]:
+    """summary.json ``identifiability``: every joint check (S6, core/joint_check.py) once: its time, whether it armed
+    the joint confirmation, what the excitation did not identify jointly and the resonance-peak changes it saw."""
+    out: list[dict[str, Any]] = []
+    for rep in reports:
+        jc = rep.health.get("joint_check")
+        if jc and (not out or out[-1]["t"] != jc["t"]):
+            out.append({"t": jc["t"], "armed": jc["armed"], "converged": jc["converged"],
+                        "not_identifiable": list(jc["not_identifiable"]), "peak_changes": list(jc["peak_changes"])})
+    return out
+
+
+def identifiability_info(timeline: list[dict[str, Any]]) -> dict[str, str]:
+    """The report's rows for the joint checks: what was not identifiable, when, and the peak changes."""
+    first = timeline[0]
+    if not any(c["armed"] for c in timeline):
+        return {"identifiability (joint fit)": f"every quantity identifiable at t={first['t']:.1f} s "
+                "(joint confirmation not needed)"}
+    spans: dict[str, list[float]] = {}
+    for c in timeline:
+        for q in c["not_identifiable"]:
+            spans.setdefault(q, []).append(c["t"])
+    rows = {"identifiability (joint fit)": f"{len(timeline)} joint checks from t={first['t']:.1f} s; not "
+            "identifiable: " + "; ".join(f"{q} ({len(ts)} of {len(timeline)} checks, t={ts[0]:.0f}-{ts[-1]:.0f} s)"
+                                         for q, ts in spans.items())}
+    peaks = [f"t={c['t']:.0f} s: {line}" for c in timeline for line in c["peak_changes"]]
+    if peaks:
+        rows["resonance-peak changes"] = f"{peaks[0]}; ... {peaks[-1]} ({len(peaks)} checks)" if len(peaks) > 2 \
+            else "; ".join(peaks)
+    return rows
 
 
 def _alignment_summary(last: Report | None) -> dict[str, Any]:

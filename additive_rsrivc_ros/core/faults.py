@@ -29,6 +29,12 @@ Statistics used (documented here once; the docstrings below refer to these items
   the minimum relevant change (same direction); it is *confirmed* (ERROR, flag set, event opened) once
   the relevant deviation has lasted the persistence time; it clears when the deviation is back under ``clear_fraction``
   of the relevant change or no longer significant (``z < k``) for the clear time (hysteresis).
+* **S6 - joint confirmation** (issue 17 item 3, :mod:`.joint_check`). When the baseline window's joint fit finds
+  a quantity that is not identifiable jointly (narrow excitation: the modes' gains and dampings trade off), the
+  monitor is *armed*: a deviation of the recursion is then confirmed only if the latest joint fit of a window
+  supports it, and a change the joint fit supports in two consecutive checks is confirmed even where the
+  recursion's split does not show it (the event's value is the joint fit's). Such an event clears when two
+  consecutive joint fits no longer support it. Unarmed (broadband data), S3-S4 alone decide.
 * **S5 - health.** Divergence, projection storms, loss of excitation, residual-variance jumps, stuck
   or non-finite sensor values and data gaps make the health bad; while (and for a hold-off after) it
   is bad, structural tests are frozen and the health lists why.
@@ -46,6 +52,7 @@ from typing import Any
 import numpy as np
 
 from .estimator import EstimatorHealth
+from .joint_check import JointVerdict, applicable_mask
 from .model import SubmodelStructure
 from .params import from_param, settings_as_params, settings_from_params
 from .vocabulary import BASELINE_KEYS, EVENTS_HEADER, QUANTITIES
@@ -312,6 +319,8 @@ class SequentialTest:
     h: float = math.nan               # threshold used at the last step
     confirm_before: float = math.inf  # a relevant deviation starting later is not confirmed (advisory health)
     confirm_by_onset: bool = False    # compare the deviation's onset (not its relevance crossing) with it
+    by_joint: bool = False            # the open event was confirmed by the joint check (S6), which also clears it
+    joint_miss: int = 0               # consecutive joint checks that no longer support that event
 
     @property
     def level(self) -> Level:
@@ -332,6 +341,15 @@ class SequentialTest:
         self.gate_up_since = self.gate_down_since = math.nan
         if self.state != "fault":
             self.state, self.direction, self.since = "ok", 0, math.nan
+            self.by_joint, self.joint_miss = False, 0
+
+    def open_joint(self, t: float, onset: float, direction: int, baseline: float, value: float, z: float,
+                   ) -> FaultEvent:
+        """Confirm a change the joint check supports (S6): the event carries the joint fit's value."""
+        self.state, self.direction, self.since = "fault", direction, math.nan
+        self.by_joint, self.joint_miss = True, 0
+        self.event = FaultEvent(self.mode, self.quantity, self.direction_name, onset, t, baseline, value, None, z)
+        return self.event
 
     def step(self, t: float, w: float, x: float, sigma_d: float, b: float, rho: float, k: float, h: float,
              clear_fraction: float, persist_s: float, clear_s: float, *, arl0: float = 1e6,
@@ -463,6 +481,10 @@ class FaultMonitor:
         self.anomaly_since: float | None = None   # latched advisory stress (S5), see update()
         self.anomaly_quiet_since = math.nan
         self.break_t = math.nan                   # first data problem that paused the current baseline window
+        self.joint_armed = False                  # S6: the baseline's joint fit found non-identifiable quantities
+        self.joint: JointVerdict | None = None    # the latest joint check (S6)
+        self.joint_reference: JointVerdict | None = None   # the joint fit of the end of the baseline window (S6)
+        self.joint_streak = np.zeros((self.K, 3), dtype=int)   # signed run of consecutive supporting checks
 
     # -- configuration
     @classmethod
@@ -538,6 +560,8 @@ class FaultMonitor:
         self.baseline = None
         self.anomaly_since, self.anomaly_quiet_since = None, math.nan
         self.break_t = math.nan
+        self.joint_armed, self.joint, self.joint_reference = False, None, None
+        self.joint_streak[:] = 0
         if self.phase in ("learning", "monitoring"):
             self.phase, self.t_phase = "learning", t
             self.learner.reset(t)
@@ -625,19 +649,11 @@ class FaultMonitor:
                     continue
                 sigma_d = float(sigma[i, q])
                 test = self.tests[i][q]
+                if test.by_joint:
+                    continue        # S6: the joint check holds and clears its own events
                 test.confirm_by_onset = q == 0
-                if q > 0 and (moving[i, 0] or arriving[i, q]):
-                    # damping and gain are confirmed once they, and the mode's frequency, hold still: while the
-                    # frequency travels they swing with it, and a swing is not a new level
-                    test.confirm_before = -math.inf
-                elif stress_since is None:
-                    test.confirm_before = math.inf
-                elif q == lead[i]:
-                    # the deviation must begin with the stress; a lightly damped mode's frequency estimate can stay
-                    # in the broadened fit for a few memory lengths before it travels (and no sensor bias moves it)
-                    test.confirm_before = stress_since + (5.0 if q == 0 else 2.0) * float(self.memory_s[i])
-                else:       # isolation under stress: only the mode's dominant deviation can be the fault
-                    test.confirm_before = -math.inf
+                test.confirm_before = self._confirm_before(i, q, bool(moving[i, 0] or arriving[i, q]),
+                                                           stress_since, int(lead[i]))
                 opened, closed = test.step(
                     t, w, float(modal[i, q]), sigma_d, b, float(rho[i, q]), s.cusum_reference_sigma,
                     s.cusum_threshold, s.clear_fraction, self.persistence_s(i), self.clear_time_s(i),
@@ -648,6 +664,22 @@ class FaultMonitor:
                 if closed is not None:
                     out.closed.append(closed)
         return out
+
+    def _confirm_before(self, i: int, q: int, travelling: bool, stress_since: float | None, lead: int) -> float:
+        """Latest onset of a deviation of (mode ``i``, quantity ``q``) that may still be confirmed (S4-S6)."""
+        if self.joint_armed and self.joint_streak[i, q] == 0:
+            return -math.inf        # S6: the data do not support this deviation jointly
+        if q > 0 and travelling:
+            # damping and gain are confirmed once they, and the mode's frequency, hold still: while the
+            # frequency travels they swing with it, and a swing is not a new level
+            return -math.inf
+        if stress_since is None:
+            return math.inf
+        if q == lead:
+            # the deviation must begin with the stress; a lightly damped mode's frequency estimate can stay
+            # in the broadened fit for a few memory lengths before it travels (and no sensor bias moves it)
+            return stress_since + (5.0 if q == 0 else 2.0) * float(self.memory_s[i])
+        return -math.inf            # isolation under stress: only the mode's dominant deviation can be the fault
 
     def _baseline_phases(self, t: float, modal: np.ndarray, suspect_since: float | None, out: FaultUpdate) -> bool:
         """Hold, settling and baseline learning (S2, S5); True when this update ends here (no test step)."""
@@ -836,6 +868,59 @@ class FaultMonitor:
             return np.full((self.K, 3), np.nan), np.full((self.K, 3), np.nan)
         return self.baseline.value.copy(), self.baseline.std.copy()
 
+    # -- joint confirmation (S6)
+    def arm_joint(self, verdict: JointVerdict) -> None:
+        """The baseline window's joint fit: arm S6 when some applicable quantity is not identifiable jointly."""
+        self.joint = self.joint_reference = verdict
+        app = applicable_mask(self.structures)
+        self.joint_armed = bool(verdict.converged and np.any(app & ~verdict.identifiable))
+
+    def apply_joint(self, t: float, verdict: JointVerdict) -> FaultUpdate:
+        """One joint check while monitoring (S6): confirm what two consecutive checks support, clear what two no
+        longer support. An unconverged fit judges nothing (streaks and events are kept)."""
+        out = FaultUpdate()
+        self.joint = verdict
+        if not (self.joint_armed and verdict.converged) or self.baseline is None or self.held:
+            return out
+        sup = verdict.supported
+        same = (sup != 0) & (np.sign(self.joint_streak) == sup)
+        self.joint_streak = np.where(same, self.joint_streak + sup, sup)
+        ref = self.joint_reference
+        for i in range(self.K):
+            for q in range(3):
+                test = self.tests[i][q]
+                if test.state == "fault" and test.by_joint:
+                    if sup[i, q] == test.direction:
+                        test.joint_miss = 0
+                        test.event.value = float(verdict.value[i, q])
+                        continue
+                    test.joint_miss += 1
+                    if test.joint_miss >= 2:
+                        test.event.clear_time_s = t
+                        out.closed.append(test.event)
+                        test.event, test.state = None, "ok"
+                        test.reset(t)
+                    continue
+                if test.state == "fault" or abs(self.joint_streak[i, q]) < 2 or not self.applicable(i, q):
+                    continue
+                sigma = math.hypot(float(verdict.std[i, q]), float(ref.std[i, q]))
+                dev = float(verdict.value[i, q] - ref.value[i, q])
+                onset = verdict.window_s[0] if math.isnan(test.since) else min(test.since, verdict.window_s[0])
+                ev = test.open_joint(t, onset, int(sup[i, q]), float(ref.value[i, q]), float(verdict.value[i, q]),
+                                     dev / sigma if sigma > 0 else math.inf)
+                out.opened.append(ev)
+                self.events.append(ev)
+        return out
+
+    def joint_due(self, t: float, last_check: float) -> bool:
+        """Whether a joint check is due (S6): every half memory while a test deviates or a joint event is open,
+        else every two memory lengths."""
+        if not self.joint_armed or self.phase != "monitoring":
+            return False
+        busy = any(tst.state != "ok" for row in self.tests for tst in row) or bool(np.any(self.joint_streak))
+        period = (0.5 if busy else 2.0) * float(self.memory_s.max())
+        return math.isnan(last_check) or t - last_check >= period
+
     # -- persistence
     def get_state(self) -> dict[str, Any]:
         """JSON-serializable state (baseline, learner, tests, phase, events)."""
@@ -846,7 +931,10 @@ class FaultMonitor:
                 "tests": [[t.to_dict() for t in row] for row in self.tests],
                 "history": [[tp, m.tolist()] for tp, m in self.history], "settle_forced": self.settle_forced,
                 "anomaly_since": self.anomaly_since, "anomaly_quiet_since": self.anomaly_quiet_since,
-                "break_t": self.break_t, "events": [e.to_dict() for e in self.events]}
+                "break_t": self.break_t, "events": [e.to_dict() for e in self.events],
+                "joint_armed": self.joint_armed, "joint": None if self.joint is None else self.joint.to_dict(),
+                "joint_reference": None if self.joint_reference is None else self.joint_reference.to_dict(),
+                "joint_streak": self.joint_streak.tolist()}
 
     def set_state(self, state: Mapping[str, Any]) -> None:
         """Restore :meth:`get_state` output (same number of modes)."""
@@ -863,6 +951,11 @@ class FaultMonitor:
         self.anomaly_quiet_since = float(state.get("anomaly_quiet_since", math.nan))
         self.break_t = float(state.get("break_t", math.nan))
         self.tests = [[SequentialTest.from_dict(d) for d in row] for row in state["tests"]]
+        self.joint_armed = bool(state.get("joint_armed", False))
+        self.joint = None if state.get("joint") is None else JointVerdict.from_dict(state["joint"])
+        ref = state.get("joint_reference")
+        self.joint_reference = None if ref is None else JointVerdict.from_dict(ref)
+        self.joint_streak = np.asarray(state.get("joint_streak", np.zeros((self.K, 3))), dtype=int)
         by_key = {(e.mode, e.quantity, e.onset_time_s): e for row in self.tests for t in row
                   if (e := t.event) is not None}
         self.events = [by_key.get((d["mode"], d["quantity"], d["onset_time_s"])) or FaultEvent(**d)

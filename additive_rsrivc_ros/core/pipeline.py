@@ -50,6 +50,7 @@ from .alignment import AlignedBlock, InvariantAligner
 from .autostart import FoundModes, ModeSearch
 from .estimator import EstimatorHealth, MonitorSettings, RecursiveEstimator
 from .faults import FaultEvent, FaultMonitor, FaultSettings, HealthMonitor, Level
+from .joint_check import JointChecker, applicable_mask
 from .vocabulary import BASELINE_FIELDS, FLAG_FIELDS, MODE_FIELDS, QUANTITIES, plain
 
 STATE_VERSION = 1
@@ -249,12 +250,13 @@ class MonitorPipeline:
         self.memory_s = np.array([m.memory_s for m in cfg.modes], dtype=float)
         if self.K == 0:                       # automatic start pending: a health monitor for the notes only
             mem = [float(v) for v in cfg.params.get("modes.memory_s", [])] or [10.0]
-            self.est, self.faults = None, None
+            self.est, self.faults, self.joint = None, None, None
             self.health = HealthMonitor([max(mem)], self.settings, rate_hz=self.rate)
             return
         self.settings.check(self.K)
         self.est = self._new_estimator()
         self.faults = FaultMonitor(self.memory_s, self.settings, structures=cfg.structures)
+        self.joint = JointChecker(cfg)
         self.health = HealthMonitor(self.memory_s, self.settings, structures=cfg.structures, rate_hz=self.rate)
 
     def _switch_modes(self, cfg: MonitorSettings, closed: tuple[str, ...] = ()) -> None:
@@ -600,6 +602,7 @@ class MonitorPipeline:
         if self.initialized:
             self.est.mark_gap()
             self._marked_gaps += 1
+            self.joint.recent.clear()
         else:
             self._init_buf, self._init_n = [], 0
             if self.finding_modes:           # the search needs contiguous data too: its window starts again
@@ -640,6 +643,7 @@ class MonitorPipeline:
         while a < n:
             if self.initialized:
                 self.est.update(r[a:], u[a:], y[a:], valid[a:])
+                self.joint.add(r[a:], u[a:], np.where(valid[a:], y[a:], np.nan), float(self.faults.memory_s.max()))
                 return
             b = min(n, a + self.init_samples - self._init_n)
             yv = np.where(valid[a:b], y[a:b], np.nan)   # invalid samples are NaN for the offline init (it skips them)
@@ -820,6 +824,10 @@ class MonitorPipeline:
                                      suspect_since=status.values.get("advisory_since"))
             self.pending_opened += upd.opened
             self.pending_closed += upd.closed
+            upd = None if status.hold else self.joint.step(t_rep, self.faults)
+            if upd is not None:
+                self.pending_opened += upd.opened
+                self.pending_closed += upd.closed
         health = status.to_dict()
         if self.search is not None:
             health["autostart"] = self.search.info()
@@ -906,11 +914,29 @@ class MonitorPipeline:
         elif not hold:
             self._blind_since = None
         health["blind_since"] = self._blind_since
+        self._identifiability_health(health)
         base = self.faults.baseline
         health["baseline_trusted"] = self.faults.baseline_trusted
         health["baseline_note"] = "" if base is None else base.note
         if base is not None and not base.trusted:
             health["reasons"].append(base.note)
+            health["level"] = max(int(health["level"]), int(Level.WARN))
+            health["ok"] = False
+
+    def _identifiability_health(self, health: dict[str, Any]) -> None:
+        """S6 on the health: what the excitation does not identify jointly, and resonance-peak changes (a change
+        of a mode whose gain and damping cannot be told apart is reported here, never as a gain or damping event)."""
+        verdict = self.faults.joint
+        health["joint_check"] = None if verdict is None else {
+            "armed": self.faults.joint_armed, "t": verdict.t, "converged": verdict.converged,
+            "not_identifiable": verdict.not_identifiable(applicable_mask(self.cfg.structures)),
+            "peak_changes": verdict.peak_lines()}
+        if verdict is None or not self.faults.joint_armed:
+            return
+        peaks = verdict.peak_lines()
+        if peaks:
+            health["reasons"].append("structural change, gain and damping not separately identifiable from this "
+                                     "excitation: " + "; ".join(peaks))
             health["level"] = max(int(health["level"]), int(Level.WARN))
             health["ok"] = False
 

@@ -233,6 +233,7 @@ class PublishingMixin:
             "condition_number": float(max(cond)) if cond else math.nan,
             "condition_number_per_mode": " ".join(cv.num(c) for c in cond),
             "residual_variance": float(est.residual_var or math.nan) if est is not None else math.nan,
+            "not_identifiable": ", ".join((h.get("joint_check") or {}).get("not_identifiable") or []),
             "initializations": int(h.get("initializations", 0)),
             "reinitializations": int(h.get("reinitializations", 0)),
             "real_time_factor": float(rtf),

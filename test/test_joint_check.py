@@ -1,0 +1,112 @@
+"""S6, the joint confirmation (issue 17 item 3): on narrow excitation no event names a mode or quantity that did not
+change; a change is confirmed on the right mode, or its mode's resonance peak is reported when gain and damping
+cannot be told apart. On broadband data S6 stays unarmed (the recursion's tests decide, as before)."""
+
+from __future__ import annotations
+
+import json
+
+import numpy as np
+import pytest
+
+from additive_rsrivc_ros.cli.evaluate import Case, run_pipeline, simulate_case
+from additive_rsrivc_ros.core.faults import FaultMonitor
+from additive_rsrivc_ros.core.joint_check import verdict_from_fit
+from additive_rsrivc_ros.core.model import SubmodelStructure
+from additive_rsrivc_ros.core.pipeline import MonitorPipeline
+
+MIN_CHANGE = (0.02, 0.20, 0.10)
+MODE = SubmodelStructure()
+
+
+def _verdict(value, std, base, base_std=None, cov=None, peak_std=None):
+    value, std, base = (np.atleast_2d(np.asarray(a, float)) for a in (value, std, base))
+    cov = np.diag(std.ravel() ** 2) if cov is None else cov
+    return verdict_from_fit(10.0, (0.0, 10.0), True, value, cov, base, np.zeros_like(base) if base_std is None
+                            else np.atleast_2d(base_std), [MODE] * value.shape[0], MIN_CHANGE,
+                            base_peak_std=peak_std)
+
+
+def test_only_identifiable_relevant_significant_changes_are_supported():
+    base = [[10.0, 0.05, 1.0]]
+    # frequency -5 % at 0.1 % std: supported; damping -40 % at std 30 % (3 std > 20 %): not identifiable, never
+    # supported however large; gain +5 %: identifiable but below the 10 % relevant change
+    v = _verdict([[9.5, 0.03, 1.05]], [[0.01, 0.015, 0.01]], base)
+    assert v.identifiable.tolist() == [[True, False, True]]
+    assert v.supported.tolist() == [[-1, 0, 0]]
+    # the same frequency change within 3 joint stds (std 2 %) is not supported
+    assert _verdict([[9.5, 0.05, 1.0]], [[0.2, 0.001, 0.001]], base).supported[0, 0] == 0
+
+
+def test_peak_is_named_when_gain_and_damping_trade_off():
+    base = [[10.0, 0.05, 1.0]]
+    # gain and damping each +-30 % but perfectly correlated: their ratio, the resonance peak, is known to ~1 %
+    s_z, s_g = 0.3 * 0.05, 0.3 * 1.0
+    c = np.zeros((3, 3))
+    c[0, 0] = 1e-6
+    c[1:, 1:] = [[s_z**2, 0.999 * s_z * s_g], [0.999 * s_z * s_g, s_g**2]]
+    v = _verdict([[10.0, 0.05, 0.8]], None, base, cov=c)       # gain -20 % at the same damping: peak -20 %
+    assert v.supported.tolist() == [[0, 0, 0]]
+    assert v.peak_supported.tolist() == [-1]
+    assert v.peak_change[0] == pytest.approx(-0.2)
+    assert "mode 1 resonance peak" in v.peak_lines()[0]
+    # no change: nothing supported, no peak line
+    quiet = _verdict([[10.0, 0.05, 1.0]], None, base, cov=c)
+    assert quiet.peak_supported.tolist() == [0] and quiet.peak_lines() == []
+
+
+def test_state_round_trip_keeps_the_reference_and_arming():
+    fm = FaultMonitor([1.0], structures=[MODE])
+    ref = _verdict([[10.0, 0.05, 1.0]], [[0.01, 0.03, 0.01]], [[10.0, 0.05, 1.0]])
+    fm.arm_joint(ref)
+    assert fm.joint_armed                                    # damping: 3 x 60 % > 20 %, not identifiable
+    state = json.loads(json.dumps(fm.get_state()))
+    fm2 = FaultMonitor([1.0], structures=[MODE])
+    fm2.set_state(state)
+    assert fm2.joint_armed and fm2.joint_reference is not None
+    np.testing.assert_array_equal(fm2.joint_reference.identifiable, ref.identifiable)
+
+
+def _paper_run(mode: int, quantity: str, rel: float, seed: int, duration: float = 760.0, start: float = 480.0):
+    case = Case(f"paper_{quantity}{mode + 1}", "paper_example", duration, seed,
+                paper_change=(mode, quantity, rel, start))
+    data = simulate_case(case)
+    pipe = MonitorPipeline(data.config)
+    n = int(0.1 * data.config.loop_rate_hz)
+    peaks = []
+    for k in range(0, data.t.size, n):
+        for rep in pipe.push(data.t[k:k + n], data.r[k:k + n], data.u[k:k + n], data.y[k:k + n]):
+            jc = rep.health.get("joint_check") or {}
+            if jc.get("armed"):
+                peaks += [(rep.time_s, line) for line in jc["peak_changes"]]
+    return pipe, peaks
+
+
+@pytest.mark.slow
+def test_narrow_excitation_gain_step_is_named_on_its_mode_only():
+    """000 §5 loop (four reference lines on the resonances + weak dither): mode 1 gain -20 %. Before S6 the recursion
+    named mode 2 gain, mode 3 gain and mode 1 frequency (rsrivc_evaluate --case paper_gain_-20%)."""
+    pipe, _ = _paper_run(0, "gain", -0.20, seed=2)
+    assert pipe.faults.joint_armed
+    named = {(e.mode, e.quantity, e.direction) for e in pipe.faults.events}
+    assert named == {(1, "gain", "down")}
+    ev = pipe.faults.events[0]
+    assert ev.onset_time_s >= 480.0 - 2 * 50.0 and ev.alarm_time_s > 480.0
+    # the joint fit's value: within 3 of its stds (at most a quarter of the change) of -20 %
+    assert ev.value / ev.baseline - 1.0 == pytest.approx(-0.20, abs=0.05)
+
+
+@pytest.mark.slow
+def test_narrow_excitation_unseparable_gain_change_reports_the_peak_not_an_event():
+    pipe, peaks = _paper_run(1, "gain", -0.20, seed=4)
+    assert pipe.faults.events == []
+    assert any(line.startswith("mode 2 resonance peak") and " -" in line for _, line in peaks)
+    assert not any(line.startswith(("mode 1", "mode 3")) for _, line in peaks)
+
+
+def test_broadband_beam_stays_unarmed_and_detects_as_before():
+    case = Case("beam_gain1", "beam_healthy", 45.0, 6, beam_change=(0, "gain", -0.20, 30.0))
+    data = simulate_case(case)
+    events, reports, _ = run_pipeline(data)
+    assert all(not r["peaks"] for r in reports)
+    assert {(e.mode, e.quantity, e.direction) for e in events} == {(1, "gain", "down")}
