@@ -45,7 +45,7 @@ from __future__ import annotations
 import math
 from collections import deque
 from collections.abc import Mapping, Sequence
-from dataclasses import asdict, dataclass, field
+from dataclasses import asdict, dataclass, field, replace
 from enum import IntEnum
 from typing import Any
 
@@ -871,6 +871,12 @@ class FaultMonitor:
     # -- joint confirmation (S6)
     def arm_joint(self, verdict: JointVerdict) -> None:
         """The baseline window's joint fit: arm S6 when some applicable quantity is not identifiable jointly."""
+        base = self.baseline
+        if base is not None and base.source == "given":
+            # the user's baseline is the reference; the fit says what the excitation identifies
+            with np.errstate(divide="ignore", invalid="ignore"):
+                peak = np.hypot(base.std[:, 1] / np.abs(base.value[:, 1]), base.std[:, 2] / np.abs(base.value[:, 2]))
+            verdict = replace(verdict, value=base.value.copy(), std=base.std.copy(), peak_own_std=peak)
         self.joint = self.joint_reference = verdict
         app = applicable_mask(self.structures)
         self.joint_armed = bool(verdict.converged and np.any(app & ~verdict.identifiable))

@@ -202,6 +202,7 @@ class JointChecker:
 
     MIN_WINDOW = 2.0
     MAX_WINDOW = 4.0
+    MAX_SAMPLES = 200_000   # a longer window is cut (to MIN_WINDOW at least): ~1 s per fit on this machine
 
     def __init__(self, cfg: Any) -> None:
         self.rate = float(cfg.loop_rate_hz)
@@ -242,7 +243,8 @@ class JointChecker:
 
     def verdict(self, t: float, window_s: float, faults: Any) -> JointVerdict | None:
         """The joint fit of the last ``window_s`` seconds from the baseline model; None without enough data."""
-        n = int(round(window_s * self.rate))
+        mem = float(faults.memory_s.max())
+        n = int(round(min(window_s, max(self.MIN_WINDOW * mem, self.MAX_SAMPLES / self.rate)) * self.rate))
         data = self.recent.last(n)
         if data is None:
             return None
