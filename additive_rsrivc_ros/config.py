@@ -393,7 +393,7 @@ class MonitorConfig:
         p.update({"modes.natural_frequency_hz": [float(v) for v in modal[:, 0]],
                   "modes.damping_ratio": [float(v) for v in modal[:, 1]],
                   "modes.gain": [float(v) for v in modal[:, 2]], "modes.integrators": ints, "modes.memory_s": mem,
-                  "modes.count": 0})
+                  "modes.count": 0, "estimator.guess_spread": 0.0})   # modes from the data: no prior
         return MonitorConfig.from_params(p)
 
 

@@ -69,6 +69,11 @@ ESTIMATOR_PARAMS: list[Param] = [
           "mode).", -1.0, 1e5, True),
     Param("estimator.init_max_iterations", "int", 30, "Iteration limit of the offline initialization.", 1, 1000,
           True),
+    Param("estimator.guess_spread", "double", 0.1, "Relative standard deviation of the mode guesses taken as a "
+          "prior by the offline initialization: its start is the posterior of the guesses and the fit (the fit's "
+          "joint covariance), so the guesses are kept where the initialization data do not inform (a mode the "
+          "excitation does not reach). 0: no prior (the fit replaces the guesses when it explains the data better). "
+          "Modes found from the data carry no prior.", 0.0, 10.0, True),
 ]
 
 # Fault diagnosis and estimator health (core/faults.py): fill core.faults.FaultSettings.
@@ -211,6 +216,7 @@ class EstimatorOptions:
     init_max_iterations: int = from_param("estimator.init_max_iterations")
     filter_smoothing: str = from_param("estimator.filter_smoothing")
     init_warmup_s: float = from_param("estimator.init_warmup_s")
+    guess_spread: float = from_param("estimator.guess_spread")
 
     @classmethod
     def from_params(cls, params: Mapping[str, Any]) -> EstimatorOptions:
