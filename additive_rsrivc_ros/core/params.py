@@ -69,6 +69,14 @@ ESTIMATOR_PARAMS: list[Param] = [
           "mode).", -1.0, 1e5, True),
     Param("estimator.init_max_iterations", "int", 30, "Iteration limit of the offline initialization.", 1, 1000,
           True),
+    Param("estimator.order_check_memory_lengths", "double", 4.0, "Model-order check (core/adequacy.py): on this many "
+          "(longest) memory lengths of contiguous data after the initialization, once per run, the modelled modes "
+          "are refitted offline with the strongest unmodelled resonance of the FRF misfit added; if that moves a "
+          "modelled quantity relevantly, health warns 'model order too low' (never a structural fault). 0: off.",
+          0.0, 1000.0, True),
+    Param("estimator.order_check_relevance", "double", 0.25, "The model-order check warns when an unmodelled "
+          "resonance moves a modelled natural frequency, damping or gain by more than this fraction of its "
+          "faults.min_change.* (and by more than 3 standard deviations).", 0.0, 100.0, True),
 ]
 
 # Fault diagnosis and estimator health (core/faults.py): fill core.faults.FaultSettings.
@@ -211,6 +219,8 @@ class EstimatorOptions:
     init_max_iterations: int = from_param("estimator.init_max_iterations")
     filter_smoothing: str = from_param("estimator.filter_smoothing")
     init_warmup_s: float = from_param("estimator.init_warmup_s")
+    order_check_memory_lengths: float = from_param("estimator.order_check_memory_lengths")
+    order_check_relevance: float = from_param("estimator.order_check_relevance")
 
     @classmethod
     def from_params(cls, params: Mapping[str, Any]) -> EstimatorOptions:
