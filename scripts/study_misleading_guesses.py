@@ -12,8 +12,9 @@ parameters, so every structural event is a false alarm. Each case starts the sam
 * ``K+1``: three log-spaced guesses (one mode too many); ``K-1``: one guess at the lower mode (one too few).
 
 Printed per case: structural events (must be 0), the end estimate of each mode against the nearest true mode,
-whether the end health is flagged, and the verdict line "trust": an estimate more than 1 % (frequency) off the
-truth must come with a flagged health, or it is *confidently wrong*.
+whether the end health is flagged, the model-order check's finding (core/adequacy.py: ``too_low`` flags health,
+``adequate`` does not) and the verdict line "trust": an estimate more than 1 % (frequency) off the truth must come with
+a flagged health, or it is *confidently wrong*.
 
 Usage: ``python scripts/study_misleading_guesses.py [--duration S] [--seed N] [CASE ...]``
 """
@@ -82,7 +83,8 @@ def run_case(name: str, data, chunk: int = 4096) -> dict:
         rows.append((i + 1, f, float(modal[i, 1]), float(modal[i, 2]), j + 1,
                      (f / TRUE_F[j] - 1) * 100 if np.isfinite(f) else np.nan))
     health = last.health
-    return {"events": events, "rows": rows, "level": int(health.get("level", 0)),
+    order = health.get("model_order", {})
+    return {"events": events, "rows": rows, "level": int(health.get("level", 0)), "order": order,
             "reasons": list(health.get("reasons", []))[:2], "flagged_since": flagged_since,
             "estimating": bool(last.estimating)}
 
@@ -110,6 +112,10 @@ def main(argv: list[str] | None = None) -> int:
         for i, f, z, g, j, pct in res["rows"]:
             print(f"    mode {i}: {f:9.4g} Hz  zeta {z:8.3g}  gain {g:9.3g}   nearest true mode {j} "
                   f"({TRUE_F[j - 1]:g} Hz): {pct:+.2f} %")
+        order = res["order"]
+        flag = "FLAGS health" if order.get("state") == "too_low" else "no flag"
+        print(f"    model-order check ({order.get('seconds') or 0:.2f} s): {order.get('state', '?')}, {flag}: "
+              f"{order.get('message', '')[:150]}")
         for e in res["events"]:
             print(f"    EVENT mode {e.mode} {e.quantity} at {e.alarm_time_s:.2f} s")
         for reason in res["reasons"]:

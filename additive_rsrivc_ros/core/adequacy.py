@@ -362,8 +362,9 @@ class ModelOrderCheck:
         self.n += take
         return self.n >= need
 
-    def run(self, modal: np.ndarray, cfg: Any, min_change: Sequence[float]) -> str:
-        """Check the full window against the current estimate ``modal`` (K, >= 3); returns the notice line."""
+    def run(self, modal: np.ndarray, cfg: Any, min_change: Sequence[float]) -> str | None:
+        """Check the full window against the current estimate ``modal`` (K, >= 3); returns the notice line when the
+        order is too low (otherwise the finding is only in ``health['model_order']``)."""
         r, u, y = (np.concatenate([b[k] for b in self.blocks]) for k in range(3))
         t0 = self.t_start_s
         self.clear()
@@ -379,6 +380,8 @@ class ModelOrderCheck:
         res.window_s = (t0, t0 + u.size / self.rate_hz)
         res.frf = None                        # not kept in the pipeline's memory
         self.result = res
+        if not res.flagged:
+            return None
         return (f"model-order check on t={res.window_s[0]:.1f}–{res.window_s[1]:.1f} s ({res.seconds:.2f} s): "
                 f"{res.message}")
 

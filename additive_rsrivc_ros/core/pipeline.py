@@ -659,7 +659,9 @@ class MonitorPipeline:
         """Model-order check (:mod:`.adequacy`) on the first window of contiguous data after the initialization, once
         per run, against the estimate at its end; its finding goes on health (:meth:`ModelOrderCheck.apply`)."""
         if self.order_check.add(r, u, y, valid, self._rel(t_end), float(self.memory_s.max())):
-            self.notices.append(self.order_check.run(self._modal(), self.cfg, self.settings.min_change))
+            line = self.order_check.run(self._modal(), self.cfg, self.settings.min_change)
+            if line is not None:
+                self.notices.append(line)
 
     def _search_modes(self, r: np.ndarray, u: np.ndarray, y: np.ndarray, valid: np.ndarray, t_end: float) -> None:
         """Automatic start (no guesses; :mod:`.autostart`): buffer the window, search it when full; once the modes
