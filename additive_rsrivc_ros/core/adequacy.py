@@ -123,15 +123,26 @@ def _num(v: float) -> float | None:
     return v if math.isfinite(v) else None
 
 
-def _fit(u, y, rate_hz: float, r, controller, input_delay: int, structures, thetas, max_iterations: int):
-    """Offline additive (CL)SRIVC (001 eq. 29) from ``thetas``; ``None`` if it fails or is not finite. Raises
-    :class:`.filters.ClosedLoopUnstableError` when the controller does not stabilize the start."""
+def warmup_s(thetas: Sequence[np.ndarray], structures: Sequence[SubmodelStructure], rate_hz: float, n: int) -> float:
+    """Filter warm-up of a window cut from a running loop (it always starts in motion): the offline warm-up of
+    ``thetas`` (:func:`.offline.warmup_samples`: five decay times of the slowest mode, at most a quarter)."""
+    from .offline import warmup_samples
+
+    return warmup_samples(list(thetas), list(structures), rate_hz, n) / rate_hz
+
+
+def _fit(u, y, rate_hz: float, r, controller, input_delay: int, structures, thetas, max_iterations: int,
+         warmup: float):
+    """Offline additive (CL)SRIVC (001 eq. 29) from ``thetas``, the first ``warmup`` s only warming up the filters;
+    ``None`` if it fails or is not finite. Raises :class:`.filters.ClosedLoopUnstableError` when the controller does
+    not stabilize the start."""
     from .filters import ClosedLoopUnstableError
     from .offline import identify
 
     try:
         res = identify(u, y, rate_hz, list(structures), [np.asarray(t, float) for t in thetas], r=r,
-                       controller=controller, input_delay=input_delay, max_iterations=max_iterations)
+                       controller=controller, input_delay=input_delay, max_iterations=max_iterations,
+                       warmup_s=warmup)
     except ClosedLoopUnstableError:
         raise
     except (ValueError, np.linalg.LinAlgError):
@@ -183,17 +194,19 @@ def _candidates(frf: FRFEstimate, G_model: np.ndarray, z: np.ndarray, usable: np
 
 
 def _extra_mode(cand: Any, fit_K: Any, data: tuple, structures: list[SubmodelStructure], band: tuple[float, float],
-                thresholds: np.ndarray, max_iterations: int) -> ExtraMode:
+                thresholds: np.ndarray, max_iterations: int, warmup: float) -> ExtraMode:
     """Refit with the candidate as submodel K + 1 (step 3) and measure how it moves the modelled modes (step 4)."""
     from .filters import ClosedLoopUnstableError
 
     K = len(structures)
     nan3 = np.full((K, 3), np.nan)
     res, gain, note = None, cand.gain, ""
+    n = data[0].size
+    warmup = max(warmup, warmup_s([cand.theta()], [cand.structure], data[2], n))
     for _ in range(4):   # a start the controller does not stabilize: a smaller extra gain (it is a residual)
         try:
             res = _fit(*data, [*structures, cand.structure], [*fit_K.thetas, theta_from_modal(
-                cand.natural_frequency_hz, cand.damping_ratio, gain)], max_iterations)
+                cand.natural_frequency_hz, cand.damping_ratio, gain)], max_iterations, warmup)
             break
         except ClosedLoopUnstableError:
             gain *= 0.25
@@ -263,8 +276,9 @@ def check_model_order(thetas: Sequence[np.ndarray], structures: Sequence[Submode
     thresholds = relevance * np.asarray(min_change, float)
     from .filters import ClosedLoopUnstableError
 
+    warmup = warmup_s(thetas, structures, rate_hz, n)
     try:
-        fit_K = _fit(*data, structures, thetas, max_iterations)
+        fit_K = _fit(*data, structures, thetas, max_iterations, warmup)
     except ClosedLoopUnstableError:
         fit_K = None
     if fit_K is None:
@@ -281,7 +295,7 @@ def check_model_order(thetas: Sequence[np.ndarray], structures: Sequence[Submode
     if n_mis and band is not None:
         modal_K = np.asarray(fit_K.modal, float)
         for cand in _candidates(frf, G_model, z, usable, thr, modal_K, structures, input_delay):
-            extra = _extra_mode(cand, fit_K, data, structures, band, thresholds, max_iterations)
+            extra = _extra_mode(cand, fit_K, data, structures, band, thresholds, max_iterations, warmup)
             if extra.real and any(abs(extra.modal[0] - e.modal[0]) <= frf.resolution_hz for e in out.extras if e.real):
                 continue                      # the refit converged onto a resonance already found
             out.extras.append(extra)
