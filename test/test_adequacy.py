@@ -101,3 +101,29 @@ def test_window_restarts_after_a_break_and_zero_disables():
     health = {"reasons": [], "level": 0, "ok": True}
     ModelOrderCheck(100.0, 0.0, 0.25).apply(health, Level.WARN)
     assert health["model_order"] == {"state": "off"} and health["level"] == 0
+
+
+def test_identify_reports_a_model_order_too_low(tmp_path, capsys):
+    """rsrivc_identify runs the same check on its fit: the bundled beam_fault bag (mode 2 at 32.97 Hz, 31.32 Hz after
+    the 5 % fault at 20 s) with only mode 1 modelled."""
+    import json
+    from pathlib import Path
+
+    import yaml
+
+    from additive_rsrivc_ros.cli import identify
+
+    repo = Path(__file__).resolve().parents[1]
+    doc = yaml.safe_load((repo / "config" / "beam_fault.yaml").read_text())
+    modes = doc["additive_rsrivc_monitor"]["ros__parameters"]["modes"]
+    for key in modes:
+        modes[key] = modes[key][:1]
+    params = tmp_path / "k1.yaml"
+    params.write_text(yaml.safe_dump(doc))
+    out = tmp_path / "id.json"
+    assert identify.main([str(repo / "bags" / "beam_fault"), "--params-file", str(params), "--out", str(out)]) == 0
+    order = json.loads(out.read_text())["model_order"]
+    assert order["state"] == "too_low", order
+    extra = next(e for e in order["extra_modes"] if e["moves_modelled_modes"])
+    assert 0.99 * BEAM_F[1] * 0.95 < extra["natural_frequency_hz"] < 1.01 * BEAM_F[1]
+    assert "model order: model order too low" in capsys.readouterr().out
