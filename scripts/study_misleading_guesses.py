@@ -9,7 +9,8 @@ parameters, so every structural event is a false alarm. Each case starts the sam
 * ``truth``: the true values (reference);
 * ``50% over`` / ``50% under``: every frequency x1.5 / x0.5, damping 0.1, gains x3 / x(1/3);
 * ``log-spaced``: K frequencies log-spaced inside 1 Hz-1 kHz, damping 0.1, gain 1 (someone who knows nothing);
-* ``K+1``: three log-spaced guesses (one mode too many); ``K-1``: one guess at the lower mode (one too few).
+* ``K+1``: three log-spaced guesses (one mode too many); ``K-1``: one guess at the lower mode (one too few);
+* ``truth+1``: the true two modes plus a third guess at 100 Hz, where the plant has no mode.
 
 Printed per case: structural events (must be 0), the end estimate of each mode against the nearest true mode,
 whether the end health is flagged, the model-order check's finding (core/adequacy.py: ``too_low`` flags health,
@@ -46,6 +47,7 @@ CASES: dict[str, dict[str, list[float]]] = {
     "log-spaced": {"f": _log_spaced(2), "z": [0.1, 0.1], "g": [1.0, 1.0]},
     "K+1": {"f": _log_spaced(3), "z": [0.1, 0.1, 0.1], "g": [1.0, 1.0, 1.0]},
     "K-1": {"f": [3.2487], "z": [0.2348], "g": [11.81]},
+    "truth+1": {"f": [3.2487, 32.972, 100.0], "z": [0.2348, 0.01709, 0.05], "g": [11.81, 0.159, 1e-3]},
 }
 
 
