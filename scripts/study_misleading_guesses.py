@@ -9,11 +9,13 @@ parameters, so every structural event is a false alarm. Each case starts the sam
 * ``truth``: the true values (reference);
 * ``50% over`` / ``50% under``: every frequency x1.5 / x0.5, damping 0.1, gains x3 / x(1/3);
 * ``log-spaced``: K frequencies log-spaced inside 1 Hz-1 kHz, damping 0.1, gain 1 (someone who knows nothing);
-* ``K+1``: three log-spaced guesses (one mode too many); ``K-1``: one guess at the lower mode (one too few).
+* ``K+1``: three log-spaced guesses (one mode too many); ``K-1``: one guess at the lower mode (one too few);
+* ``truth+1``: the true two modes plus a third guess at 100 Hz, where the plant has no mode.
 
 Printed per case: structural events (must be 0), the end estimate of each mode against the nearest true mode,
-whether the end health is flagged, and the verdict line "trust": an estimate more than 1 % (frequency) off the
-truth must come with a flagged health, or it is *confidently wrong*.
+whether the end health is flagged, the model-order check's finding (core/adequacy.py: ``too_low`` flags health,
+``adequate`` does not) and the verdict line "trust": an estimate more than 1 % (frequency) off the truth must come with
+a flagged health, or it is *confidently wrong*.
 
 Usage: ``python scripts/study_misleading_guesses.py [--duration S] [--seed N] [CASE ...]``
 """
@@ -45,6 +47,7 @@ CASES: dict[str, dict[str, list[float]]] = {
     "log-spaced": {"f": _log_spaced(2), "z": [0.1, 0.1], "g": [1.0, 1.0]},
     "K+1": {"f": _log_spaced(3), "z": [0.1, 0.1, 0.1], "g": [1.0, 1.0, 1.0]},
     "K-1": {"f": [3.2487], "z": [0.2348], "g": [11.81]},
+    "truth+1": {"f": [3.2487, 32.972, 100.0], "z": [0.2348, 0.01709, 0.05], "g": [11.81, 0.159, 1e-3]},
 }
 
 
@@ -82,7 +85,8 @@ def run_case(name: str, data, chunk: int = 4096) -> dict:
         rows.append((i + 1, f, float(modal[i, 1]), float(modal[i, 2]), j + 1,
                      (f / TRUE_F[j] - 1) * 100 if np.isfinite(f) else np.nan))
     health = last.health
-    return {"events": events, "rows": rows, "level": int(health.get("level", 0)),
+    order = health.get("model_order", {})
+    return {"events": events, "rows": rows, "level": int(health.get("level", 0)), "order": order,
             "reasons": list(health.get("reasons", []))[:2], "flagged_since": flagged_since,
             "estimating": bool(last.estimating)}
 
@@ -110,6 +114,10 @@ def main(argv: list[str] | None = None) -> int:
         for i, f, z, g, j, pct in res["rows"]:
             print(f"    mode {i}: {f:9.4g} Hz  zeta {z:8.3g}  gain {g:9.3g}   nearest true mode {j} "
                   f"({TRUE_F[j - 1]:g} Hz): {pct:+.2f} %")
+        order = res["order"]
+        flag = "FLAGS health" if order.get("state") == "too_low" else "no flag"
+        print(f"    model-order check ({order.get('seconds') or 0:.2f} s): {order.get('state', '?')}, {flag}: "
+              f"{order.get('message', '')[:150]}")
         for e in res["events"]:
             print(f"    EVENT mode {e.mode} {e.quantity} at {e.alarm_time_s:.2f} s")
         for reason in res["reasons"]:

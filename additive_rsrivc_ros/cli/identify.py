@@ -212,6 +212,7 @@ def run(bag: str, params_file: str, out: str, method: str = "auto", max_iteratio
                           f"samples [{float(sig.t[k[0]]):.6g}, {float(sig.t[k[-1]]):.6g}] s ({sc.used} of {sig.n} "
                           "samples)").lstrip("; ")
     _add_mode_finding(doc, found, cfg, sig.r[k] if closed else None, sig.u[k], sig.y[k])
+    doc["model_order"] = _model_order(res, cfg, sig.r[k] if closed else None, sig.u[k], sig.y[k])
     doc = json_clean(doc)
     atomic_write_text(out_path, json.dumps(doc, indent=2, allow_nan=False) + "\n")
     if out_params:
@@ -263,6 +264,27 @@ def _add_mode_finding(doc: dict, found, cfg: MonitorConfig, r, u, y) -> None:
     doc["order_selection"] = []
 
 
+def _model_order(res, cfg: MonitorConfig, r, u, y) -> dict:
+    """The node's model-order check (core/adequacy.py) on the identified model and the same record: does an
+    unmodelled resonance move the identified modes? (``{"state": "off"}`` with estimator.order_check_memory_lengths
+    0.)"""
+    import numpy as np
+
+    from ..core.adequacy import check_model_order
+    from ..core.faults import FaultSettings
+
+    if cfg.estimator.order_check_memory_lengths <= 0 or not all(np.all(np.isfinite(t)) for t in res.thetas):
+        return {"state": "off" if cfg.estimator.order_check_memory_lengths <= 0 else "skipped",
+                "message": "" if cfg.estimator.order_check_memory_lengths <= 0 else "no finite model"}
+    check = check_model_order(res.thetas, res.structures, u, y, cfg.loop_rate_hz, r=r,
+                              controller=cfg.controller if r is not None else None,
+                              input_delay=cfg.input_delay_samples,
+                              min_change=FaultSettings.from_params(cfg.params).min_change,
+                              relevance=cfg.estimator.order_check_relevance,
+                              max_iterations=max(30, cfg.estimator.init_max_iterations))
+    return check.to_dict()
+
+
 def _num(v: Any) -> str:
     return "n/a" if not isinstance(v, int | float) else f"{v:.4g}"
 
@@ -308,6 +330,8 @@ def main(argv: list[str] | None = None) -> int:
         print(f"  mode {i}: f = {f} Hz, zeta = {z}, gain = {g}")
     if "mode_finding" in doc:
         print(f"  modes found from the data: {doc['mode_finding']['message']}")
+    if doc.get("model_order", {}).get("message"):
+        print(f"  model order: {doc['model_order']['message']}")
     if args.out_params:
         print(f"  wrote params file {args.out_params}")
     return 0

@@ -127,6 +127,8 @@ class EstimatorSettings(Protocol):
     init_max_iterations: int
     filter_smoothing: str
     init_warmup_s: float
+    order_check_memory_lengths: float
+    order_check_relevance: float
 
 
 class SignalSettings(Protocol):

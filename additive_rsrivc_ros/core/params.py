@@ -74,6 +74,14 @@ ESTIMATOR_PARAMS: list[Param] = [
           "joint covariance), so the guesses are kept where the initialization data do not inform (a mode the "
           "excitation does not reach). 0: no prior (the fit replaces the guesses when it explains the data better). "
           "Modes found from the data carry no prior.", 0.0, 10.0, True),
+    Param("estimator.order_check_memory_lengths", "double", 4.0, "Model-order check (core/adequacy.py): on this many "
+          "(longest) memory lengths of contiguous data after the initialization, once per run, the modelled modes "
+          "are refitted offline with the strongest unmodelled resonance of the FRF misfit added; if that moves a "
+          "modelled quantity relevantly, health warns 'model order too low' (never a structural fault). 0: off.",
+          0.0, 1000.0, True),
+    Param("estimator.order_check_relevance", "double", 0.25, "The model-order check warns when an unmodelled "
+          "resonance moves a modelled natural frequency, damping or gain by more than this fraction of its "
+          "faults.min_change.* (and by more than 3 standard deviations).", 0.0, 100.0, True),
 ]
 
 # Fault diagnosis and estimator health (core/faults.py): fill core.faults.FaultSettings.
@@ -217,6 +225,8 @@ class EstimatorOptions:
     filter_smoothing: str = from_param("estimator.filter_smoothing")
     init_warmup_s: float = from_param("estimator.init_warmup_s")
     guess_spread: float = from_param("estimator.guess_spread")
+    order_check_memory_lengths: float = from_param("estimator.order_check_memory_lengths")
+    order_check_relevance: float = from_param("estimator.order_check_relevance")
 
     @classmethod
     def from_params(cls, params: Mapping[str, Any]) -> EstimatorOptions:

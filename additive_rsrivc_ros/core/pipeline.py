@@ -46,6 +46,7 @@ from typing import Any
 
 import numpy as np
 
+from .adequacy import ModelOrderCheck
 from .alignment import AlignedBlock, InvariantAligner
 from .autostart import FoundModes, ModeSearch
 from .estimator import EstimatorHealth, MonitorSettings, RecursiveEstimator
@@ -301,6 +302,8 @@ class MonitorPipeline:
         self.model_max_pole = math.nan        # closed-loop spectral radius of the current model with C_d
         self._marked_gaps = 0                 # re-primes the pipeline asked for (others: non-finite filter states)
         self._blind_since: float | None = None
+        opts = self.cfg_given.estimator
+        self.order_check = ModelOrderCheck(self.rate, opts.order_check_memory_lengths, opts.order_check_relevance)
 
     def reset(self) -> None:
         """Start over: new estimator (initialized from the next data), no baseline, counters zeroed; without
@@ -644,6 +647,7 @@ class MonitorPipeline:
             if self.initialized:
                 self.est.update(r[a:], u[a:], y[a:], valid[a:])
                 self.joint.add(r[a:], u[a:], np.where(valid[a:], y[a:], np.nan), float(self.faults.memory_s.max()))
+                self._check_order(r[a:], u[a:], y[a:], valid[a:], t_end)
                 return
             b = min(n, a + self.init_samples - self._init_n)
             yv = np.where(valid[a:b], y[a:b], np.nan)   # invalid samples are NaN for the offline init (it skips them)
@@ -654,6 +658,14 @@ class MonitorPipeline:
                 rb, ub, yb = (np.concatenate([blk[q] for blk in self._init_buf]) for q in range(3))
                 self._init_buf, self._init_n = [], 0
                 self._initialize(rb, ub, yb, t_end)
+
+    def _check_order(self, r: np.ndarray, u: np.ndarray, y: np.ndarray, valid: np.ndarray, t_end: float) -> None:
+        """Model-order check (:mod:`.adequacy`) on the first window of contiguous data after the initialization, once
+        per run, against the estimate at its end; its finding goes on health (:meth:`ModelOrderCheck.apply`)."""
+        if self.order_check.add(r, u, y, valid, self._rel(t_end), float(self.memory_s.max())):
+            line = self.order_check.run(self._modal(), self.cfg, self.settings.min_change)
+            if line is not None:
+                self.notices.append(line)
 
     def _search_modes(self, r: np.ndarray, u: np.ndarray, y: np.ndarray, valid: np.ndarray, t_end: float) -> None:
         """Automatic start (no guesses; :mod:`.autostart`): buffer the window, search it when full; once the modes
@@ -840,6 +852,7 @@ class MonitorPipeline:
         self._alignment_health(health, t_rep)
         health["anomaly_since"] = None if self.faults is None else self.faults.anomaly_since
         self._health_extras(health, status.hold, t_rep)
+        self.order_check.apply(health, Level.WARN)
         health.update(self.counters.to_dict())
         health["estimator"] = {} if est_health is None else est_health.to_dict()
         health["stuck"] = self.stuck

@@ -1,0 +1,417 @@
+"""Is the model order high enough for what we report? (issue 12 item 4, "K one too few").
+
+A model with one mode too few can be confidently wrong: the estimator fits the modelled modes to the data as well as
+they can, which biases them, and nothing in the recursion (000 Algorithm 2) or in the health checks sees it. A
+deliberately reduced model (the beam's 2 of 4 modes, 000 §6) misfits the data just as significantly, but there the
+unmodelled modes do not move the modelled ones. So the test is about *relevance*, not misfit:
+
+1. **Misfit** (is anything unmodelled?). On a window of data, the K modelled modes are refitted offline by the
+   additive (CL)SRIVC (001 eq. 29; closed loop through the reference, 001 eq. 20), started from the current
+   estimate, and its discrete frequency response :func:`.frf.discrete_model_frf` is compared with the nonparametric
+   FRF :func:`.frf.estimate_frf` (indirect ``S_yr / S_ur`` in closed loop) on its valid, leakage-free bins. With
+   ``var`` the FRF's complex variance (plus its resolution bias, :attr:`.frf.FRFEstimate.uncertainty`), the
+   normalized misfit ``z_k = |G_k - G_m,k|^2 / var_k`` of a complex Gaussian error is exponential with mean 1:
+   ``P(z > t) = exp(-t)``; a bin misfits significantly when ``z_k > ln(n_bins / alpha)`` (Bonferroni over the
+   bins, ``alpha`` = :data:`ALPHA`).
+2. **Candidate** (where?). The resonance peaks of the residual FRF ``G - G_m`` (:func:`.modefind.find_candidates`:
+   frequency, half-power damping, modal gain) that misfit significantly within two bins of the peak, are not a
+   modelled mode's own residual (farther than ``max(2 resolutions, 2 zeta f)`` from every modelled frequency), and
+   rank by their misfit: the first :data:`MAX_CANDIDATES`.
+3. **Refit with K + 1** (001 eq. 29 again, the candidate as the extra submodel). The extra mode is *real* when the
+   fit is finite with a positive ``a1, a2``, lowers the output-error cost (002 eq. 8), lies in the valid band, and
+   its gain is :data:`N_SIGMA` standard deviations from zero (001 Theorem 1 covariance, delta method).
+4. **Relevance** (does it matter?). A modelled quantity ``q`` of mode ``i`` (natural frequency, damping, gain) is
+   *moved* when ``|q_K+1 - q_K| > relevance * faults.min_change.q * |q_K|`` and ``> N_SIGMA`` standard deviations
+   of the K + 1 estimate. A real extra mode that moves a modelled quantity means the order is too low *for the
+   quantities we report*: health WARN (never a structural fault), with the frequency of the unmodelled resonance
+   and the change. A real extra mode that moves nothing is recorded (``significant_unmodelled_hz``) and not flagged.
+
+:class:`ModelOrderCheck` is the pipeline's part: it collects ``estimator.order_check_memory_lengths`` x the longest
+memory of contiguous data after the initialization, runs :func:`check_model_order` once per run, and puts the
+finding on health.
+"""
+
+from __future__ import annotations
+
+import math
+import time
+from collections.abc import Sequence
+from dataclasses import dataclass, field, replace
+from typing import Any
+
+import numpy as np
+
+from .controller import DiscreteController
+from .frf import FRFEstimate, discrete_model_frf, estimate_frf, longest_finite
+from .model import SubmodelStructure, theta_from_modal
+from .vocabulary import QUANTITIES, one_line
+
+ALPHA = 0.01
+"""Probability that a model which fits (the FRF error is only noise) shows one significant misfit bin."""
+N_SIGMA = 3.0
+"""Standard deviations an extra mode's gain, and a modelled quantity's change, must exceed."""
+MAX_CANDIDATES = 3
+"""Unmodelled resonances refitted, largest misfit first (each refit costs one offline fit)."""
+MIN_WINDOW_S = 2.0
+"""Shortest contiguous stretch the check runs on (the FRF needs a few averages at a resolution below 1 Hz)."""
+QUANTITY_NAMES = ("natural frequency", "damping", "gain")
+
+
+@dataclass
+class ExtraMode:
+    """One K + 1 refit: the extra submodel found and how it moves the K modelled modes."""
+
+    start_hz: float                       # the residual FRF's peak the extra mode was started at
+    modal: np.ndarray                     # (3,) natural frequency [Hz], damping, gain of the extra mode
+    gain_sigmas: float                    # |gain| / std(gain): the extra mode is real above N_SIGMA
+    real: bool
+    change: np.ndarray                    # (K, 3) relative change q_K+1 / q_K - 1 of the modelled modes
+    change_sigmas: np.ndarray             # (K, 3) |q_K+1 - q_K| / std(q_K+1)
+    relevant: np.ndarray                  # (K, 3) bool: moved beyond the relevance threshold and N_SIGMA
+    modal_K: np.ndarray                   # (K, 3) the K-mode fit
+    modal_K1: np.ndarray                  # (K, 3) the modelled modes in the K + 1 fit
+    note: str = ""
+
+    @property
+    def moves(self) -> bool:
+        return bool(self.real and np.any(self.relevant))
+
+    def worst(self, thresholds: np.ndarray) -> tuple[int, int]:
+        """(mode, quantity) of the largest relevant change relative to its threshold."""
+        score = np.where(self.relevant, np.abs(self.change) / thresholds[None, :], -1.0)
+        i, q = np.unravel_index(int(np.argmax(score)), score.shape)
+        return int(i), int(q)
+
+    def to_dict(self) -> dict[str, Any]:
+        def nums(a: np.ndarray) -> list:
+            return [[_num(v) for v in row] for row in np.atleast_2d(a)]
+        return {"start_hz": self.start_hz, "natural_frequency_hz": _num(self.modal[0]),
+                "damping_ratio": _num(self.modal[1]), "gain": _num(self.modal[2]),
+                "gain_sigmas": _num(self.gain_sigmas),
+                "real": self.real, "moves_modelled_modes": self.moves, "relative_change": nums(self.change),
+                "change_sigmas": nums(self.change_sigmas), "relevant": np.asarray(self.relevant).tolist(),
+                "note": self.note}
+
+
+@dataclass
+class OrderCheckResult:
+    """Outcome of :func:`check_model_order`: ``state`` ``too_low`` (health WARN), ``adequate`` or ``skipped``."""
+
+    state: str
+    message: str
+    n_bins: int = 0                       # valid leakage-free FRF bins compared
+    n_misfit: int = 0                     # of them, significant misfits
+    threshold: float = math.nan           # z above which a bin misfits
+    extras: list[ExtraMode] = field(default_factory=list)
+    window_s: tuple[float, float] = (math.nan, math.nan)
+    seconds: float = math.nan
+    frf: FRFEstimate | None = None
+
+    @property
+    def flagged(self) -> bool:
+        return self.state == "too_low"
+
+    def to_dict(self) -> dict[str, Any]:
+        return {"state": self.state, "message": self.message, "n_bins": self.n_bins, "n_misfit": self.n_misfit,
+                "threshold": _num(self.threshold), "window_s": [_num(v) for v in self.window_s],
+                "seconds": _num(self.seconds), "extra_modes": [e.to_dict() for e in self.extras],
+                "significant_unmodelled_hz": [float(e.modal[0]) for e in self.extras if e.real]}
+
+
+def _num(v: float) -> float | None:
+    v = float(v)
+    return v if math.isfinite(v) else None
+
+
+def warmup_s(thetas: Sequence[np.ndarray], structures: Sequence[SubmodelStructure], rate_hz: float, n: int) -> float:
+    """Filter warm-up of a window cut from a running loop (it always starts in motion): the offline warm-up of
+    ``thetas`` (:func:`.offline.warmup_samples`: five decay times of the slowest mode, at most a quarter)."""
+    from .offline import warmup_samples
+
+    return warmup_samples(list(thetas), list(structures), rate_hz, n) / rate_hz
+
+
+def _fit(u, y, rate_hz: float, r, controller, input_delay: int, structures, thetas, max_iterations: int,
+         warmup: float):
+    """Offline additive (CL)SRIVC (001 eq. 29) from ``thetas``, the first ``warmup`` s only warming up the filters;
+    ``None`` if it fails or is not finite. Raises :class:`.filters.ClosedLoopUnstableError` when the controller does
+    not stabilize the start."""
+    from .filters import ClosedLoopUnstableError
+    from .offline import identify
+
+    try:
+        res = identify(u, y, rate_hz, list(structures), [np.asarray(t, float) for t in thetas], r=r,
+                       controller=controller, input_delay=input_delay, max_iterations=max_iterations,
+                       warmup_s=warmup)
+    except ClosedLoopUnstableError:
+        raise
+    except (ValueError, np.linalg.LinAlgError):
+        return None
+    ok = all(np.all(np.isfinite(t)) for t in res.thetas) and all(
+        t[0] > 0 and t[1] > 0 for t, s in zip(res.thetas, res.structures, strict=True) if s.n == 2)
+    return res if ok and math.isfinite(res.cost) else None
+
+
+def misfit(frf: FRFEstimate, G_model: np.ndarray) -> tuple[np.ndarray, np.ndarray, float]:
+    """``(z, usable, threshold)``: normalized misfit per bin, the valid leakage-free bins, and the Bonferroni
+    threshold ``ln(n / ALPHA)`` of the exponential law of ``z`` (module docstring, step 1)."""
+    usable = frf.valid & ~(frf.leakage if frf.leakage is not None else np.zeros(frf.valid.size, dtype=bool))
+    with np.errstate(divide="ignore", invalid="ignore"):
+        z = np.abs(frf.G - G_model) ** 2 / frf.uncertainty ** 2
+    z = np.where(usable & np.isfinite(z), z, 0.0)
+    n = int(usable.sum())
+    return z, usable, math.log(max(n, 1) / ALPHA)
+
+
+def _candidates(frf: FRFEstimate, G_model: np.ndarray, z: np.ndarray, usable: np.ndarray, threshold: float,
+                modal_K: np.ndarray, structures: Sequence[SubmodelStructure], input_delay: int) -> list[Any]:
+    """Resonances of the residual FRF that misfit significantly and are no modelled mode (step 2), largest first."""
+    from .modefind import find_candidates
+
+    res_frf = replace(frf, G=frf.G - G_model)
+    near_bins = 2.5 * frf.resolution_hz
+    out = []
+    for c in find_candidates(res_frf, input_delay):
+        f = c.natural_frequency_hz
+        if c.integrators or f <= 0.0:
+            continue
+        own = [abs(f - m[0]) <= max(2.0 * frf.resolution_hz, 2.0 * m[1] * m[0])
+               for m, s in zip(modal_K, structures, strict=True) if s.is_mode and np.isfinite(m[0])]
+        if any(own):
+            continue
+        local = usable & (np.abs(frf.freqs_hz - f) <= near_bins)
+        peak = float(np.max(z[local])) if local.any() else 0.0
+        if peak > threshold:
+            out.append((peak, c))
+    out.sort(key=lambda pc: -pc[0])
+    seen: list[float] = []
+    picked = []
+    for _, c in out:
+        if all(abs(c.natural_frequency_hz - f) > near_bins for f in seen):
+            picked.append(c)
+            seen.append(c.natural_frequency_hz)
+    return picked[:MAX_CANDIDATES]
+
+
+def _extra_mode(cand: Any, fit_K: Any, data: tuple, structures: list[SubmodelStructure], band: tuple[float, float],
+                thresholds: np.ndarray, max_iterations: int, warmup: float) -> ExtraMode:
+    """Refit with the candidate as submodel K + 1 (step 3) and measure how it moves the modelled modes (step 4)."""
+    from .filters import ClosedLoopUnstableError
+
+    K = len(structures)
+    nan3 = np.full((K, 3), np.nan)
+    res, gain, note = None, cand.gain, ""
+    n = data[0].size
+    warmup = max(warmup, warmup_s([cand.theta()], [cand.structure], data[2], n))
+    for _ in range(4):   # a start the controller does not stabilize: a smaller extra gain (it is a residual)
+        try:
+            res = _fit(*data, [*structures, cand.structure], [*fit_K.thetas, theta_from_modal(
+                cand.natural_frequency_hz, cand.damping_ratio, gain)], max_iterations, warmup)
+            break
+        except ClosedLoopUnstableError:
+            gain *= 0.25
+    if res is None:
+        return ExtraMode(cand.natural_frequency_hz, np.full(3, np.nan), 0.0, False, nan3, nan3,
+                         np.zeros((K, 3), bool), fit_K.modal, nan3, "K + 1 fit failed")
+    modal = np.asarray(res.modal, float)
+    std = np.asarray(res.modal_std, float)
+    extra, extra_std = modal[K], std[K]
+    gain_sigmas = abs(extra[2]) / extra_std[2] if extra_std[2] > 0 else math.inf
+    in_band = band[0] <= extra[0] <= band[1]
+    lower_cost = res.cost < fit_K.cost
+    real = bool(gain_sigmas > N_SIGMA and in_band and lower_cost)
+    if not real:
+        note = ", ".join(w for w, bad in (("gain within noise", gain_sigmas <= N_SIGMA),
+                                          ("outside the valid band", not in_band),
+                                          ("no lower output error", not lower_cost)) if bad)
+    mK, mK1 = np.asarray(fit_K.modal, float)[:K], modal[:K]
+    with np.errstate(divide="ignore", invalid="ignore"):
+        change = mK1 / mK - 1.0
+        sigmas = np.abs(mK1 - mK) / std[:K]
+    change = np.where(np.isfinite(change), change, 0.0)
+    sigmas = np.where(np.isfinite(sigmas), sigmas, 0.0)
+    relevant = (np.abs(change) > thresholds[None, :]) & (sigmas > N_SIGMA)
+    for i, s in enumerate(structures):
+        if not s.is_mode:   # rigid body: frequency and damping are not quantities of it
+            relevant[i, :2] = False
+    return ExtraMode(cand.natural_frequency_hz, extra, float(gain_sigmas), real, change, sigmas, relevant, mK, mK1,
+                     note)
+
+
+def _start_thetas(modal: np.ndarray, structures: Sequence[SubmodelStructure],
+                  fallback: Sequence[np.ndarray]) -> list[np.ndarray]:
+    """Parameter vectors from the estimate's ``(f, zeta, gain)`` rows (the fallback where they do not apply)."""
+    out = []
+    for row, s, fb in zip(np.asarray(modal, float), structures, fallback, strict=True):
+        if s.is_mode and np.all(np.isfinite(row[:3])) and row[0] > 0:
+            out.append(theta_from_modal(*row[:3]))
+        elif s.n == 0 and np.isfinite(row[2]):
+            out.append(np.array([row[2]]))
+        else:
+            out.append(np.asarray(fb, float))
+    return out
+
+
+def check_model_order(thetas: Sequence[np.ndarray], structures: Sequence[SubmodelStructure], u, y, rate_hz: float,
+                      *, r=None, controller: DiscreteController | None = None, input_delay: int = 0,
+                      min_change: Sequence[float] = (0.02, 0.20, 0.10), relevance: float = 0.25,
+                      max_iterations: int = 30) -> OrderCheckResult:
+    """Does an unmodelled resonance in the data move the modelled modes? See the module docstring (steps 1-4).
+
+    ``thetas``: the current model (start of the K-mode refit); ``u, y`` (and ``r`` with ``controller`` in closed
+    loop): the window, of which the longest finite stretch is used. ``min_change``: ``faults.min_change.*``
+    (natural frequency, damping, gain); a modelled quantity moved by more than ``relevance`` times it is relevant.
+    Never raises on data problems: the result is ``skipped`` with the reason."""
+    c0 = time.perf_counter()
+    structures = list(structures)
+    closed = controller is not None and r is not None
+    r = np.asarray(r, float) if closed else None
+    u, y = np.asarray(u, float), np.asarray(y, float)
+    seg = longest_finite(r, u, y)
+    n = seg.stop - seg.start
+    if n < MIN_WINDOW_S * rate_hz:
+        return OrderCheckResult("skipped", f"only {n / rate_hz:.2f} s of contiguous valid samples "
+                                f"(need {MIN_WINDOW_S:g} s)", seconds=time.perf_counter() - c0)
+    data = (u[seg], y[seg], rate_hz, None if r is None else r[seg], controller if closed else None, input_delay)
+    thresholds = relevance * np.asarray(min_change, float)
+    from .filters import ClosedLoopUnstableError
+
+    warmup = warmup_s(thetas, structures, rate_hz, n)
+    try:
+        fit_K = _fit(*data, structures, thetas, max_iterations, warmup)
+    except ClosedLoopUnstableError:
+        fit_K = None
+    if fit_K is None:
+        return OrderCheckResult("skipped", "the K-mode refit on the window failed", seconds=time.perf_counter() - c0)
+    try:
+        frf = estimate_frf(data[0], data[1], rate_hz, data[3])
+    except ValueError as exc:
+        return OrderCheckResult("skipped", one_line(exc), seconds=time.perf_counter() - c0)
+    G_model = np.zeros(frf.freqs_hz.size, dtype=complex)
+    pos = frf.freqs_hz > 0.0                  # never valid at 0 Hz, where a rigid body's response is infinite
+    G_model[pos] = discrete_model_frf(fit_K.thetas, structures, rate_hz, frf.freqs_hz[pos], input_delay)
+    z, usable, thr = misfit(frf, G_model)
+    n_mis = int(np.sum(z > thr))
+    out = OrderCheckResult("adequate", "", int(usable.sum()), n_mis, thr, frf=frf)
+    band = frf.band_hz
+    if n_mis and band is not None:
+        modal_K = np.asarray(fit_K.modal, float)
+        for cand in _candidates(frf, G_model, z, usable, thr, modal_K, structures, input_delay):
+            extra = _extra_mode(cand, fit_K, data, structures, band, thresholds, max_iterations, warmup)
+            if extra.real and any(abs(extra.modal[0] - e.modal[0]) <= frf.resolution_hz for e in out.extras if e.real):
+                continue                      # the refit converged onto a resonance already found
+            out.extras.append(extra)
+            if extra.moves:
+                break
+    out.seconds = time.perf_counter() - c0
+    out.state, out.message = _verdict(out, thresholds)
+    return out
+
+
+def _verdict(res: OrderCheckResult, thresholds: np.ndarray) -> tuple[str, str]:
+    """State and the one health line."""
+    moving = [e for e in res.extras if e.moves]
+    if moving:
+        e = max(moving, key=lambda x: float(np.max(np.where(x.relevant, np.abs(x.change) / thresholds, 0.0))))
+        i, q = e.worst(thresholds)
+        others = [f"{QUANTITY_NAMES[k]} {100 * e.change[i, k]:+.2g} %" for k in range(3) if k != q and e.relevant[i, k]]
+        also = f"; also {', '.join(others)}" if others else ""
+        return "too_low", (f"model order too low: an unmodelled resonance near {e.modal[0]:.4g} Hz moves mode {i + 1} "
+                           f"{QUANTITY_NAMES[q]} by {100 * e.change[i, q]:+.2g} % ({e.modal_K[i, q]:.5g} without it, "
+                           f"{e.modal_K1[i, q]:.5g} with it{also}); add a mode near {e.modal[0]:.4g} Hz")
+    real = [f"{e.modal[0]:.4g} Hz" for e in res.extras if e.real]
+    if real:
+        return "adequate", (f"unmodelled resonance(s) at {', '.join(real)} do not move the modelled modes beyond "
+                            f"{', '.join(f'{100 * t:.2g} %' for t in thresholds)} ({', '.join(QUANTITIES)})")
+    if res.n_misfit:
+        return "adequate", f"{res.n_misfit} of {res.n_bins} FRF bins misfit, no unmodelled resonance found there"
+    return "adequate", f"the model fits the FRF within its uncertainty ({res.n_bins} bins)"
+
+
+@dataclass
+class ModelOrderCheck:
+    """The pipeline's model-order check: collect a window of contiguous data after the initialization, check once
+    per run, report on health.
+
+    The window is ``memory_lengths`` x the longest memory (0: off). Samples must come on the grid: a block that does
+    not follow the previous one (a data gap, a stuck-sensor episode, a re-initialization in between) starts the
+    window again."""
+
+    rate_hz: float
+    memory_lengths: float
+    relevance: float
+    blocks: list[tuple[np.ndarray, np.ndarray, np.ndarray]] = field(default_factory=list)
+    n: int = 0
+    t_start_s: float = math.nan
+    t_next_s: float = math.nan            # time the next contiguous sample would have
+    window_s: float = math.nan
+    result: OrderCheckResult | None = None
+
+    @property
+    def enabled(self) -> bool:
+        return self.memory_lengths > 0.0
+
+    @property
+    def pending(self) -> bool:
+        return self.enabled and self.result is None
+
+    def clear(self) -> None:
+        self.blocks, self.n, self.t_start_s = [], 0, math.nan
+
+    def add(self, r: np.ndarray, u: np.ndarray, y: np.ndarray, valid: np.ndarray, t_end_rel: float,
+            longest_memory_s: float) -> bool:
+        """Buffer a block of grid samples ending at ``t_end_rel`` (invalid ones as NaN outputs); True when the window
+        is full."""
+        if not self.pending or u.size == 0:
+            return False
+        h = 1.0 / self.rate_hz
+        t_first = t_end_rel - (u.size - 1) * h
+        if self.n and abs(t_first - self.t_next_s) > 0.5 * h:
+            self.clear()
+        self.t_next_s = t_end_rel + h
+        self.window_s = max(self.memory_lengths * float(longest_memory_s), MIN_WINDOW_S)
+        need = max(int(round(self.window_s * self.rate_hz)), 1)
+        take = min(u.size, need - self.n)
+        if self.n == 0:
+            self.t_start_s = t_first
+        self.blocks.append((r[:take].copy(), u[:take].copy(), np.where(valid[:take], y[:take], np.nan)))
+        self.n += take
+        return self.n >= need
+
+    def run(self, modal: np.ndarray, cfg: Any, min_change: Sequence[float]) -> str | None:
+        """Check the full window against the current estimate ``modal`` (K, >= 3); returns the notice line when the
+        order is too low (otherwise the finding is only in ``health['model_order']``)."""
+        r, u, y = (np.concatenate([b[k] for b in self.blocks]) for k in range(3))
+        t0 = self.t_start_s
+        self.clear()
+        structures = list(cfg.structures)
+        thetas = _start_thetas(modal, structures, [m.theta0() for m in cfg.modes])
+        try:
+            res = check_model_order(thetas, structures, u, y, self.rate_hz, r=r if cfg.closed_loop else None,
+                                    controller=cfg.controller if cfg.closed_loop else None,
+                                    input_delay=cfg.input_delay_samples, min_change=min_change,
+                                    relevance=self.relevance, max_iterations=cfg.estimator.init_max_iterations)
+        except Exception as exc:  # noqa: BLE001 - a failed check is a line on health, never a crash
+            res = OrderCheckResult("skipped", f"{type(exc).__name__}: {one_line(exc)}")
+        res.window_s = (t0, t0 + u.size / self.rate_hz)
+        res.frf = None                        # not kept in the pipeline's memory
+        self.result = res
+        if not res.flagged:
+            return None
+        return (f"model-order check on t={res.window_s[0]:.1f}–{res.window_s[1]:.1f} s ({res.seconds:.2f} s): "
+                f"{res.message}")
+
+    def apply(self, health: dict[str, Any], warn_level: int) -> None:
+        """``health['model_order']`` and, when the order is too low, the reason line and at least WARN (no hold)."""
+        if not self.enabled:
+            health["model_order"] = {"state": "off"}
+            return
+        if self.result is None:
+            health["model_order"] = {"state": "pending", "collected_s": self.n / self.rate_hz,
+                                     "window_s": _num(self.window_s)}
+            return
+        health["model_order"] = self.result.to_dict()
+        if self.result.flagged:
+            health["reasons"] = [*health["reasons"], self.result.message]
+            health["level"] = max(int(health["level"]), int(warn_level))
+            health["ok"] = False
