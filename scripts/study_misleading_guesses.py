@@ -85,7 +85,9 @@ def run_case(name: str, data, chunk: int = 4096) -> dict:
         rows.append((i + 1, f, float(modal[i, 1]), float(modal[i, 2]), j + 1,
                      (f / TRUE_F[j] - 1) * 100 if np.isfinite(f) else np.nan))
     health = last.health
-    order = health.get("model_order", {})
+    order = dict(health.get("model_order", {}))
+    result = pipe.order_check.result           # the check's wall time is not in health (outputs stay reproducible)
+    order["seconds"] = result.seconds if result is not None else 0.0
     return {"events": events, "rows": rows, "level": int(health.get("level", 0)), "order": order,
             "reasons": list(health.get("reasons", []))[:2], "flagged_since": flagged_since,
             "estimating": bool(last.estimating)}

@@ -114,7 +114,7 @@ class OrderCheckResult:
     def to_dict(self) -> dict[str, Any]:
         return {"state": self.state, "message": self.message, "n_bins": self.n_bins, "n_misfit": self.n_misfit,
                 "threshold": _num(self.threshold), "window_s": [_num(v) for v in self.window_s],
-                "seconds": _num(self.seconds), "extra_modes": [e.to_dict() for e in self.extras],
+                "extra_modes": [e.to_dict() for e in self.extras],
                 "significant_unmodelled_hz": [float(e.modal[0]) for e in self.extras if e.real]}
 
 
@@ -398,8 +398,7 @@ class ModelOrderCheck:
         self.result = res
         if not res.flagged:
             return None
-        return (f"model-order check on t={res.window_s[0]:.1f}–{res.window_s[1]:.1f} s ({res.seconds:.2f} s): "
-                f"{res.message}")
+        return f"model-order check on t={res.window_s[0]:.1f}–{res.window_s[1]:.1f} s: {res.message}"
 
     def apply(self, health: dict[str, Any], warn_level: int) -> None:
         """``health['model_order']`` and, when the order is too low, the reason line and at least WARN (no hold)."""
