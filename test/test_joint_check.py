@@ -111,3 +111,21 @@ def test_broadband_beam_stays_unarmed_and_detects_as_before():
     events, reports, _ = run_pipeline(data)
     assert all(not r["peaks"] for r in reports)
     assert {(e.mode, e.quantity, e.direction) for e in events} == {(1, "gain", "down")}
+
+
+@pytest.mark.slow
+def test_pipeline_state_round_trip_keeps_s6_armed():
+    """A node restarted from its state file keeps the joint reference (the recent samples start again: the next
+    check waits for two memory lengths of data, then judges against the same reference)."""
+    case = Case("paper_rt", "paper_example", 620.0, 1, paper_change=(0, "gain", 0.0, 1e9))
+    data = simulate_case(case)
+    pipe = MonitorPipeline(data.config)
+    n = int(0.1 * data.config.loop_rate_hz)
+    for k in range(0, data.t.size, n):
+        pipe.push(data.t[k:k + n], data.r[k:k + n], data.u[k:k + n], data.y[k:k + n])
+    assert pipe.faults.joint_armed
+    state = json.loads(json.dumps(pipe.get_state()))
+    again = MonitorPipeline(data.config, state=state)
+    assert again.faults.joint_armed
+    np.testing.assert_array_equal(again.faults.joint_reference.value, pipe.faults.joint_reference.value)
+    assert again.joint.recent.n == 0
