@@ -58,3 +58,21 @@ def test_no_excitation_is_a_clear_error_not_invented_modes():
                          noise=white_noise(n, 0.01, rng), rng=rng)
     with pytest.raises(ValueError, match="(no resonance|no model order)"):
         find_modes(sim.u, sim.y, FS, r=sim.r, controller=CONTROLLER, input_delay=DELAY)
+
+
+def test_peak_prominences_is_scipy_find_peaks():
+    """The diagnosis path's own peak finder equals ``scipy.signal.find_peaks(x, prominence=p)`` (plateaus, edges,
+    random walks) without importing scipy.signal."""
+    from scipy.signal import find_peaks
+
+    from additive_rsrivc_ros.core.modefind import peak_prominences
+
+    rng = np.random.default_rng(0)
+    for t in range(2000):
+        x = rng.normal(size=int(rng.integers(3, 60)))
+        x = np.round(x, 1) if t % 3 == 0 else (np.cumsum(x) if t % 3 == 1 else x)
+        p = float(rng.uniform(0.0, 1.5))
+        idx, props = find_peaks(x, prominence=p)
+        mine, prom = peak_prominences(x, p)
+        np.testing.assert_array_equal(mine, idx)
+        np.testing.assert_allclose(prom, props["prominences"], rtol=0, atol=1e-12)

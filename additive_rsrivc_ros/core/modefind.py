@@ -3,11 +3,11 @@
 1. :func:`find_candidates`: on the valid part of the nonparametric FRF (:mod:`core.frf`), with the input delay and
    the zero-order hold's half sample removed from the phase,
 
-   * resonance peaks of ``|G|`` (``scipy.signal.find_peaks`` on ``log10 |G|`` averaged over 5 bins, the Hann main
-     lobe, with a prominence above ``MIN_PROMINENCE_DECADES`` and above three relative noise standard deviations of
-     the averaged estimate, and at least 3 valid bins in the average), located at the raw maximum within two bins:
-     frequency by a
-     parabola through the three log-magnitudes around the peak, damping by the half-power width
+   * resonance peaks of ``|G|`` (:func:`peak_prominences`, as ``scipy.signal.find_peaks``, on ``log10 |G|``
+     averaged over 5 bins, the Hann main lobe, with a prominence above ``MIN_PROMINENCE_DECADES`` and above three
+     relative noise standard deviations of the averaged estimate, and at least 3 valid bins in the average),
+     located at the raw maximum within two bins: frequency by a parabola through the three log-magnitudes around
+     the peak, damping by the half-power width
      ``zeta = (f2 - f1) / (2 f_peak)`` (one side doubled when the other leaves the valid band; never below the
      window's resolution ``Delta f / (2 f_peak)``), modal gain of ``b0/(a2 p^2 + a1 p + 1)`` from the peak value
      ``G(j omega_n) = -j b0 / (2 zeta)``, i.e. ``b0 = -2 zeta Im G`` (its sign is the mode's);
@@ -170,11 +170,42 @@ def _smoothed(logm: np.ndarray, f: np.ndarray, resolution_hz: float) -> tuple[np
     return out, count
 
 
+def peak_prominences(x: np.ndarray, min_prominence: float) -> tuple[np.ndarray, np.ndarray]:
+    """Local maxima of ``x`` (a plateau counts once, at its middle sample) whose topographic prominence is at least
+    ``min_prominence``: ``x[peak]`` minus the higher of the two lowest points between the peak and the nearest
+    higher sample on each side (or the end). The definition of ``scipy.signal.find_peaks(x, prominence=...)``,
+    without its 1 s import (scipy.signal and scipy.stats) on the diagnosis path. Returns ``(indices, prominences)``.
+    """
+    x = np.asarray(x, dtype=float)
+    peaks = []
+    i, n = 1, x.size
+    while i < n - 1:
+        if x[i - 1] < x[i]:
+            j = i
+            while j + 1 < n - 1 and x[j + 1] == x[i]:
+                j += 1
+            if x[j + 1] < x[i]:
+                peaks.append((i + j) // 2)
+                i = j
+        i += 1
+    idx, prom = [], []
+    for k in peaks:
+        left = x[:k][::-1]
+        higher = np.flatnonzero(left > x[k])
+        left_min = float(np.min(left[:higher[0]] if higher.size else left)) if left.size else x[k]
+        right = x[k + 1:]
+        higher = np.flatnonzero(right > x[k])
+        right_min = float(np.min(right[:higher[0]] if higher.size else right)) if right.size else x[k]
+        p = x[k] - max(left_min, right_min)
+        if p >= min_prominence:
+            idx.append(k)
+            prom.append(p)
+    return np.asarray(idx, dtype=int), np.asarray(prom, dtype=float)
+
+
 def find_candidates(frf: FRFEstimate, input_delay: int = 0,
                     frequency_range_hz: tuple[float, float] | None = None) -> list[Candidate]:
     """Candidate submodels from the valid FRF: rigid body first (if any), then peaks by decreasing prominence."""
-    from scipy.signal import find_peaks
-
     sel = frf.valid.copy()
     if frequency_range_hz is not None:
         sel &= (frf.freqs_hz >= frequency_range_hz[0]) & (frf.freqs_hz <= frequency_range_hz[1])
@@ -186,9 +217,9 @@ def find_candidates(frf: FRFEstimate, input_delay: int = 0,
     logm = np.log10(np.maximum(mag, np.finfo(float).tiny))
     rel_std = frf.std[sel] / np.maximum(mag, np.finfo(float).tiny)  # noise only: leakage steps are signal
     smooth, count = _smoothed(logm, f, frf.resolution_hz)
-    idx, props = find_peaks(smooth, prominence=MIN_PROMINENCE_DECADES)
+    idx, proms = peak_prominences(smooth, MIN_PROMINENCE_DECADES)
     peaks = []
-    for k, prom in zip(idx, props["prominences"], strict=True):
+    for k, prom in zip(idx, proms, strict=True):
         # a resonance in an informed region has valid neighbours; an isolated valid bin in a noisy region is
         # a chance coherence, not a peak
         if count[k] < 3 or prom < 3.0 * rel_std[k] / np.log(10.0) / np.sqrt(count[k]):
