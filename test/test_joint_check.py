@@ -129,3 +129,26 @@ def test_pipeline_state_round_trip_keeps_s6_armed():
     assert again.faults.joint_armed
     np.testing.assert_array_equal(again.faults.joint_reference.value, pipe.faults.joint_reference.value)
     assert again.joint.recent.n == 0
+
+
+@pytest.mark.slow
+def test_a_data_break_restarts_the_joint_window_and_names_no_wrong_mode():
+    """A 10 s NaN burst in the output after a mode-1 gain step: the joint fit's window restarts after the break (it
+    never spans it), nothing is named on a wrong mode, and the step is still confirmed on mode 1."""
+    case = Case("paper_break", "paper_example", 900.0, 2, paper_change=(0, "gain", -0.20, 480.0))
+    data = simulate_case(case)
+    rate = data.config.loop_rate_hz
+    y = data.y.copy()
+    y[int(560 * rate):int(570 * rate)] = np.nan
+    pipe = MonitorPipeline(data.config)
+    n = int(0.1 * rate)
+    windows = []
+    for k in range(0, data.t.size, n):
+        for rep in pipe.push(data.t[k:k + n], data.r[k:k + n], data.u[k:k + n], y[k:k + n]):
+            jc = rep.health.get("joint_check")
+            if jc and (not windows or windows[-1] != jc["t"]):
+                windows.append(jc["t"])
+    verdicts_after = [t for t in windows if t > 570.0]
+    assert verdicts_after and min(verdicts_after) >= 570.0 + 2 * 50.0 - 1.0   # two memory lengths of clean data
+    named = {(e.mode, e.quantity, e.direction) for e in pipe.faults.events}
+    assert named == {(1, "gain", "down")}

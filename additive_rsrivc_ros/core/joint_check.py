@@ -256,6 +256,13 @@ class JointChecker:
         if data is None:
             return None
         r, u, y = data
+        bad = np.flatnonzero(~(np.isfinite(u) & np.isfinite(y) & (np.isfinite(r) if self.closed_loop else True)))
+        if bad.size:                # invalid samples (held, non-finite): only the clean stretch after the last one
+            start = int(bad[-1]) + 1
+            if u.size - start < int(round(self.MIN_WINDOW * mem * self.rate)):
+                return None
+            r, u, y = r[start:], u[start:], y[start:]
+            n = u.size
         ref = faults.joint_reference
         value, std = (faults.baseline.value, faults.baseline.std) if ref is None else (ref.value, ref.std)
         peak_std, ident = (None, None) if ref is None else (ref.peak_own_std, ref.identifiable)
