@@ -76,3 +76,42 @@ def test_peak_prominences_is_scipy_find_peaks():
         mine, prom = peak_prominences(x, p)
         np.testing.assert_array_equal(mine, idx)
         np.testing.assert_allclose(prom, props["prominences"], rtol=0, atol=1e-12)
+
+
+def _low_mode_loop(seed: int):
+    """Two modes near 2 and 4 Hz at 1 kHz, a square wave at a fifth of the lowest (as in validate_autostart.py):
+    with 20 s the default FRF resolution (0.5 Hz) leaves the 1.8 Hz resonance 2-3 bins wide."""
+    from additive_rsrivc_ros.core.controller import DiscreteController
+    from additive_rsrivc_ros.core.filters import closed_loop_radius
+    from additive_rsrivc_ros.core.model import theta_from_modal
+
+    modes = (PlantMode(1.84, 0.072, 0.42), PlantMode(3.96, 0.285, 0.79))
+    kp = 0.1
+    ctrl = DiscreteController((kp + kp * 2 * np.pi * 0.184 / FS, -kp), (1.0, -1.0))
+    thetas = [theta_from_modal(*m.modal) for m in modes]
+    assert closed_loop_radius(thetas, [m.structure for m in modes], 1 / FS, ctrl, 0) < 1.0
+    rng = np.random.default_rng(seed)
+    t = np.arange(int(21.7 * FS)) / FS
+    r = square_wave(t, 1.84 / 5, 1.0) + white_noise(t.size, 0.05, rng)
+    clean = simulate_modes(modes, FS, r=r, controller=ctrl)
+    sim = simulate_modes(modes, FS, r=r, controller=ctrl, noise=white_noise(t.size, 0.01 * np.std(clean.y), rng),
+                         rng=rng)
+    return modes, ctrl, sim
+
+
+@pytest.mark.parametrize("seed", [1, 2])
+def test_low_mode_found_with_a_finer_resolution(seed, monkeypatch):
+    """The default FRF shows no peak at 1.8 Hz (too few bins); the finer FRFs below 20 default bins do, and the
+    order scan then finds both modes. Without the finer FRFs the search finds no resonance or too few modes."""
+    from additive_rsrivc_ros.core import modefind
+
+    modes, ctrl, sim = _low_mode_loop(seed)
+    res = find_modes(sim.u, sim.y, FS, r=sim.r, controller=ctrl)
+    assert any(c.natural_frequency_hz < 2.5 for c in res.candidates)
+    _check_modes(res, sorted(modes, key=lambda m: m.natural_frequency_hz))
+    monkeypatch.setattr(modefind, "FINER_FACTORS", ())
+    try:
+        coarse = find_modes(sim.u, sim.y, FS, r=sim.r, controller=ctrl)
+        assert coarse.K < 2 or not any(c.natural_frequency_hz < 2.5 for c in coarse.candidates)
+    except ValueError as exc:
+        assert "no resonance" in str(exc)

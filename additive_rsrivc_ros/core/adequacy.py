@@ -53,6 +53,7 @@ N_SIGMA = 3.0
 MAX_CANDIDATES = 3
 """Unmodelled resonances refitted, largest misfit first (each refit costs one offline fit)."""
 MIN_WINDOW_S = 2.0
+FIT_TOL = 1e-5  # relative parameter change that ends a check's refit: its moves are judged at >= 0.5 % (step 4)
 """Shortest contiguous stretch the check runs on (the FRF needs a few averages at a resolution below 1 Hz)."""
 QUANTITY_NAMES = ("natural frequency", "damping", "gain")
 
@@ -142,7 +143,7 @@ def _fit(u, y, rate_hz: float, r, controller, input_delay: int, structures, thet
     try:
         res = identify(u, y, rate_hz, list(structures), [np.asarray(t, float) for t in thetas], r=r,
                        controller=controller, input_delay=input_delay, max_iterations=max_iterations,
-                       warmup_s=warmup)
+                       warmup_s=warmup, tol=FIT_TOL)
     except ClosedLoopUnstableError:
         raise
     except (ValueError, np.linalg.LinAlgError):

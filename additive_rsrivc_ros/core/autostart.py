@@ -147,8 +147,9 @@ class ModeSearch:
         new = None
         if problem is None:
             try:
-                from .modefind import autostart_config
-                new, res = autostart_config(self.cfg, r if closed else None, u, y)
+                from .modefind import SCAN_TOL, autostart_config
+                # the estimator's offline initialization refines the start on these samples right after
+                new, res = autostart_config(self.cfg, r if closed else None, u, y, refit_tol=SCAN_TOL)
                 if not all(res.identifiable) and self.growth < MAX_GROWTH:
                     bad = ", ".join(f"{m[0]:.4g} Hz" for m, ok in zip(res.modal, res.identifiable, strict=True)
                                     if not ok)

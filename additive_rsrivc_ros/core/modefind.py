@@ -43,6 +43,11 @@ RIGID_SLOPE_TOLERANCE = 0.25
 SMOOTH_BINS = 5
 ALTERNATIVES = 3  # new peaks tried for each larger order
 STOP_AFTER_MISSES = 2  # order scan stops after this many consecutive orders without a significant gain
+SCAN_TOL = 1e-4  # relative parameter change that ends an order-scan fit (the chosen order is refitted to 1e-7)
+SCAN_MAX_ITERATIONS = 10  # an order-scan fit still moving after this many iterations is judged where it stands
+FINAL_TOL = 1e-7  # identify()'s default: the refit of the chosen order on the whole record
+FINER_FACTORS = (2, 4)  # low-band candidates also from FRFs with 2x and 4x longer segments (finer resolution)
+FINER_BAND_BINS = 20  # ... below this many bins of the default resolution, where a peak has too few bins
 
 
 @dataclass(frozen=True)
@@ -241,6 +246,34 @@ def find_candidates(frf: FRFEstimate, input_delay: int = 0,
     return ([rigid] if rigid is not None else []) + peaks
 
 
+def finer_candidates(u, y, rate_hz: float, r, frf: FRFEstimate, input_delay: int,
+                     frequency_range_hz: tuple[float, float] | None,
+                     candidates: list[Candidate]) -> list[Candidate]:
+    """``candidates`` plus the low-frequency peaks that only a finer resolution shows. Welch averaging with enough
+    averages gives ``frf.resolution_hz`` (0.5 Hz for 20 s): a mode at 1-3 Hz then spans 2-6 bins, the 5-bin mean
+    flattens it and a square wave's lines, one every few bins, make a staircase of it. Below ``FINER_BAND_BINS``
+    default bins the same test (valid bins, prominence, noise) runs on FRFs with ``FINER_FACTORS`` times longer
+    segments (fewer averages: the coherence and variance bounds grow accordingly); a peak not within 15 % of a
+    known candidate is appended, after them (the order scan tries them last)."""
+    out = list(candidates)
+    top = FINER_BAND_BINS * frf.resolution_hz
+    lo, hi = frequency_range_hz if frequency_range_hz is not None else (0.0, np.inf)
+    for factor in FINER_FACTORS:
+        nperseg = factor * frf.nperseg
+        if u.size < 2 * nperseg or lo >= min(hi, top):
+            break
+        try:
+            fine = estimate_frf(u, y, rate_hz, r, nperseg=nperseg)
+        except ValueError:
+            break
+        for c in find_candidates(fine, input_delay, (lo, min(hi, top))):
+            if c.natural_frequency_hz > 0.0 and all(
+                    abs(c.natural_frequency_hz / k.natural_frequency_hz - 1.0) > 0.15
+                    for k in out if k.natural_frequency_hz > 0.0):
+                out.append(c)
+    return out
+
+
 def _held_out_error(thetas, structures, rate_hz: float, u, y, r, controller, input_delay: int,
                     split: int) -> tuple[float, float]:
     """Mean squared output error of the model on ``[:split]`` (fit) and ``[split:]`` (held out)."""
@@ -319,7 +352,8 @@ def _nested_start(best_fit: Any, candidates: list[Candidate], K: int, skip: int 
     return sorted(fitted + fresh[:need - 1] + [fresh[need - 1 + skip]], key=lambda c: c.natural_frequency_hz)
 
 
-def _fit(u, y, rate_hz, r, controller, input_delay, start: list[Candidate], max_iterations: int):
+def _fit(u, y, rate_hz, r, controller, input_delay, start: list[Candidate], max_iterations: int,
+         tol: float = FINAL_TOL):
     """Offline additive (CL)SRIVC from the candidates. In closed loop, a start the controller does not stabilize
     even after :func:`_stabilized` is first refined by the open-loop additive SRIVC (u -> y; biased by the feedback
     but needs no stable closed loop), whose result then starts the CLSRIVC."""
@@ -331,19 +365,22 @@ def _fit(u, y, rate_hz, r, controller, input_delay, start: list[Candidate], max_
     thetas = [c.theta() for c in start]
     try:
         return identify(u, y, rate_hz, structures, thetas, r=r, controller=controller, input_delay=input_delay,
-                        max_iterations=max_iterations)
+                        max_iterations=max_iterations, tol=tol)
     except ClosedLoopUnstableError:
         if controller is None:
             raise
     pre = identify(u, y, rate_hz, structures, thetas, input_delay=input_delay, max_iterations=max_iterations,
-                   method="additive-srivc")
+                   method="additive-srivc", tol=tol)
     return identify(u, y, rate_hz, structures, pre.thetas, r=r, controller=controller, input_delay=input_delay,
-                    max_iterations=max_iterations)
+                    max_iterations=max_iterations, tol=tol)
 
 
-def _usable(res: Any) -> bool:
+def _usable(res: Any, rate_hz: float) -> bool:
+    """Finite, every resonant submodel stable and below the Nyquist frequency (a fit that ran off there, e.g. a
+    well-damped mode near the top of the band, describes nothing the samples can show)."""
     return all(np.all(np.isfinite(t)) for t in res.thetas) and all(
-        t[0] > 0 and t[1] > 0 for t, s in zip(res.thetas, res.structures, strict=True) if s.n == 2)
+        t[0] > 0 and t[1] > 0 and modal_from_theta(t, s)[0] < 0.5 * rate_hz
+        for t, s in zip(res.thetas, res.structures, strict=True) if s.n == 2)
 
 
 def _evaluate(K: int, start: list[Candidate], u, y, rate_hz, r, controller, input_delay, split: int,
@@ -351,10 +388,10 @@ def _evaluate(K: int, start: list[Candidate], u, y, rate_hz, r, controller, inpu
     """Fit one start on ``[:split]`` and measure its output error on both parts (a failure is a row, not a crash)."""
     try:
         res = _fit(u[:split], y[:split], rate_hz, None if r is None else r[:split], controller, input_delay,
-                   start, max_iterations)
+                   start, min(max_iterations, SCAN_MAX_ITERATIONS), SCAN_TOL)
     except Exception as exc:  # noqa: BLE001 - a failed order is a row of the table, not a crash
         return OrderRow(K, np.inf, np.inf, message=f"{type(exc).__name__}: {exc}"), None
-    if not _usable(res):
+    if not _usable(res, rate_hz):
         return OrderRow(K, np.inf, np.inf, converged=bool(res.converged), message="unstable or non-finite"), None
     try:
         e_fit, e_val = _held_out_error(res.thetas, res.structures, rate_hz, u, y, r, controller, input_delay, split)
@@ -413,9 +450,11 @@ def order_table(u, y, rate_hz: float, r, controller, input_delay: int, candidate
 def find_modes(u, y, rate_hz: float, *, r=None, controller=None, input_delay: int = 0, count: int = 0,
                max_count: int = 6, frequency_range_hz: tuple[float, float] | None = None,
                validation_fraction: float = 0.3, margin: float = DEFAULT_MARGIN,
-               max_iterations: int = 30, frf: FRFEstimate | None = None) -> ModeFindResult:
-    """Find the modes (``count`` of them, or the order by held-out error when ``count`` is 0). Raises
-    ``ValueError`` when the data contain no usable candidate or no order could be fitted."""
+               max_iterations: int = 30, frf: FRFEstimate | None = None,
+               refit_tol: float = FINAL_TOL) -> ModeFindResult:
+    """Find the modes (``count`` of them, or the order by held-out error when ``count`` is 0); the chosen order is
+    refitted on the whole record to ``refit_tol``. Raises ``ValueError`` when the data contain no usable candidate
+    or no order could be fitted."""
     u = np.asarray(u, dtype=float)
     y = np.asarray(y, dtype=float)
     r = None if r is None or controller is None else np.asarray(r, dtype=float)
@@ -424,7 +463,8 @@ def find_modes(u, y, rate_hz: float, *, r=None, controller=None, input_delay: in
     if count < 0 or max_count < 1:
         raise ValueError("need count >= 0 and max_count >= 1")
     frf = estimate_frf(u, y, rate_hz, r) if frf is None else frf
-    candidates = find_candidates(frf, input_delay, frequency_range_hz)
+    candidates = finer_candidates(u, y, rate_hz, r, frf, input_delay, frequency_range_hz,
+                                  find_candidates(frf, input_delay, frequency_range_hz))
     if not candidates:
         raise ValueError("no resonance or rigid-body behaviour found in the valid FRF band "
                          f"({frf.band_hz}): the data do not excite the plant enough to find modes")
@@ -439,8 +479,8 @@ def find_modes(u, y, rate_hz: float, *, r=None, controller=None, input_delay: in
              for t, s in zip(res.thetas, res.structures, strict=True)]
     message = f"K = {chosen.K} by held-out output error (margin {margin:.0%})"
     try:
-        full = _fit(u, y, rate_hz, r, controller, input_delay, start, max_iterations)
-        if _usable(full):
+        full = _fit(u, y, rate_hz, r, controller, input_delay, start, max_iterations, refit_tol)
+        if _usable(full, rate_hz):
             res = full
         else:
             message += "; refit on the whole record unstable: kept the fit on the first part"
@@ -458,11 +498,13 @@ def find_modes(u, y, rate_hz: float, *, r=None, controller=None, input_delay: in
                           frf, candidates, res, message)
 
 
-def autostart_config(cfg: MonitorSettings, r, u, y,
-                     count: int | None = None) -> tuple[MonitorSettings, ModeFindResult]:
+def autostart_config(cfg: MonitorSettings, r, u, y, count: int | None = None,
+                     refit_tol: float = FINAL_TOL) -> tuple[MonitorSettings, ModeFindResult]:
     """The automatic start of a :class:`config.MonitorConfig` without guesses (issue 12): modes found on the given
     data (the longest finite stretch; ``count`` None: ``modes.count``), returned as the configuration with those
-    modes as guesses, and the evidence. Raises ``ValueError`` (one line) when no mode can be found."""
+    modes as guesses, and the evidence. ``refit_tol``: see :func:`find_modes` (the pipeline passes
+    :data:`SCAN_TOL`: its estimator's offline initialization refines the start on the same samples right after).
+    Raises ``ValueError`` (one line) when no mode can be found."""
     closed = bool(cfg.closed_loop)
     r = np.asarray(r, dtype=float) if closed and r is not None else None
     u, y = np.asarray(u, dtype=float), np.asarray(y, dtype=float)
@@ -471,7 +513,7 @@ def autostart_config(cfg: MonitorSettings, r, u, y,
     res = find_modes(u[seg], y[seg], cfg.loop_rate_hz, r=None if r is None else r[seg],
                      controller=cfg.controller if closed else None, input_delay=cfg.input_delay_samples, count=k,
                      max_count=max(cfg.max_mode_count, k), frequency_range_hz=cfg.frequency_range_hz,
-                     max_iterations=max(30, cfg.estimator.init_max_iterations))
+                     max_iterations=max(30, cfg.estimator.init_max_iterations), refit_tol=refit_tol)
     modal = np.array([m if s.n == 2 else (0.0, 0.0, m[2]) for m, s in zip(res.modal, res.structures, strict=True)])
     order = np.argsort(modal[:, 0], kind="stable")   # modes numbered by frequency (rigid body first), as users do
     return cfg.with_modes(modal[order], [res.structures[i].integrators for i in order]), res

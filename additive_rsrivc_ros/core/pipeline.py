@@ -739,10 +739,11 @@ class MonitorPipeline:
 
     def _start_from_data(self, r: np.ndarray, u: np.ndarray, y: np.ndarray, t_rel: float, why: str) -> bool:
         """Replace guesses that gave no valid model by the K modes found in this window; False if none are found."""
-        from .modefind import autostart_config
+        from .modefind import SCAN_TOL, autostart_config
 
-        try:
-            new, found = autostart_config(self.cfg, r if self.cfg.closed_loop else None, u, y, count=self.K)
+        try:   # the offline initialization that follows refines the start on these samples
+            new, found = autostart_config(self.cfg, r if self.cfg.closed_loop else None, u, y, count=self.K,
+                                          refit_tol=SCAN_TOL)
         except ValueError as exc:
             self.notices.append(f"the mode guesses gave no valid model ({why}); finding the modes in the data "
                                 f"failed too: {exc}")
