@@ -12,29 +12,32 @@
      window's resolution ``Delta f / (2 f_peak)``), modal gain of ``b0/(a2 p^2 + a1 p + 1)`` from the peak value
      ``G(j omega_n) = -j b0 / (2 zeta)``, i.e. ``b0 = -2 zeta Im G`` (its sign is the mode's);
    * a rigid body ``b0/p^l`` when the lowest valid decade falls with slope ``-20 l`` dB/decade (l = 1, 2; slope
-     within 0.25 of -l decades/decade over at least five bins), ``b0`` from ``G = b0/(j omega)^l``.
+     within 0.25 of -l decades/decade over at least five bins), ``b0`` from ``G = b0/(j omega)^l``;
+   * :func:`finer_candidates`: the same below ``FINER_BAND_BINS`` default bins on FRFs with finer resolution.
 
 2. :func:`find_modes`: for ``K = 1 .. K_max`` (the rigid body, if any, counts as one submodel and is always kept;
    the first order starts from the most prominent peaks, each larger one from the best smaller model plus the
-   most prominent peak not near one of its modes, or the next ones, up to three) the offline additive CLSRIVC
+   most prominent peak not near one of its modes, or the next ones, up to three, or the resonance of its residual
+   FRF with the most output power, :func:`_residual_start`) the offline additive CLSRIVC
    (closed loop, 001 eq. 20/29) or SRIVC (open loop) is fitted on the first ``1 - validation_fraction`` of the
    record and judged by the mean squared *output error on the rest* (held-out data): in closed loop the model's
    noise-free closed-loop output ``T_o r`` (001 eq. 20), in open loop ``G u``. **Order rule:** starting from the
    smallest K that fitted, a larger K replaces the current choice only if its held-out error is below
    ``(1 - margin)`` times the current one (``margin`` = 2 %); the scan stops after two orders in a row without
-   such a gain. The chosen model is then refitted on the whole record. Modes whose frequency lies outside the band
+   such a gain. The scan's fits stop early (``SCAN_TOL``, ``SCAN_MAX_ITERATIONS``); the chosen model is then
+   refitted on the whole record. Modes whose frequency lies outside the band
    where the FRF is valid are reported as not identifiable.
 """
 
 from __future__ import annotations
 
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 from typing import Any
 
 import numpy as np
 
 from .estimator import MonitorSettings
-from .frf import FRFEstimate, estimate_frf, longest_finite
+from .frf import FRFEstimate, discrete_model_frf, estimate_frf, longest_finite
 from .model import TWO_PI, SubmodelStructure, guess_structure, guess_theta, modal_from_theta
 
 MIN_PROMINENCE_DECADES = 0.1  # 2 dB
@@ -254,7 +257,8 @@ def finer_candidates(u, y, rate_hz: float, r, frf: FRFEstimate, input_delay: int
     flattens it and a square wave's lines, one every few bins, make a staircase of it. Below ``FINER_BAND_BINS``
     default bins the same test (valid bins, prominence, noise) runs on FRFs with ``FINER_FACTORS`` times longer
     segments (fewer averages: the coherence and variance bounds grow accordingly); a peak not within 15 % of a
-    known candidate is appended, after them (the order scan tries them last)."""
+    known candidate is appended, after them (the order scan tries them last), and a rigid-body slope, if the
+    default FRF showed none, comes first (it always counts as one submodel)."""
     out = list(candidates)
     top = FINER_BAND_BINS * frf.resolution_hz
     lo, hi = frequency_range_hz if frequency_range_hz is not None else (0.0, np.inf)
@@ -267,7 +271,9 @@ def finer_candidates(u, y, rate_hz: float, r, frf: FRFEstimate, input_delay: int
         except ValueError:
             break
         for c in find_candidates(fine, input_delay, (lo, min(hi, top))):
-            if c.natural_frequency_hz > 0.0 and all(
+            if c.natural_frequency_hz == 0.0 and not any(k.natural_frequency_hz == 0.0 for k in out):
+                out.insert(0, c)   # a rigid-body slope the coarse bins below the first peak were too few to show
+            elif c.natural_frequency_hz > 0.0 and all(
                     abs(c.natural_frequency_hz / k.natural_frequency_hz - 1.0) > 0.15
                     for k in out if k.natural_frequency_hz > 0.0):
                 out.append(c)
@@ -337,8 +343,7 @@ def _nested_start(best_fit: Any, candidates: list[Candidate], K: int, skip: int 
     """Start for order K from the best smaller model: its fitted submodels plus the most prominent candidates not
     within 15 % of one of its modes (the last one replaced by the ``skip``-th next: alternatives). A fit may have
     moved a start to a mode the peak list ranked low, e.g. a well-damped low mode that dominates the output error."""
-    fitted = [Candidate(*(modal_from_theta(t, s) if s.n == 2 else (0.0, 0.0, t[0])), 0.0, s.integrators)
-              for t, s in zip(best_fit.thetas, best_fit.structures, strict=True)]
+    fitted = _fitted_candidates(best_fit)
     need = K - len(fitted)
     if need < 1:
         return None
@@ -350,6 +355,41 @@ def _nested_start(best_fit: Any, candidates: list[Candidate], K: int, skip: int 
     if len(fresh) < need + skip:
         return None
     return sorted(fitted + fresh[:need - 1] + [fresh[need - 1 + skip]], key=lambda c: c.natural_frequency_hz)
+
+
+def _fitted_candidates(fit: Any) -> list[Candidate]:
+    return [Candidate(*(modal_from_theta(t, s) if s.n == 2 else (0.0, 0.0, t[0])), 0.0, s.integrators)
+            for t, s in zip(fit.thetas, fit.structures, strict=True)]
+
+
+def _residual_start(best_fit: Any, frf: FRFEstimate, K: int, input_delay: int,
+                    frequency_range_hz: tuple[float, float] | None) -> list[Candidate] | None:
+    """Start for order K = K_fit + 1 from where the best smaller model misfits: the resonance of the residual FRF
+    ``G - G_model`` (same validity, noise and prominence tests as the peaks), not within 15 % of a fitted mode,
+    that carries the most output power. A well-damped mode beside a stronger one shows no peak of its own in ``G``
+    but does in the residual, once the stronger one is modelled (step 2 of ``core/adequacy.py``, used to build)."""
+    fitted = _fitted_candidates(best_fit)
+    if K - len(fitted) != 1:
+        return None
+    G_model = np.zeros(frf.freqs_hz.size, dtype=complex)
+    pos = frf.freqs_hz > 0.0
+    G_model[pos] = discrete_model_frf(best_fit.thetas, best_fit.structures, frf.rate_hz, frf.freqs_hz[pos],
+                                      input_delay)
+    new = [c for c in find_candidates(replace(frf, G=frf.G - G_model), input_delay, frequency_range_hz)
+           if c.natural_frequency_hz > 0.0 and all(abs(c.natural_frequency_hz / m.natural_frequency_hz - 1.0) > 0.15
+                                                   for m in fitted if m.natural_frequency_hz > 0.0)]
+    if not new:
+        return None
+    # the largest share of the output: a mode's response power under flat excitation ~ gain^2 f_n / zeta
+    best = max(new, key=lambda c: c.gain ** 2 * c.natural_frequency_hz / max(c.damping_ratio, 1e-6))
+    return sorted(fitted + [best], key=lambda x: x.natural_frequency_hz)
+
+
+def _same_start(a: list[Candidate], b: list[Candidate]) -> bool:
+    return len(a) == len(b) and all(
+        x.integrators == y.integrators and (x.natural_frequency_hz == y.natural_frequency_hz == 0.0 or (
+            y.natural_frequency_hz > 0.0 and abs(x.natural_frequency_hz / y.natural_frequency_hz - 1.0) <= 0.15))
+        for x, y in zip(a, b, strict=True))
 
 
 def _fit(u, y, rate_hz, r, controller, input_delay, start: list[Candidate], max_iterations: int,
@@ -402,9 +442,11 @@ def _evaluate(K: int, start: list[Candidate], u, y, rate_hz, r, controller, inpu
 
 def order_table(u, y, rate_hz: float, r, controller, input_delay: int, candidates: list[Candidate],
                 orders: list[int], validation_fraction: float, max_iterations: int,
-                margin: float) -> tuple[list[OrderRow], dict[int, Any]]:
+                margin: float, frf: FRFEstimate | None = None,
+                frequency_range_hz: tuple[float, float] | None = None) -> tuple[list[OrderRow], dict[int, Any]]:
     """Fit each order on the first part, held-out error on the rest; mark the accepted order (module rule). A larger
-    order built on the best smaller model tries up to ``ALTERNATIVES`` new peaks and keeps the best."""
+    order built on the best smaller model tries up to ``ALTERNATIVES`` new peaks and, with ``frf``, the strongest
+    resonance of that model's residual FRF (:func:`_residual_start`), and keeps the best."""
     n = u.size
     split = int(round(n * (1.0 - validation_fraction)))
     table: list[OrderRow] = []
@@ -424,6 +466,10 @@ def order_table(u, y, rate_hz: float, r, controller, input_delay: int, candidate
         starts = ([_start(candidates, K)] if best_fit is None else
                   [_nested_start(best_fit, candidates, K, skip) for skip in range(ALTERNATIVES)])
         starts = [st for st in starts if st is not None]
+        if best_fit is not None and frf is not None:
+            extra = _residual_start(best_fit, frf, K, input_delay, frequency_range_hz)
+            if extra is not None and not any(_same_start(extra, st) for st in starts):
+                starts.append(extra)
         if not starts:
             table.append(OrderRow(K, np.inf, np.inf, message="fewer candidates than K"))
             continue
@@ -468,9 +514,9 @@ def find_modes(u, y, rate_hz: float, *, r=None, controller=None, input_delay: in
     if not candidates:
         raise ValueError("no resonance or rigid-body behaviour found in the valid FRF band "
                          f"({frf.band_hz}): the data do not excite the plant enough to find modes")
-    orders = [count] if count > 0 else list(range(1, min(max_count, len(candidates)) + 1))
+    orders = [count] if count > 0 else list(range(1, max_count + 1))  # the residual FRF may add candidates
     table, fits = order_table(u, y, rate_hz, r, controller, input_delay, candidates, orders, validation_fraction,
-                              max_iterations, margin)
+                              max_iterations, margin, frf, frequency_range_hz)
     chosen = next((row for row in table if row.accepted), None)
     if chosen is None:
         raise ValueError("no model order could be fitted: " + "; ".join(f"K={t.K}: {t.message}" for t in table))
