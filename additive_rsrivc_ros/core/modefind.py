@@ -18,7 +18,8 @@
 2. :func:`find_modes`: for ``K = 1 .. K_max`` (the rigid body, if any, counts as one submodel and is always kept;
    the first order starts from the most prominent peaks, each larger one from the best smaller model plus the
    most prominent peak not near one of its modes, or the next ones, up to three, or the resonance of its residual
-   FRF with the most output power, :func:`_residual_start`) the offline additive CLSRIVC
+   FRF with the most output power, :func:`_residual_start`, or, in closed loop without a rigid-body candidate,
+   plus a rigid body, :func:`_rigid_start`) the offline additive CLSRIVC
    (closed loop, 001 eq. 20/29) or SRIVC (open loop) is fitted on the first ``1 - validation_fraction`` of the
    record and judged by the mean squared *output error on the rest* (held-out data): in closed loop the model's
    noise-free closed-loop output ``T_o r`` (001 eq. 20), in open loop ``G u``. **Order rule:** starting from the
@@ -385,6 +386,26 @@ def _residual_start(best_fit: Any, frf: FRFEstimate, K: int, input_delay: int,
     return sorted(fitted + [best], key=lambda x: x.natural_frequency_hz)
 
 
+def _rigid_start(best_fit: Any, candidates: list[Candidate], frf: FRFEstimate, K: int,
+                 input_delay: int) -> list[Candidate] | None:
+    """A rigid body ``b0/p^2`` the slope test could not see (closed loop: below the first mode a square wave
+    excites only its few lines), with ``b0 = -Re G omega^2`` at the lowest valid bins, plus the best smaller model
+    (or, for K = 1, nothing else); None when a rigid body is already a candidate or fitted."""
+    if any(c.natural_frequency_hz == 0.0 for c in candidates):
+        return None
+    fitted = _fitted_candidates(best_fit) if best_fit is not None else []
+    if any(c.natural_frequency_hz == 0.0 for c in fitted) or K - len(fitted) != 1:
+        return None
+    k = np.flatnonzero(frf.valid & (frf.freqs_hz > 0.0))[:3]
+    if k.size == 0:
+        return None
+    g = _compensated(frf, input_delay)[k]
+    b0 = float(np.median(-np.real(g) * (TWO_PI * frf.freqs_hz[k]) ** 2))
+    if not b0 > 0.0:
+        return None
+    return [Candidate(0.0, 0.0, b0, 0.0, 2)] + fitted
+
+
 def _same_start(a: list[Candidate], b: list[Candidate]) -> bool:
     return len(a) == len(b) and all(
         x.integrators == y.integrators and (x.natural_frequency_hz == y.natural_frequency_hz == 0.0 or (
@@ -469,6 +490,10 @@ def order_table(u, y, rate_hz: float, r, controller, input_delay: int, candidate
         if best_fit is not None and frf is not None:
             extra = _residual_start(best_fit, frf, K, input_delay, frequency_range_hz)
             if extra is not None and not any(_same_start(extra, st) for st in starts):
+                starts.append(extra)
+        if frf is not None and controller is not None:
+            extra = _rigid_start(best_fit, candidates, frf, K, input_delay)
+            if extra is not None:
                 starts.append(extra)
         if not starts:
             table.append(OrderRow(K, np.inf, np.inf, message="fewer candidates than K"))
