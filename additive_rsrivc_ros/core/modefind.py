@@ -12,7 +12,8 @@
      window's resolution ``Delta f / (2 f_peak)``), modal gain of ``b0/(a2 p^2 + a1 p + 1)`` from the peak value
      ``G(j omega_n) = -j b0 / (2 zeta)``, i.e. ``b0 = -2 zeta Im G`` (its sign is the mode's);
    * a rigid body ``b0/p^l`` when the lowest valid decade falls with slope ``-20 l`` dB/decade (l = 1, 2; slope
-     within 0.25 of -l decades/decade over at least five bins), ``b0`` from ``G = b0/(j omega)^l``;
+     within 0.25 of -l decades/decade over at least five bins) and ``G (j omega)^l`` is real there (median
+     ``|Im|/|.|`` below ``RIGID_REALNESS``; a damped mode's roll-off turns it by 90 degrees), ``b0`` its median;
    * :func:`finer_candidates`: the same below ``FINER_BAND_BINS`` default bins on FRFs with finer resolution.
 
 2. :func:`find_modes`: for ``K = 1 .. K_max`` (the rigid body, if any, counts as one submodel and is always kept;
@@ -44,6 +45,7 @@ from .model import TWO_PI, SubmodelStructure, guess_structure, guess_theta, moda
 MIN_PROMINENCE_DECADES = 0.1  # 2 dB
 DEFAULT_MARGIN = 0.02
 RIGID_SLOPE_TOLERANCE = 0.25
+RIGID_REALNESS = 0.3  # median |Im| / |.| of G (j omega)^l over the slope bins of a rigid body b0/p^l (phase < 17 deg)
 SMOOTH_BINS = 5
 ALTERNATIVES = 3  # new peaks tried for each larger order
 STOP_AFTER_MISSES = 2  # order scan stops after this many consecutive orders without a significant gain
@@ -139,8 +141,10 @@ def _rigid_body(f: np.ndarray, g: np.ndarray, first_peak_hz: float) -> Candidate
     slope = np.polyfit(np.log10(f[sel]), np.log10(np.abs(g[sel])), 1)[0]
     for ell in (2, 1):
         if abs(slope + ell) < RIGID_SLOPE_TOLERANCE:
-            b0 = float(np.median(np.real(g[sel] * (1j * TWO_PI * f[sel]) ** ell)))
-            if b0 != 0.0:
+            c = g[sel] * (1j * TWO_PI * f[sel]) ** ell   # b0 for b0/p^l (minus the modes' static gains x w^l): real
+            b0 = float(np.median(np.real(c)))
+            # a damped resonance's roll-off can average the same slope, but its c turns by 90 degrees
+            if b0 != 0.0 and float(np.median(np.abs(np.imag(c)) / np.maximum(np.abs(c), 1e-300))) < RIGID_REALNESS:
                 return Candidate(0.0, 0.0, b0, 0.0, ell)
     return None
 
@@ -213,8 +217,11 @@ def peak_prominences(x: np.ndarray, min_prominence: float) -> tuple[np.ndarray, 
 
 
 def find_candidates(frf: FRFEstimate, input_delay: int = 0,
-                    frequency_range_hz: tuple[float, float] | None = None) -> list[Candidate]:
-    """Candidate submodels from the valid FRF: rigid body first (if any), then peaks by decreasing prominence."""
+                    frequency_range_hz: tuple[float, float] | None = None,
+                    first_peak_hz: float = np.inf) -> list[Candidate]:
+    """Candidate submodels from the valid FRF: rigid body first (if any), then peaks by decreasing prominence. The
+    rigid-body slope is sought below a third of the lowest peak found here or ``first_peak_hz``, whichever is lower
+    (a resonance's roll-off above it also falls at -40 dB/decade)."""
     sel = frf.valid.copy()
     if frequency_range_hz is not None:
         sel &= (frf.freqs_hz >= frequency_range_hz[0]) & (frf.freqs_hz <= frequency_range_hz[1])
@@ -246,7 +253,7 @@ def find_candidates(frf: FRFEstimate, input_delay: int = 0,
             b0 = 2.0 * zeta * mag[k] * (1.0 if np.imag(g[k]) <= 0 else -1.0)
         peaks.append(Candidate(float(fp), zeta, b0, float(prom)))
     peaks.sort(key=lambda c: -c.prominence_decades)
-    rigid = _rigid_body(f, g, min((c.natural_frequency_hz for c in peaks), default=f[-1]))
+    rigid = _rigid_body(f, g, min(min((c.natural_frequency_hz for c in peaks), default=f[-1]), first_peak_hz))
     return ([rigid] if rigid is not None else []) + peaks
 
 
@@ -271,7 +278,8 @@ def finer_candidates(u, y, rate_hz: float, r, frf: FRFEstimate, input_delay: int
             fine = estimate_frf(u, y, rate_hz, r, nperseg=nperseg)
         except ValueError:
             break
-        for c in find_candidates(fine, input_delay, (lo, min(hi, top))):
+        known = min((k.natural_frequency_hz for k in out if k.natural_frequency_hz > 0.0), default=np.inf)
+        for c in find_candidates(fine, input_delay, (lo, min(hi, top)), first_peak_hz=known):
             if c.natural_frequency_hz == 0.0 and not any(k.natural_frequency_hz == 0.0 for k in out):
                 out.insert(0, c)   # a rigid-body slope the coarse bins below the first peak were too few to show
             elif c.natural_frequency_hz > 0.0 and all(
