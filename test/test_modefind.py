@@ -78,25 +78,31 @@ def test_peak_prominences_is_scipy_find_peaks():
         np.testing.assert_allclose(prom, props["prominences"], rtol=0, atol=1e-12)
 
 
+def _square_wave_run(modes, thetas, ctrl, seed: int, duration_s: float, square_hz: float):
+    """The loop (asserted stable) under a square-wave setpoint with 5 % white dither, output noise 1 % of the
+    output's std (as in validate_autostart.py)."""
+    from additive_rsrivc_ros.core.filters import closed_loop_radius
+
+    assert closed_loop_radius(thetas, [m.structure for m in modes], 1 / FS, ctrl, 0) < 1.0
+    rng = np.random.default_rng(seed)
+    t = np.arange(int(duration_s * FS)) / FS
+    r = square_wave(t, square_hz, 1.0) + white_noise(t.size, 0.05, rng)
+    clean = simulate_modes(modes, FS, r=r, controller=ctrl)
+    return simulate_modes(modes, FS, r=r, controller=ctrl, noise=white_noise(t.size, 0.01 * np.std(clean.y), rng),
+                          rng=rng)
+
+
 def _low_mode_loop(seed: int):
     """Two modes near 2 and 4 Hz at 1 kHz, a square wave at a fifth of the lowest (as in validate_autostart.py):
     with 20 s the default FRF resolution (0.5 Hz) leaves the 1.8 Hz resonance 2-3 bins wide."""
     from additive_rsrivc_ros.core.controller import DiscreteController
-    from additive_rsrivc_ros.core.filters import closed_loop_radius
     from additive_rsrivc_ros.core.model import theta_from_modal
 
     modes = (PlantMode(1.84, 0.072, 0.42), PlantMode(3.96, 0.285, 0.79))
     kp = 0.1
     ctrl = DiscreteController((kp + kp * 2 * np.pi * 0.184 / FS, -kp), (1.0, -1.0))
     thetas = [theta_from_modal(*m.modal) for m in modes]
-    assert closed_loop_radius(thetas, [m.structure for m in modes], 1 / FS, ctrl, 0) < 1.0
-    rng = np.random.default_rng(seed)
-    t = np.arange(int(21.7 * FS)) / FS
-    r = square_wave(t, 1.84 / 5, 1.0) + white_noise(t.size, 0.05, rng)
-    clean = simulate_modes(modes, FS, r=r, controller=ctrl)
-    sim = simulate_modes(modes, FS, r=r, controller=ctrl, noise=white_noise(t.size, 0.01 * np.std(clean.y), rng),
-                         rng=rng)
-    return modes, ctrl, sim
+    return modes, ctrl, _square_wave_run(modes, thetas, ctrl, seed, 21.7, 1.84 / 5)
 
 
 @pytest.mark.parametrize("seed", [1, 2])
@@ -123,20 +129,12 @@ def test_well_damped_mode_without_a_peak_found_in_the_residual(monkeypatch):
     11 Hz resonance, and K = 2 is found within the issue's tolerances. Without the residual start, K = 1."""
     from additive_rsrivc_ros.core import modefind
     from additive_rsrivc_ros.core.controller import DiscreteController
-    from additive_rsrivc_ros.core.filters import closed_loop_radius
     from additive_rsrivc_ros.core.model import theta_from_modal
 
     modes = (PlantMode(11.35, 0.241, 0.234), PlantMode(141.7, 0.00502, 0.415))
     kp, ki = 0.0073, 0.0073 * 2 * np.pi * 1.135
     ctrl = DiscreteController((kp + ki / FS, -kp), (1.0, -1.0))
-    thetas = [theta_from_modal(*m.modal) for m in modes]
-    assert closed_loop_radius(thetas, [m.structure for m in modes], 1 / FS, ctrl, 0) < 1.0
-    rng = np.random.default_rng(5)
-    t = np.arange(int(20.0 * FS)) / FS
-    r = square_wave(t, 2.0, 1.0) + white_noise(t.size, 0.05, rng)
-    clean = simulate_modes(modes, FS, r=r, controller=ctrl)
-    sim = simulate_modes(modes, FS, r=r, controller=ctrl, noise=white_noise(t.size, 0.01 * np.std(clean.y), rng),
-                         rng=rng)
+    sim = _square_wave_run(modes, [theta_from_modal(*m.modal) for m in modes], ctrl, 5, 20.0, 2.0)
     res = find_modes(sim.u, sim.y, FS, r=sim.r, controller=ctrl)
     assert not any(abs(c.natural_frequency_hz / 11.35 - 1) < 0.15 for c in res.candidates)   # no peak of its own
     _check_modes(res, modes)
@@ -188,7 +186,6 @@ def test_rigid_body_without_a_visible_slope_found_by_the_rigid_start(monkeypatch
 
     from additive_rsrivc_ros.core import modefind
     from additive_rsrivc_ros.core.controller import DiscreteController
-    from additive_rsrivc_ros.core.filters import closed_loop_radius
     from additive_rsrivc_ros.core.model import theta_from_modal
 
     b0 = 3.0 * 0.5 * (2 * math.pi * 8.0) ** 2          # the mass line 3x the 8 Hz mode's static gain there
@@ -197,13 +194,7 @@ def test_rigid_body_without_a_visible_slope_found_by_the_rigid_start(monkeypatch
     kp, a, b = wc**2 / (3 * b0), 2 / (h * wc / 3), 2 / (h * 3 * wc)
     ctrl = DiscreteController((kp * (1 + a) / (1 + b), kp * (1 - a) / (1 + b)), (1.0, (1 - b) / (1 + b)))
     thetas = [np.array([b0])] + [theta_from_modal(*m.modal) for m in modes[1:]]
-    assert closed_loop_radius(thetas, [m.structure for m in modes], h, ctrl, 0) < 1.0
-    rng = np.random.default_rng(2)
-    t = np.arange(int(20.0 * FS)) / FS
-    r = square_wave(t, 1.6, 1.0) + white_noise(t.size, 0.05, rng)
-    clean = simulate_modes(modes, FS, r=r, controller=ctrl)
-    sim = simulate_modes(modes, FS, r=r, controller=ctrl, noise=white_noise(t.size, 0.01 * np.std(clean.y), rng),
-                         rng=rng)
+    sim = _square_wave_run(modes, thetas, ctrl, 2, 20.0, 1.6)
     res = find_modes(sim.u, sim.y, FS, r=sim.r, controller=ctrl)
     assert not any(c.natural_frequency_hz == 0.0 for c in res.candidates)   # the slope test saw nothing
     assert [s.integrators for s in res.structures] == [2, 0, 0]
