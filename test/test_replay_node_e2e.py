@@ -40,9 +40,10 @@ def test_replay_into_node_matches_offline(tmp_path: Path, ros_env: dict) -> None
     # DDS between two Python processes at 12288 msg/s on this 2-core machine occasionally loses a burst of one
     # topic (measured: 1 run in 4 to 6, also with the node tolerating 12 s stalls and a 50 ms writer heartbeat).
     # The node must then say so (count mismatch, resynchronized): that is asserted, and the replay is run again
-    # (at most three attempts), which must match exactly. A silent difference fails at once.
-    for attempt in (1, 2, 3):
-        modes, flagged, log, rep = _replay_into_node(ros_env, len(rows) // K)
+    # (at most three attempts; the retries at half the recorded rate, as a loaded machine needs: the estimates
+    # follow the stamps, not the wall clock), which must match exactly. A silent difference fails at once.
+    for attempt, rate in ((1, 1.0), (2, 0.5), (3, 0.5)):
+        modes, flagged, log, rep = _replay_into_node(ros_env, len(rows) // K, rate)
         live = np.array([m for m in modes if np.all(np.isfinite(m))])
         if live.shape == offline.shape:
             break
@@ -62,8 +63,10 @@ def test_replay_into_node_matches_offline(tmp_path: Path, ros_env: dict) -> None
     assert flagged == offline_faults
 
 
-def _replay_into_node(ros_env: dict, n_expected: int) -> tuple[list[np.ndarray], set, str, subprocess.CompletedProcess]:
-    """Start the node, replay the bag into it over DDS and collect ~/modes and the fault flags on /diagnostics."""
+def _replay_into_node(ros_env: dict, n_expected: int,
+                      rate: float = 1.0) -> tuple[list[np.ndarray], set, str, subprocess.CompletedProcess]:
+    """Start the node, replay the bag into it over DDS (at ``rate`` x the recorded rate) and collect ~/modes and the
+    fault flags on /diagnostics."""
     import rclpy
     from diagnostic_msgs.msg import DiagnosticArray
     from rclpy.experimental import EventsExecutor
@@ -109,7 +112,8 @@ def _replay_into_node(ros_env: dict, n_expected: int) -> tuple[list[np.ndarray],
         th.start()
         rep = subprocess.run([sys.executable, "-m", "additive_rsrivc_ros.cli.replay", str(BAG), "--topics",
                               "/reference", "/plant_input", "/plant_output", "--wait-for-subscribers", "60",
-                              "--stats"], env=ros_env, capture_output=True, text=True, timeout=150)
+                              "--rate", str(rate), "--stats"], env=ros_env, capture_output=True, text=True,
+                             timeout=90 + 60 / rate)
         assert rep.returncode == 0, rep.stderr
         deadline = time.monotonic() + 15.0
         while time.monotonic() < deadline and sum(np.all(np.isfinite(m)) for m in modes) < n_expected:
