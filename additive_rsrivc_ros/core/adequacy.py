@@ -53,8 +53,9 @@ N_SIGMA = 3.0
 MAX_CANDIDATES = 3
 """Unmodelled resonances refitted, largest misfit first (each refit costs one offline fit)."""
 MIN_WINDOW_S = 2.0
-FIT_TOL = 1e-5  # relative parameter change that ends a check's refit: its moves are judged at >= 0.5 % (step 4)
 """Shortest contiguous stretch the check runs on (the FRF needs a few averages at a resolution below 1 Hz)."""
+FIT_TOL = 1e-5
+"""Relative parameter change that ends a check's refit: its moves are judged at >= 0.5 % (step 4)."""
 QUANTITY_NAMES = ("natural frequency", "damping", "gain")
 
 

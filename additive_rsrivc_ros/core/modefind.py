@@ -554,8 +554,7 @@ def find_modes(u, y, rate_hz: float, *, r=None, controller=None, input_delay: in
     if chosen is None:
         raise ValueError("no model order could be fitted: " + "; ".join(f"K={t.K}: {t.message}" for t in table))
     res = fits[chosen.K]
-    start = [Candidate(*(modal_from_theta(t, s) if s.n == 2 else (0.0, 0.0, t[0])), 0.0, s.integrators)
-             for t, s in zip(res.thetas, res.structures, strict=True)]
+    start = _fitted_candidates(res)
     message = f"K = {chosen.K} by held-out output error (margin {margin:.0%})"
     try:
         full = _fit(u, y, rate_hz, r, controller, input_delay, start, max_iterations, refit_tol)
