@@ -202,3 +202,56 @@ def test_rigid_body_without_a_visible_slope_found_by_the_rigid_start(monkeypatch
     _check_modes(replace_modal(res, slice(1, None)), modes[1:])
     monkeypatch.setattr(modefind, "_rigid_start", lambda *a, **k: None)
     assert [s.integrators for s in find_modes(sim.u, sim.y, FS, r=sim.r, controller=ctrl).structures] != [2, 0, 0]
+
+
+def _with_extra_mode(res, f_hz: float, zeta: float, gain: float):
+    """``res`` (an identification result) with one more submodel appended, as an order scan's fit would carry it."""
+    from dataclasses import replace
+
+    from additive_rsrivc_ros.core.model import guess_structure, theta_from_modal
+
+    th = theta_from_modal(f_hz, zeta, gain)
+    n_old, n_new = res.covariance.shape[0], th.size
+    grow = lambda a: np.block([[a, np.zeros((n_old, n_new))], [np.zeros((n_new, n_old)), np.eye(n_new)]])  # noqa: E731
+    return replace(res, thetas=[*res.thetas, th], structures=[*res.structures, guess_structure(f_hz, 0)],
+                   covariances=[*res.covariances, np.eye(n_new)], covariance=grow(res.covariance), P=grow(res.P),
+                   p_blocks=[*res.p_blocks, np.eye(n_new)], modal=np.vstack([res.modal, [f_hz, zeta, gain]]),
+                   modal_std=np.vstack([res.modal_std, np.zeros(3)]))
+
+
+def test_an_order_whose_added_mode_adds_nothing_is_not_chosen():
+    """Backward check of the order scan: a K = 3 fit whose third mode is negligible (gain 1e-7 at 200 Hz, far below
+    the noise) beats the scan's poorer K = 2 fit only through its two real modes. The K = 3 row is marked redundant
+    and its reduction (the two real modes) becomes the K = 2 model, at the noise level. Counterfactual: the true
+    K = 2 fit against K = 1 keeps both modes (each one's removal multiplies the held-out error)."""
+    from additive_rsrivc_ros.core.modefind import OrderRow, _check_relevance, _choice, _held_out_error
+
+    sim = _square_wave_closed_loop(11)
+    n = sim.u.size
+    split = int(round(0.7 * n))
+    true2 = find_modes(sim.u, sim.y, FS, r=sim.r, controller=CONTROLLER, input_delay=DELAY, count=2).identification
+    err = lambda fit: _held_out_error(fit.thetas, fit.structures, FS, sim.u, sim.y, sim.r, CONTROLLER,  # noqa: E731
+                                      DELAY, split)
+    e2_fit, e2_val = err(true2)
+    assert e2_val < 1.5 * 0.01**2    # the noise level (output noise std 0.01)
+    fit3 = _with_extra_mode(true2, 200.0, 0.01, 1e-7)
+    e3_fit, e3_val = err(fit3)
+    assert abs(e3_val / e2_val - 1.0) < 1e-3    # the extra mode changes nothing
+    # the scan's K = 2 fit stopped early: 5 % worse than the converged one, so K = 3 looks like a 2 % gain
+    # (its row was itself marked redundant by an earlier check: a replacement is a model of its order again)
+    table = [OrderRow(1, 1.0, 1.0, converged=True),
+             OrderRow(2, 1.05 * e2_fit, 1.05 * e2_val, converged=False, redundant=True), OrderRow(3, e3_fit, e3_val)]
+    fits = {1: None, 2: None, 3: fit3}
+    assert _choice(table, 0.02).K == 3    # what the forward rule alone would choose
+    _check_relevance(table, fits, fit3, sim.u, sim.y, FS, sim.r, CONTROLLER, DELAY, split, 0.02)
+    assert table[2].redundant and "200 Hz mode" in table[2].message
+    assert table[1].validation_error == pytest.approx(e2_val, rel=1e-9) and not table[1].redundant
+    assert _choice(table, 0.02).K == 2
+    assert len(fits[2].thetas) == 2
+    for a, b in zip(fits[2].thetas, true2.thetas, strict=True):
+        np.testing.assert_array_equal(a, b)
+    # counterfactual: both real modes are relevant
+    table = [OrderRow(1, 1.0, 1.0, converged=True), OrderRow(2, e2_fit, e2_val)]
+    fits = {1: None, 2: true2}
+    _check_relevance(table, fits, true2, sim.u, sim.y, FS, sim.r, CONTROLLER, DELAY, split, 0.02)
+    assert not table[1].redundant and table[0].validation_error == 1.0 and fits[1] is None

@@ -26,9 +26,12 @@
    noise-free closed-loop output ``T_o r`` (001 eq. 20), in open loop ``G u``. **Order rule:** starting from the
    smallest K that fitted, a larger K replaces the current choice only if its held-out error is below
    ``(1 - margin)`` times the current one (``margin`` = 2 %); the scan stops after two orders in a row without
-   such a gain. The scan's fits stop early (``SCAN_TOL``, ``SCAN_MAX_ITERATIONS``); the chosen model is then
-   refitted on the whole record. Modes whose frequency lies outside the band
-   where the FRF is valid are reported as not identifiable.
+   such a gain. **Backward check** (:func:`_check_relevance`): an order's gain must come from its added mode; when
+   the fit without its least relevant submodel predicts within ``margin`` of it, the order is redundant, and that
+   reduction replaces the smaller order's model if it predicts better (a smaller order's scan fit that stopped
+   early, e.g. the beam's K = 4 beside a K = 5 with a negligible 239 Hz mode). The scan's fits stop early
+   (``SCAN_TOL``, ``SCAN_MAX_ITERATIONS``); the chosen model is then refitted on the whole record. Modes whose
+   frequency lies outside the band where the FRF is valid are reported as not identifiable.
 """
 
 from __future__ import annotations
@@ -88,6 +91,7 @@ class OrderRow:
     accepted: bool = False
     converged: bool = False
     message: str = ""
+    redundant: bool = False  # a mode of this fit adds less than the margin: its reduction is a K - 1 model
 
     def to_dict(self) -> dict[str, Any]:
         def num(v: float) -> float | None:
@@ -469,6 +473,54 @@ def _evaluate(K: int, start: list[Candidate], u, y, rate_hz, r, controller, inpu
     return OrderRow(K, e_fit, e_val, converged=bool(res.converged), message=res.message), res
 
 
+def _reduced(res: Any, j: int) -> Any:
+    """The fit ``res`` without its submodel ``j`` (parameters, covariance blocks and modal rows of the others; not
+    converged: a start, or a fallback when the refit fails)."""
+    keep = [i for i in range(len(res.thetas)) if i != j]
+    sizes = [t.size for t in res.thetas]
+    offsets = np.concatenate([[0], np.cumsum(sizes)])
+    idx = np.concatenate([np.arange(offsets[i], offsets[i + 1]) for i in keep])
+
+    def pick(a: Any) -> Any:
+        return np.asarray(a)[np.ix_(idx, idx)] if np.ndim(a) == 2 and np.shape(a)[0] == offsets[-1] else a
+    return replace(res, structures=[res.structures[i] for i in keep], thetas=[res.thetas[i] for i in keep],
+                   covariances=[res.covariances[i] for i in keep], covariance=pick(res.covariance), P=pick(res.P),
+                   p_blocks=[res.p_blocks[i] for i in keep], modal=np.asarray(res.modal)[keep],
+                   modal_std=np.asarray(res.modal_std)[keep], converged=False,
+                   message=f"the K = {len(keep) + 1} fit without its submodel {j + 1}")
+
+
+def _least_relevant(res: Any, u, y, rate_hz: float, r, controller, input_delay: int,
+                    split: int) -> tuple[int, float, float] | None:
+    """Backward check of a fit with more than one submodel: the submodel whose removal raises the held-out output
+    error least, as ``(index, fit error, held-out error)`` of the reduced model (None for a single submodel). A
+    reduction the controller does not stabilize counts as an infinite error."""
+    if len(res.thetas) < 2:
+        return None
+    best: tuple[int, float, float] | None = None
+    for j in range(len(res.thetas)):
+        keep = [i for i in range(len(res.thetas)) if i != j]
+        try:
+            e_fit, e_val = _held_out_error([res.thetas[i] for i in keep], [res.structures[i] for i in keep], rate_hz,
+                                           u, y, r, controller, input_delay, split)
+        except Exception:  # noqa: BLE001 - e.g. the loop is unstable without it: that submodel is relevant
+            continue
+        if np.isfinite(e_val) and (best is None or e_val < best[2]):
+            best = (j, e_fit, e_val)
+    return best
+
+
+def _choice(table: list[OrderRow], margin: float) -> OrderRow | None:
+    """The order rule over the rows so far: from the smallest K that fitted, a larger K replaces the choice only if
+    its held-out error is below ``(1 - margin)`` times the choice's; redundant rows are never chosen."""
+    chosen: OrderRow | None = None
+    for row in table:
+        if not row.redundant and np.isfinite(row.validation_error) and (
+                chosen is None or row.validation_error < (1.0 - margin) * chosen.validation_error):
+            chosen = row
+    return chosen
+
+
 def order_table(u, y, rate_hz: float, r, controller, input_delay: int, candidates: list[Candidate],
                 orders: list[int], validation_fraction: float, max_iterations: int,
                 margin: float, frf: FRFEstimate | None = None,
@@ -480,15 +532,11 @@ def order_table(u, y, rate_hz: float, r, controller, input_delay: int, candidate
     split = int(round(n * (1.0 - validation_fraction)))
     table: list[OrderRow] = []
     fits: dict[int, Any] = {}
-    best, misses = np.inf, 0
-    best_fit = None
     for K in orders:
-        if table:  # the order rule, applied as the scan goes: count the orders without a significant gain
-            last = table[-1].validation_error
-            if np.isfinite(last) and (not np.isfinite(best) or last < (1.0 - margin) * best):
-                best, misses, best_fit = last, 0, fits[table[-1].K]
-            elif np.isfinite(best):
-                misses += 1
+        chosen = _choice(table, margin)   # the order rule, applied as the scan goes
+        best = chosen.validation_error if chosen is not None else np.inf
+        best_fit = fits[chosen.K] if chosen is not None else None
+        misses = len(table) - 1 - table.index(chosen) if chosen is not None else 0
         if misses >= STOP_AFTER_MISSES:  # larger K are not tried
             table.append(OrderRow(K, np.inf, np.inf, message=f"not tried ({misses} orders in a row without gain)"))
             continue
@@ -516,14 +564,40 @@ def order_table(u, y, rate_hz: float, r, controller, input_delay: int, candidate
         if res is not None:
             fits[K] = res
         table.append(row)
-    chosen: OrderRow | None = None
-    for row in table:
-        if np.isfinite(row.validation_error) and (chosen is None or row.validation_error < (1.0 - margin)
-                                                  * chosen.validation_error):
-            chosen = row
+        if res is not None and np.isfinite(best) and row.validation_error < (1.0 - margin) * best:
+            _check_relevance(table, fits, res, u, y, rate_hz, r, controller, input_delay, split, margin)
+    chosen = _choice(table, margin)
     if chosen is not None:
         chosen.accepted = True
     return table, fits
+
+
+def _check_relevance(table: list[OrderRow], fits: dict[int, Any], res: Any, u, y, rate_hz: float, r, controller,
+                     input_delay: int, split: int, margin: float) -> None:
+    """An order's gain must come from its added mode, not from a better fit of the others (a smaller order's scan
+    fit stopped early, or sat in a poorer optimum): when the last row's model without its least relevant submodel
+    is within ``margin`` of it, the row is marked redundant and that reduction, a model of one order less, replaces
+    the smaller order's row if it predicts better."""
+    row = table[-1]
+    least = _least_relevant(res, u, y, rate_hz, r, controller, input_delay, split)
+    if least is None or row.validation_error < (1.0 - margin) * least[2]:
+        return
+    j, e_fit, e_val = least
+    f_j = _fitted_candidates(res)[j].natural_frequency_hz
+    what = f"{f_j:.4g} Hz mode" if f_j > 0.0 else "rigid body"
+    row.redundant = True
+    row.message += f"; without its {what} within {margin:.0%} on held-out data: not a gain of order"
+    prev = next((t for t in table if t.K == row.K - 1), None)
+    if prev is not None and not e_val < prev.validation_error:
+        return
+    reduction = _reduced(res, j)
+    fits[row.K - 1] = reduction
+    note = f"K = {row.K} fit without its {what} (predicts better than this order's own fit)"
+    if prev is None:
+        table.insert(len(table) - 1, OrderRow(row.K - 1, e_fit, e_val, message=note))
+    else:
+        prev.fit_error, prev.validation_error, prev.converged, prev.redundant = e_fit, e_val, False, False
+        prev.message = note + "; was: " + prev.message
 
 
 def find_modes(u, y, rate_hz: float, *, r=None, controller=None, input_delay: int = 0, count: int = 0,
