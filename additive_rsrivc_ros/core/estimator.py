@@ -13,7 +13,7 @@
 from __future__ import annotations
 
 from collections.abc import Mapping, Sequence
-from dataclasses import asdict, dataclass
+from dataclasses import dataclass, fields
 from typing import TYPE_CHECKING, Any, Protocol, runtime_checkable
 
 import numpy as np
@@ -52,7 +52,11 @@ class EstimatorHealth:
 
     def to_dict(self) -> dict[str, Any]:
         """The JSON form (the keys as written in ``health.estimator``; per-mode entries as lists)."""
-        return {k: list(v) if isinstance(v, tuple) else v for k, v in asdict(self).items()}
+        out = {}
+        for f in fields(self):    # flat fields of numbers and strings: no deep copy (asdict) needed
+            v = getattr(self, f.name)
+            out[f.name] = list(v) if isinstance(v, tuple) else v
+        return out
 
 
 @runtime_checkable

@@ -762,11 +762,13 @@ class MonitorPipeline:
         self.counters.data_starts += 1
         return True
 
-    def _model_problem(self, which: str) -> str | None:
+    def _model_problem(self, which: str, modal: np.ndarray | None = None) -> str | None:
         """Why the current model is no valid model, or None: it must be finite and, in closed loop, the controller
         ``C_d`` (with the input delay) must stabilize it -- the model's noise-free closed loop generates the
-        instrument (000 eq. 33) and a plant that ``C_d`` does not stabilize cannot have produced the bounded data."""
-        modal = np.asarray(self.est.modal(), dtype=float).reshape(self.K, 6)
+        instrument (000 eq. 33) and a plant that ``C_d`` does not stabilize cannot have produced the bounded data.
+        ``modal``: the current estimate's ``(K, 6)`` when the caller has it (else it is computed)."""
+        if modal is None:
+            modal = np.asarray(self.est.modal(), dtype=float).reshape(self.K, 6)
         if not np.all(np.isfinite(modal[:, :3])):
             return f"{which} is not finite"
         rho = float(self.est.closed_loop_max_pole())
@@ -806,13 +808,14 @@ class MonitorPipeline:
             self.health.note("repeated_output", t_rep, f"output repeats its previous value in {self._win_rep} of "
                              f"{self._win_n} samples (dropped or held sensor samples)")
         self._win_n = self._win_rep = 0
+        modal = self._modal()
         if self.initialized and self.cfg.closed_loop:    # every report (~0.25 ms for K = 2, delay 4)
-            problem = self._model_problem("current model")
+            problem = self._model_problem("current model", modal)
             if problem is not None:
                 self.counters.invalid_models += 1
                 self.counters.reinitializations += 1
                 self._no_valid_model(t_rep, problem)
-        modal = self._modal()
+                modal = self._modal()     # NaN: no model
         est_health: EstimatorHealth | None = None
         if self.initialized:
             est_health = self.est.health
