@@ -21,6 +21,7 @@ transient_local for the truth). No wall-clock time enters the files: the same in
 
 from __future__ import annotations
 
+import functools
 import json
 import math
 import os
@@ -42,7 +43,6 @@ from rosbags.interfaces import (
 )
 from rosbags.rosbag2 import Reader, Writer
 from rosbags.rosbag2.enums import CompressionFormat, CompressionMode, StoragePlugin
-from rosbags.typesys import Stores, get_typestore
 
 from .config import MonitorConfig
 from .core.vocabulary import one_line
@@ -60,7 +60,16 @@ SIGNAL_QOS_DEPTH = 1000
 SPACING_TOLERANCE = 0.002  # relative tolerance of the mean sample spacing against 1/loop_rate_hz (stated offline)
 
 _CDR_LE = b"\x00\x01\x00\x00"  # CDR encapsulation header, little endian
-_TYPESTORE = get_typestore(Stores.ROS2_JAZZY)
+
+
+@functools.cache
+def _typestore() -> Any:
+    """The ROS 2 Jazzy message types (imported on first use: a bag of Float64 signals read by the MCAP fast path
+    needs none, and the type store costs about 0.2 s to import)."""
+    from rosbags.typesys import Stores, get_typestore
+
+    return get_typestore(Stores.ROS2_JAZZY)
+
 _ZERO_T = QosTime(0, 0)
 _INF_T = QosTime(2147483647, 4294967295)  # rmw "infinite" duration as rosbag2 writes it
 
@@ -128,17 +137,72 @@ def truth_indices(n: int, rate_hz: float, truth_rate_hz: float) -> np.ndarray:
 
 
 def _multiarray(values: np.ndarray) -> bytes:
-    msgs = _TYPESTORE.types
+    msgs = _typestore().types
     layout = msgs["std_msgs/msg/MultiArrayLayout"](
         dim=[msgs["std_msgs/msg/MultiArrayDimension"](label="mode", size=values.shape[0], stride=values.size),
              msgs["std_msgs/msg/MultiArrayDimension"](label="field", size=values.shape[1], stride=values.shape[1])],
         data_offset=0)
     msg = msgs[MULTIARRAY](layout=layout, data=np.ascontiguousarray(values, dtype=np.float64).ravel())
-    return bytes(_TYPESTORE.serialize_cdr(msg, MULTIARRAY))
+    return bytes(_typestore().serialize_cdr(msg, MULTIARRAY))
 
 
 def _string(text: str) -> bytes:
-    return bytes(_TYPESTORE.serialize_cdr(_TYPESTORE.types[STRING](data=text), STRING))
+    return bytes(_typestore().serialize_cdr(_typestore().types[STRING](data=text), STRING))
+
+
+class _LittleCDR:
+    """Reader of a little-endian CDR payload (alignment relative to the payload after the 4-byte header)."""
+
+    def __init__(self, data: bytes) -> None:
+        self.buf, self.pos = memoryview(data)[4:], 0
+
+    def u32(self) -> int:
+        self.pos = (self.pos + 3) & ~3
+        if self.pos + 4 > len(self.buf):
+            raise ValueError("truncated CDR message")
+        v = int.from_bytes(self.buf[self.pos:self.pos + 4], "little")
+        self.pos += 4
+        return v
+
+    def string(self) -> str:
+        n = self.u32()    # length with the terminating NUL
+        if n < 1 or self.pos + n > len(self.buf):
+            raise ValueError("truncated CDR string")
+        text = bytes(self.buf[self.pos:self.pos + n - 1]).decode("utf-8")
+        self.pos += n
+        return text
+
+    def f64s(self) -> np.ndarray:
+        n = self.u32()
+        self.pos = (self.pos + 7) & ~7 if n else self.pos
+        if self.pos + 8 * n > len(self.buf):
+            raise ValueError("truncated CDR sequence")
+        out = np.frombuffer(self.buf[self.pos:self.pos + 8 * n], dtype="<f8").astype(np.float64)
+        self.pos += 8 * n
+        return out
+
+
+def _decode_multiarray(data: bytes) -> tuple[list[int], np.ndarray]:
+    """``(dimension sizes, data)`` of a ``std_msgs/msg/Float64MultiArray``: little-endian CDR read directly (no
+    type store import), any other encapsulation by the type store."""
+    if data[:4] != _CDR_LE:
+        msg = _typestore().deserialize_cdr(data, MULTIARRAY)
+        return [int(d.size) for d in msg.layout.dim], np.asarray(msg.data, dtype=np.float64)
+    rd = _LittleCDR(data)
+    sizes = []
+    for _ in range(rd.u32()):
+        rd.string()                        # label
+        sizes.append(rd.u32())             # size
+        rd.u32()                           # stride
+    rd.u32()                               # data_offset
+    return sizes, rd.f64s()
+
+
+def _decode_string(data: bytes) -> str:
+    """``data`` of a ``std_msgs/msg/String`` (as :func:`_decode_multiarray`)."""
+    if data[:4] != _CDR_LE:
+        return str(_typestore().deserialize_cdr(data, STRING).data)
+    return _LittleCDR(data).string()
 
 
 def write_bag(path: str | Path, rate_hz: float, u: np.ndarray, y: np.ndarray, r: np.ndarray | None = None, *,
@@ -179,7 +243,7 @@ def write_bag(path: str | Path, rate_hz: float, u: np.ndarray, y: np.ndarray, r:
         for name, values in signals:
             if values is None:
                 continue
-            conn = writer.add_connection(topics[name], FLOAT64, typestore=_TYPESTORE,
+            conn = writer.add_connection(topics[name], FLOAT64, typestore=_typestore(),
                                          offered_qos_profiles=[SIGNAL_QOS])
             streams.append((conn, ts, float64_cdr(np.asarray(values, dtype=np.float64))))
         if truth_modal is not None:
@@ -187,7 +251,7 @@ def write_bag(path: str | Path, rate_hz: float, u: np.ndarray, y: np.ndarray, r:
             if truth_modal.ndim != 3 or truth_modal.shape[1:] != (n, 3):
                 raise ValueError(f"truth_modal must have shape (K, {n}, 3), got {truth_modal.shape}")
             idx = truth_indices(n, rate_hz, truth_rate_hz)
-            conn = writer.add_connection(TRUTH_MODES_TOPIC, MULTIARRAY, typestore=_TYPESTORE,
+            conn = writer.add_connection(TRUTH_MODES_TOPIC, MULTIARRAY, typestore=_typestore(),
                                          offered_qos_profiles=[TRUTH_QOS])
             rows = np.zeros((truth_modal.shape[0], 6))
             data = []
@@ -196,7 +260,7 @@ def write_bag(path: str | Path, rate_hz: float, u: np.ndarray, y: np.ndarray, r:
                 data.append(_multiarray(rows))
             streams.append((conn, ts[idx], data))
         if fault_events:
-            conn = writer.add_connection(TRUTH_FAULT_TOPIC, STRING, typestore=_TYPESTORE,
+            conn = writer.add_connection(TRUTH_FAULT_TOPIC, STRING, typestore=_typestore(),
                                          offered_qos_profiles=[TRUTH_QOS])
             ev_t = np.array([t0_ns + int(round(float(e["time_s"]) * 1e9)) for e in fault_events], dtype=np.int64)
             data = [_string(json.dumps(e, sort_keys=True, allow_nan=False)) for e in fault_events]
@@ -269,7 +333,7 @@ def _decode_float64(raw: list[bytes] | np.ndarray, topic: str, bag: Path) -> np.
     arr = np.frombuffer(blob, dtype=np.uint8).reshape(-1, 12)
     if not np.all(arr[:, 0] == 0) or not np.all(arr[:, 1] == 1):
         # big-endian or unknown encapsulation: fall back to the generic deserializer
-        return np.array([_TYPESTORE.deserialize_cdr(m, FLOAT64).data for m in raw], dtype=np.float64)
+        return np.array([_typestore().deserialize_cdr(m, FLOAT64).data for m in raw], dtype=np.float64)
     return arr[:, 4:].copy().view("<f8").ravel().astype(np.float64)
 
 
@@ -277,7 +341,7 @@ def _decode_joint(raw: list[bytes], sig: Any, topic: str, bag: Path) -> tuple[np
     vals = np.empty(len(raw))
     stamps = np.empty(len(raw), dtype=np.int64)
     for k, m in enumerate(raw):
-        msg = _TYPESTORE.deserialize_cdr(m, JOINTSTATE)
+        msg = _typestore().deserialize_cdr(m, JOINTSTATE)
         names = list(msg.name)
         arr = np.asarray(getattr(msg, sig.field))
         if sig.joint and sig.joint not in names:
@@ -430,13 +494,12 @@ def _assemble(path: Path, config: MonitorConfig, sigcfg: dict, raw: dict, log_ns
         rows = []
         for _, data in truth_raw:
             try:
-                msg = _TYPESTORE.deserialize_cdr(data, MULTIARRAY)
+                sizes, flat = _decode_multiarray(data)
             except Exception as exc:  # noqa: BLE001
                 raise BagError(f"{path}: {TRUTH_MODES_TOPIC}: cannot decode ({one_line(exc, ERROR_CHARS)})") from None
-            dims = msg.layout.dim
-            if len(dims) != 2 or dims[1].size != 6 or len(msg.data) != dims[0].size * 6:
+            if len(sizes) != 2 or sizes[1] != 6 or flat.size != sizes[0] * 6:
                 raise BagError(f"{path}: {TRUTH_MODES_TOPIC}: layout is not (mode K, field 6)")
-            rows.append(np.asarray(msg.data, dtype=np.float64).reshape(dims[0].size, 6))
+            rows.append(flat.reshape(sizes[0], 6))
         if len({r.shape for r in rows}) != 1:
             raise BagError(f"{path}: {TRUTH_MODES_TOPIC}: the number of modes changes between messages")
         truth_modes = np.stack(rows)
@@ -446,7 +509,7 @@ def _assemble(path: Path, config: MonitorConfig, sigcfg: dict, raw: dict, log_ns
         truth_fault = []
         for _, data in fault_raw:
             try:
-                text = _TYPESTORE.deserialize_cdr(data, STRING).data
+                text = _decode_string(data)
                 truth_fault.append(json.loads(text))
             except Exception as exc:  # noqa: BLE001
                 raise BagError(f"{path}: {TRUTH_FAULT_TOPIC}: not JSON ({one_line(exc, ERROR_CHARS)})") from None

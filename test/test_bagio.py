@@ -308,3 +308,26 @@ def test_records_lost_inside_a_damaged_chunk_are_reported_as_corruption(tmp_path
     with pytest.raises(BagError, match="corrupt") as exc:
         read_signals(good, _cfg())
     assert "\n" not in str(exc.value)
+
+
+def test_truth_messages_decoded_without_the_type_store_as_with_it():
+    """The direct little-endian CDR reading of the truth topics gives what rosbags' type store gives (K = 1..4, the
+    fault JSON with non-ASCII text); a truncated message is an error, not a short array."""
+    from rosbags.typesys import Stores, get_typestore
+
+    from additive_rsrivc_ros.bagio import MULTIARRAY, STRING, _decode_multiarray, _decode_string, _multiarray, _string
+
+    ts = get_typestore(Stores.ROS2_JAZZY)
+    rng = np.random.default_rng(3)
+    for k in (1, 2, 4):
+        values = rng.normal(size=(k, 6))
+        data = _multiarray(values)
+        sizes, flat = _decode_multiarray(data)
+        ref = ts.deserialize_cdr(data, MULTIARRAY)
+        assert sizes == [d.size for d in ref.layout.dim] == [k, 6]
+        np.testing.assert_array_equal(flat, ref.data)
+        np.testing.assert_array_equal(flat.reshape(k, 6), values)
+        with pytest.raises(ValueError, match="truncated"):
+            _decode_multiarray(data[:-8])
+    text = '{"mode": 2, "quantity": "natural frequency", "note": "Δf −5 %"}'
+    assert _decode_string(_string(text)) == ts.deserialize_cdr(_string(text), STRING).data == text
