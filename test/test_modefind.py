@@ -255,3 +255,31 @@ def test_an_order_whose_added_mode_adds_nothing_is_not_chosen():
     fits = {1: None, 2: true2}
     _check_relevance(table, fits, true2, sim.u, sim.y, FS, sim.r, CONTROLLER, DELAY, split, 0.02)
     assert not table[1].redundant and table[0].validation_error == 1.0 and fits[1] is None
+
+
+def test_a_start_refined_on_the_frf_moves_to_the_modes():
+    """Starts 10 % off in frequency, 2x in damping and gain, refined by the weighted least-squares fit on the
+    closed-loop FRF (indirect S_yr/S_ur): frequency within 1 %, damping and gain errors at least 4x smaller (from
+    100 % to < 25 %; the 5 Hz mode's half-power band, 0.5 Hz, is about one FRF resolution wide, so its damping is
+    resolution-limited: the time-domain fit that follows refines it). Without valid bins: None."""
+    from dataclasses import replace
+
+    from additive_rsrivc_ros.core.frf import estimate_frf
+    from additive_rsrivc_ros.core.modefind import Candidate, refine_on_frf
+
+    sim = _square_wave_closed_loop(11)
+    frf = estimate_frf(sim.u, sim.y, FS, sim.r)
+    start = [Candidate(1.1 * m.natural_frequency_hz, 2.0 * m.damping_ratio, 2.0 * m.gain) for m in MODES]
+    out = refine_on_frf(start, frf, DELAY)
+    assert out is not None
+    refined, misfit = out
+    assert len(refined) == 2
+    # a model that fits: the weighted misfit is about one per valid bin (mean 1, adequacy step 1), not thousands
+    n_bins = int(frf.valid.sum())
+    assert misfit < 3.0 * n_bins
+    for c, m in zip(refined, MODES, strict=True):
+        assert abs(c.natural_frequency_hz / m.natural_frequency_hz - 1.0) < 0.01
+        assert abs(c.damping_ratio / m.damping_ratio - 1.0) < 0.25
+        assert abs(c.gain / m.gain - 1.0) < 0.25
+    assert frf.resolution_hz >= 0.4    # what limits the damping above
+    assert refine_on_frf(start, replace(frf, valid=np.zeros_like(frf.valid)), DELAY) is None
