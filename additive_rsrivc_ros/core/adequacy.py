@@ -42,7 +42,7 @@ from typing import Any
 import numpy as np
 
 from .controller import DiscreteController
-from .frf import FRFEstimate, discrete_model_frf, estimate_frf, longest_finite
+from .frf import FRFEstimate, estimate_frf, longest_finite, model_frf_on_bins
 from .model import SubmodelStructure, theta_from_modal
 from .vocabulary import QUANTITIES, one_line
 
@@ -289,9 +289,7 @@ def check_model_order(thetas: Sequence[np.ndarray], structures: Sequence[Submode
         frf = estimate_frf(data[0], data[1], rate_hz, data[3])
     except ValueError as exc:
         return OrderCheckResult("skipped", one_line(exc), seconds=time.perf_counter() - c0)
-    G_model = np.zeros(frf.freqs_hz.size, dtype=complex)
-    pos = frf.freqs_hz > 0.0                  # never valid at 0 Hz, where a rigid body's response is infinite
-    G_model[pos] = discrete_model_frf(fit_K.thetas, structures, rate_hz, frf.freqs_hz[pos], input_delay)
+    G_model = model_frf_on_bins(frf, fit_K.thetas, structures, input_delay)
     z, usable, thr = misfit(frf, G_model)
     n_mis = int(np.sum(z > thr))
     out = OrderCheckResult("adequate", "", int(usable.sum()), n_mis, thr, frf=frf)

@@ -261,3 +261,13 @@ def discrete_model_frf(thetas: Sequence[np.ndarray], structures: Sequence[Submod
     eye = np.eye(phi.shape[0])
     x = np.linalg.solve(zs[:, None, None] * eye - phi, np.broadcast_to(gam, (zs.size, gam.size))[..., None])
     return x[..., 0] @ c                            # c (zI - Phi)^-1 Gamma at every z in one batched solve
+
+
+def model_frf_on_bins(frf: FRFEstimate, thetas: Sequence[np.ndarray], structures: Sequence[SubmodelStructure],
+                      input_delay: int = 0) -> np.ndarray:
+    """:func:`discrete_model_frf` on every bin of ``frf`` (0 at 0 Hz, which is never valid and where a rigid body's
+    response is infinite): what the misfit ``G - G_model`` is formed from (model-order check, residual start)."""
+    out = np.zeros(frf.freqs_hz.size, dtype=complex)
+    pos = frf.freqs_hz > 0.0
+    out[pos] = discrete_model_frf(thetas, structures, frf.rate_hz, frf.freqs_hz[pos], input_delay)
+    return out
