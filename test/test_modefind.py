@@ -283,3 +283,23 @@ def test_a_start_refined_on_the_frf_moves_to_the_modes():
         assert abs(c.gain / m.gain - 1.0) < 0.25
     assert frf.resolution_hz >= 0.4    # what limits the damping above
     assert refine_on_frf(start, replace(frf, valid=np.zeros_like(frf.valid)), DELAY) is None
+
+
+def test_frf_objective_jacobian_is_the_derivative_of_its_residual():
+    """The analytic Jacobian of the FRF refinement equals central differences of the residual (modes and a rigid
+    body), to the differences' own truncation error."""
+    from additive_rsrivc_ros.core.frf import estimate_frf
+    from additive_rsrivc_ros.core.modefind import Candidate, _FrfObjective
+
+    sim = _square_wave_closed_loop(11)
+    frf = estimate_frf(sim.u, sim.y, FS, sim.r)
+    cands = [Candidate(0.0, 0.0, 3.0, integrators=2), Candidate(5.5, 0.08, 1.5), Candidate(37.0, 0.03, 0.2)]
+    obj = _FrfObjective(cands, frf, DELAY)
+    x = obj.x0(cands)
+    jac = obj.jacobian(x)
+    h = 1e-6 * np.maximum(np.abs(x), 1.0)
+    for j in range(x.size):
+        dx = np.zeros_like(x)
+        dx[j] = h[j]
+        num = (obj.residual(x + dx) - obj.residual(x - dx)) / (2 * h[j])
+        np.testing.assert_allclose(jac[:, j], num, rtol=1e-5, atol=1e-6 * np.max(np.abs(num)))

@@ -43,7 +43,7 @@ from typing import Any
 import numpy as np
 
 from .estimator import MonitorSettings
-from .frf import FRFEstimate, discrete_model_frf, estimate_frf, longest_finite
+from .frf import FRFEstimate, estimate_frf, longest_finite, model_frf_on_bins
 from .model import TWO_PI, SubmodelStructure, guess_structure, guess_theta, modal_from_theta
 
 MIN_PROMINENCE_DECADES = 0.1  # 2 dB
@@ -58,6 +58,7 @@ SCAN_MAX_ITERATIONS = 10  # an order-scan fit still moving after this many itera
 FINAL_TOL = 1e-7  # identify()'s default: the refit of the chosen order on the whole record
 FINER_FACTORS = (2, 4)  # low-band candidates also from FRFs with 2x and 4x longer segments (finer resolution)
 FRF_REFINE = True  # the order scan also tries each start refined on the FRF (refine_on_frf), before the start
+DEGENERATE_BAND_BINS = 0.02  # a start refined on the FRF to a mode narrower than this many bins is dropped
 FINER_BAND_BINS = 20  # ... below this many bins of the default resolution, where a peak has too few bins
 
 
@@ -386,10 +387,7 @@ def _residual_start(best_fit: Any, frf: FRFEstimate, K: int, input_delay: int,
     fitted = _fitted_candidates(best_fit)
     if K - len(fitted) != 1:
         return None
-    G_model = np.zeros(frf.freqs_hz.size, dtype=complex)
-    pos = frf.freqs_hz > 0.0
-    G_model[pos] = discrete_model_frf(best_fit.thetas, best_fit.structures, frf.rate_hz, frf.freqs_hz[pos],
-                                      input_delay)
+    G_model = model_frf_on_bins(frf, best_fit.thetas, best_fit.structures, input_delay)
     new = [c for c in find_candidates(replace(frf, G=frf.G - G_model), input_delay, frequency_range_hz)
            if c.natural_frequency_hz > 0.0 and all(abs(c.natural_frequency_hz / m.natural_frequency_hz - 1.0) > 0.15
                                                    for m in fitted if m.natural_frequency_hz > 0.0)]
@@ -430,6 +428,7 @@ class _FrfObjective:
         if frf.leakage is not None:
             ok &= ~frf.leakage
         self.template, self.rate_hz, self.n_bins = template, frf.rate_hz, int(ok.sum())
+        self.resolution_hz = frf.resolution_hz
         self.s = 1j * TWO_PI * frf.freqs_hz[ok]
         self.target = _compensated(frf, input_delay)[ok]
         self.weight = 1.0 / frf.uncertainty[ok]
@@ -457,9 +456,28 @@ class _FrfObjective:
         e = np.concatenate([e.real, e.imag])
         return np.where(np.isfinite(e), e, 1e150)
 
-    def misfit(self, cands: list[Candidate]) -> float:
-        """``sum_k |G_k - G_model,k|^2 / var_k`` (mean 1 per bin for a model that fits, :mod:`.adequacy` step 1)."""
-        return float(np.sum(self.residual(self.x0(cands)) ** 2))
+    def jacobian(self, x: np.ndarray) -> np.ndarray:
+        """``d residual / d x`` (analytic; with ``D = 1 + 2 zeta q + q^2``, ``q = s/omega``: ``dT/d ln omega =
+        b q (2 zeta + 2 q)/D^2``, ``dT/d ln zeta = -2 b zeta q/D^2``, ``dT/db = 1/D``; a rigid body ``1/s^l``)."""
+        s = self.s
+        jac = np.zeros((s.size, x.size), dtype=complex)
+        k = 0
+        with np.errstate(over="ignore", invalid="ignore", divide="ignore"):
+            for c in self.template:
+                if c.natural_frequency_hz == 0.0:
+                    jac[:, k] = 1.0 / s ** c.integrators
+                    k += 1
+                    continue
+                q = s / np.exp(np.clip(x[k], -50.0, 50.0))
+                zeta, b = np.exp(np.clip(x[k + 1], -50.0, 50.0)), x[k + 2]
+                d = 1.0 + 2.0 * zeta * q + q * q
+                jac[:, k] = b * q * (2.0 * zeta + 2.0 * q) / (d * d)
+                jac[:, k + 1] = -2.0 * b * zeta * q / (d * d)
+                jac[:, k + 2] = 1.0 / d
+                k += 3
+            jac *= self.weight[:, None]
+        out = np.vstack([jac.real, jac.imag])
+        return np.where(np.isfinite(out), out, 0.0)
 
     def candidates(self, x: np.ndarray) -> list[Candidate] | None:
         out, k = [], 0
@@ -473,6 +491,8 @@ class _FrfObjective:
             f, zeta = float(np.exp(x[k])) / TWO_PI, float(np.exp(x[k + 1]))
             if not (0.0 < f < 0.5 * self.rate_hz and zeta < 5.0):
                 return None
+            if 2.0 * zeta * f < DEGENERATE_BAND_BINS * self.resolution_hz:
+                return None   # a line through one bin's noise, no mode
             out.append(Candidate(f, zeta, float(x[k + 2]), c.prominence_decades, 0))
             k += 3
         return out
@@ -484,7 +504,10 @@ def refine_on_frf(start: list[Candidate], frf: FRFEstimate, input_delay: int) ->
     squares (Levenberg-Marquardt, :class:`_FrfObjective`). A peak-read or a smaller model's mode is biased where the
     start lacks a mode that the data have (a K - 1 fit compensates it in the time domain, weighted by the output's
     power); on the FRF each bin counts by its own accuracy. None when the fit fails, does not halve the weighted
-    misfit, or leaves a mode outside ``(0, Nyquist)``."""
+    misfit, leaves a mode outside ``(0, Nyquist)`` or one with a half-power band ``2 zeta f`` below
+    :data:`DEGENERATE_BAND_BINS` of a bin (a degenerate fit of one bin's noise: a 3.9 Hz "mode" with zeta 2.5e-6
+    then let a third mode in at a 2.0 % gain; half a bin of the finest FRF was too strict: a real 6.1 Hz mode with
+    zeta 0.005 was lost)."""
     from scipy.optimize import least_squares
 
     obj = _FrfObjective(start, frf, input_delay)
@@ -492,7 +515,7 @@ def refine_on_frf(start: list[Candidate], frf: FRFEstimate, input_delay: int) ->
         return None
     x0 = obj.x0(start)
     try:
-        sol = least_squares(obj.residual, x0, method="lm", max_nfev=100 * (obj.n_par + 1))
+        sol = least_squares(obj.residual, x0, jac=obj.jacobian, method="lm", max_nfev=100 * (obj.n_par + 1))
     except (ValueError, np.linalg.LinAlgError):
         return None
     cost = 2.0 * float(sol.cost)
