@@ -72,9 +72,9 @@ def write_topics(path, streams: dict[str, tuple[np.ndarray, np.ndarray]]):
     """A bag with Float64 topics given as (log times ns, values), as a recorder would have stored them."""
     from rosbags.rosbag2 import StoragePlugin, Writer
 
-    from additive_rsrivc_ros.bagio import _TYPESTORE, float64_cdr
+    from additive_rsrivc_ros.bagio import _typestore, float64_cdr
     with Writer(path, version=9, storage_plugin=StoragePlugin.MCAP) as w:
-        conns = {topic: w.add_connection(topic, "std_msgs/msg/Float64", typestore=_TYPESTORE) for topic in streams}
+        conns = {topic: w.add_connection(topic, "std_msgs/msg/Float64", typestore=_typestore()) for topic in streams}
         rows = sorted((int(t), topic, k) for topic, (ts, _) in streams.items() for k, t in enumerate(ts))
         payload = {topic: float64_cdr(v) for topic, (_, v) in streams.items()}
         for t, topic, k in rows:
