@@ -703,17 +703,13 @@ def _check_relevance(table: list[OrderRow], fits: dict[int, Any], res: Any, u, y
     what = f"{f_j:.4g} Hz mode" if f_j > 0.0 else "rigid body"
     row.redundant = True
     row.message += f"; without its {what} within {margin:.0%} on held-out data: not a gain of order"
-    prev = next((t for t in table if t.K == row.K - 1), None)
-    if prev is not None and not e_val < prev.validation_error:
+    prev = next((t for t in table if t.K == row.K - 1), None)   # the scan has a row for every smaller order
+    if prev is None or not e_val < prev.validation_error:
         return
-    reduction = _reduced(res, j)
-    fits[row.K - 1] = reduction
-    note = f"K = {row.K} fit without its {what} (predicts better than this order's own fit)"
-    if prev is None:
-        table.insert(len(table) - 1, OrderRow(row.K - 1, e_fit, e_val, message=note))
-    else:
-        prev.fit_error, prev.validation_error, prev.converged, prev.redundant = e_fit, e_val, False, False
-        prev.message = note + "; was: " + prev.message
+    fits[row.K - 1] = _reduced(res, j)
+    prev.fit_error, prev.validation_error, prev.converged, prev.redundant = e_fit, e_val, False, False
+    prev.message = f"K = {row.K} fit without its {what} (predicts better than this order's own fit); was: " \
+        + prev.message
 
 
 def find_modes(u, y, rate_hz: float, *, r=None, controller=None, input_delay: int = 0, count: int = 0,
