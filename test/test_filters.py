@@ -126,3 +126,25 @@ def test_long_signal_and_large_delay_paths():
     assert rho_dense < 1.0
     rho_long = F.closed_loop_radius(PAPER_THETAS, [MODE, MODE], 0.05, ctrl, delay=600)
     assert np.isfinite(rho_long) and rho_long > 0.9
+
+
+@pytest.mark.parametrize("n", [1, 2, 3, 4, 6])
+def test_every_state_count_runs_the_same_recursion(n):
+    """The compiled loop has register paths for 2 and 4 states and a general one: each equals the recursion
+    ``x_{k+1} = phi x_k + gamma v_k``, ``Y_k = c x_k + d v_k`` written out in numpy, also into a column slice."""
+    rng = np.random.default_rng(n)
+    a = rng.standard_normal((n, n))
+    phi = 0.9 * a / np.max(np.abs(np.linalg.eigvals(a)))
+    ss = F.DiscreteSS(phi, rng.standard_normal(n), rng.standard_normal((3, n)), rng.standard_normal(3))
+    v = rng.standard_normal(500)
+    ref = np.empty((v.size, 3))
+    x = np.zeros(n)
+    for k, vk in enumerate(v):
+        ref[k] = ss.c @ x + ss.d * vk
+        x = ss.phi @ x + ss.gamma * vk
+    scale = np.max(np.abs(ref))
+    assert np.max(np.abs(ss.run(v) - ref)) <= 1e3 * EPS * scale
+    wide = np.full((v.size, 5), np.nan)
+    ss.run(v, rows=[2, 0], out=wide[:, 1:3], sign=-1.0)
+    assert np.max(np.abs(wide[:, 1:3] + ref[:, [2, 0]])) <= 1e3 * EPS * scale
+    assert np.all(np.isnan(wide[:, [0, 3, 4]]))

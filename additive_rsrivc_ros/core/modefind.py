@@ -515,7 +515,7 @@ def refine_on_frf(start: list[Candidate], frf: FRFEstimate, input_delay: int) ->
         return None
     x0 = obj.x0(start)
     try:
-        sol = least_squares(obj.residual, x0, jac=obj.jacobian, method="lm", max_nfev=100 * (obj.n_par + 1))
+        sol = least_squares(obj.residual, x0, jac=obj.jacobian, method="lm", max_nfev=20 * (obj.n_par + 1))
     except (ValueError, np.linalg.LinAlgError):
         return None
     cost = 2.0 * float(sol.cost)
