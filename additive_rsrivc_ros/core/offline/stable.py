@@ -46,7 +46,7 @@ from ..model import (
     split_theta,
     total_transfer_function,
 )
-from .types import METHODS, IdentificationResult, OfflineData, equilibrated_solve, finite_or_none
+from .types import METHODS, IdentificationResult, OfflineData, column_norms, equilibrated_solve, finite_or_none
 
 
 def _check_inputs(u, y, rate_hz, structures, thetas0, r, controller, input_delay) -> tuple[OfflineData, list]:
@@ -210,7 +210,7 @@ def _iv_update(step: _Step, structures: list[SubmodelStructure], only: int | Non
     """001 eq. 29: ``B^{j+1} = [sum zeta phi^T]^-1 [sum zeta Upsilon^T]``, block diagonal extracted (eq. 27)."""
     M = step.Z.T @ step.Phi
     R = step.Z.T @ step.Ups
-    X, cond = equilibrated_solve(M, R, np.linalg.norm(step.Z, axis=0), np.linalg.norm(step.Phi, axis=0))
+    X, cond = equilibrated_solve(M, R, column_norms(step.Z), column_norms(step.Phi))
     sts = structures if only is None else [structures[only]]
     out = [X[sl, i].copy() for i, sl in enumerate(_blocks(sts))]
     return out, cond
@@ -325,8 +325,8 @@ def _finalize(method: str, data: OfflineData, structures, thetas, closed_loop: b
         G = step.Z.T @ step.Z
         cov = sigma2 * Minv @ G @ Minv.T
         cov = 0.5 * (cov + cov.T)
-        dz = 1.0 / np.linalg.norm(step.Z, axis=0)
-        dp = 1.0 / np.linalg.norm(step.Phi, axis=0)
+        dz = 1.0 / column_norms(step.Z)
+        dp = 1.0 / column_norms(step.Phi)
         cond_final = float(np.linalg.cond(dz[:, None] * M * dp[None, :]))
     except np.linalg.LinAlgError:
         Minv = np.full((P, P), np.nan)
@@ -526,7 +526,7 @@ def split_additive(theta_u: np.ndarray, su: SubmodelStructure, structures: list[
     wt = 1.0 / np.maximum(np.abs(g), 1e-300)
     Ar = np.vstack(((Amat * wt[:, None]).real, (Amat * wt[:, None]).imag))
     gr = np.concatenate(((g * wt).real, (g * wt).imag))
-    cn = np.linalg.norm(Ar, axis=0)
+    cn = column_norms(Ar)
     coef = np.linalg.lstsq(Ar / cn, gr, rcond=None)[0] / cn
     out, k = [], 0
     for st, dn in zip(structures, den_i, strict=True):
@@ -591,8 +591,8 @@ def lssvf(data: OfflineData, structures, thetas0, *, method: str = "lssvf") -> I
     fy = svf(a_f, data.y, data.h, 0)
     fu = svf(a_f, data.u, data.h, su.integrators)
     Phi = np.hstack((-fy[:, 1: su.n + 1], fu[:, : su.m + 1]))
-    X, cond = equilibrated_solve(Phi.T @ Phi, (Phi.T @ fy[:, 0])[:, None], np.linalg.norm(Phi, axis=0),
-                                  np.linalg.norm(Phi, axis=0))
+    X, cond = equilibrated_solve(Phi.T @ Phi, (Phi.T @ fy[:, 0])[:, None], column_norms(Phi),
+                                  column_norms(Phi))
     th_u = X[:, 0]
     thetas = [th_u] if len(structures) == 1 else split_additive(th_u, su, structures, thetas0)
     res = _finalize(method, data, structures, thetas, False, 1, True, cond, 0, "least squares (one step)")

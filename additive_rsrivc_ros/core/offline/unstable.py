@@ -27,7 +27,7 @@ from scipy import signal
 
 from ..filters import closed_loop_response, delay_signal, discretize, instrument_continuous_poly, svf_continuous
 from ..model import SubmodelStructure, modal_from_theta, modal_std
-from .types import IdentificationResult, OfflineData, equilibrated_solve
+from .types import IdentificationResult, OfflineData, column_norms, equilibrated_solve
 
 UNSTABLE_RADIUS = 1.0 + 1e-9   # |lambda| above this is cancelled; integrator poles (|lambda| = 1) are not
 
@@ -199,8 +199,8 @@ def identify_unstable(data: OfflineData, structures, thetas0, *, method: str, ma
     for it in range(1, iters + 1):
         try:
             yf, Phi, eps, Z, _ = _regression(base, data, par, theta)
-            X, cond = equilibrated_solve(Z.T @ Phi, (Z.T @ yf)[:, None], np.linalg.norm(Z, axis=0),
-                                          np.linalg.norm(Phi, axis=0))
+            X, cond = equilibrated_solve(Z.T @ Phi, (Z.T @ yf)[:, None], column_norms(Z),
+                                          column_norms(Phi))
             new = X[:, 0]
         except (np.linalg.LinAlgError, ValueError) as exc:
             message = f"iteration {it}: {exc}"
