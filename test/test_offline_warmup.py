@@ -91,3 +91,25 @@ def test_record_starting_in_motion_is_unbiased_with_warmup(repo):
     bad = identify(u, y, 20.0, cfg.structures, start, r=r, controller=cfg.controller, warmup_s=0.0)
     err = np.abs(bad.thetas[1] - truth[1])
     assert err[2] > 4 * res.theta_std[1][2] + 0.005 * truth[1][2]
+
+
+def test_a_fit_out_of_iterations_but_nearly_converged_is_tested_not_refitted(repo):
+    """A fit stopped by its iteration limit while its last step moved the parameters by less than
+    ``NEARLY_CONVERGED`` is a model: tested for a start in motion like a converged one. From rest it is kept as it
+    stands (before, it was refitted from the guess with a warm-up: twice the cost for the order scan's short fits);
+    cut from the running loop, the free response is detected and the refit leaves the warm-up out. A first fit
+    still moving by more than that is refitted from the guess, as before."""
+    from additive_rsrivc_ros.core.offline.stable import NEARLY_CONVERGED
+
+    cfg, r, u, y = _segment(repo, 0.0, 300.0)
+    res = _fit(cfg, r, u, y, max_iterations=6, tol=1e-14)
+    assert not res.converged and res.extra["change_at_limit"] < NEARLY_CONVERGED
+    assert not res.extra["initial_transient"]["detected"]
+    assert res.n_samples == y.size and "warm up" not in res.message
+    assert _fit(cfg, r, u, y, max_iterations=1, tol=1e-14, warmup_s=0.0).extra["change_at_limit"] >= NEARLY_CONVERGED
+    moving = _fit(cfg, r, u, y, max_iterations=1, tol=1e-14)
+    assert "the fit over every sample failed" in moving.message and moving.extra["warmup_samples"] > 0
+    cfg, r, u, y = _segment(repo, 123.45, 300.0)
+    res = _fit(cfg, r, u, y, max_iterations=6, tol=1e-14)
+    assert res.extra["initial_transient"]["detected"], res.extra
+    assert res.n_samples == y.size - res.extra["warmup_samples"] and "free response" in res.message

@@ -364,6 +364,7 @@ def additive_iv(data: OfflineData, structures, thetas0, *, closed_loop: bool, me
     scale = np.abs(np.concatenate(thetas))
     scale = np.where(scale > 0, scale, 1.0)
     projections, cond, message, converged, it = 0, np.nan, "", False, 0
+    change, at_limit = np.inf, np.inf
     if projection:   # the filters are built from the initial guess too (000 §4.7)
         thetas, projections = _project(thetas, structures)
     for it in range(1, max_iterations + 1):
@@ -391,12 +392,15 @@ def additive_iv(data: OfflineData, structures, thetas0, *, closed_loop: bool, me
             break
     else:
         message = f"no convergence within {max_iterations} iterations (last relative change {change:.3g})"
+        at_limit = change
     if converged and not message:
         message = "converged"
     thetas, swapped = match_order(thetas, thetas0, structures)
     if swapped:
         message += "; submodels re-labelled to follow the initial guesses' order"
-    return _finalize(method, data, structures, thetas, closed_loop, it, converged, cond, projections, message)
+    res = _finalize(method, data, structures, thetas, closed_loop, it, converged, cond, projections, message)
+    res.extra["change_at_limit"] = float(at_limit)   # the last step's relative change when out of iterations
+    return res
 
 
 def _cost(data: OfflineData, xhat_sum: np.ndarray) -> float:
@@ -703,13 +707,18 @@ def warmup_samples(thetas, structures, rate_hz: float, n: int, warmup_s: float |
     return int(min(round(warmup_s * rate_hz), n // 4))
 
 
+NEARLY_CONVERGED = 1e-2  # relative parameter change of a last iterate that is tested, not refitted from the guess
+
+
 def _refit_if_started_in_motion(res: IdentificationResult, data: OfflineData, structures, thetas0,
                                 refit) -> IdentificationResult:
     """Automatic warm-up: keep the fit over every sample unless its output error starts with the plant's free
     response (:func:`initial_transient_test`); then refit with the filters' warm-up left out. From rest the
     start-up transient is information (with steady sine excitation often most of it), so nothing is lost there.
-    A first fit that failed is refitted with the warm-up of the initial guess."""
-    ok = res.converged and _finite(res.thetas)
+    A first fit that failed is refitted with the warm-up of the initial guess; one that only ran out of iterations
+    while its last step moved the parameters by less than ``NEARLY_CONVERGED`` is a model like any other and is
+    tested (refitting it from the guess doubled the cost of the order scan's short fits)."""
+    ok = _finite(res.thetas) and (res.converged or res.extra.get("change_at_limit", np.inf) < NEARLY_CONVERGED)
     base = res.thetas if ok else thetas0
     rate = 1.0 / data.h
     skip = warmup_samples(base, structures, rate, data.n)
