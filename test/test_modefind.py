@@ -313,7 +313,10 @@ def test_an_order_gain_must_hold_throughout_the_held_out_data():
     noise as two models' errors on the same data do. No real gain (each model misfits by an independent error of
     the same power): declared a gain in at most 6 of 200 records (1 % test: 2 expected, binomial tail < 0.5 %). A
     real gain (a 20 % larger error from a sinusoidal misfit, t about 10 on average): found in all 200."""
-    from additive_rsrivc_ros.core.modefind import _significant_gain
+    from additive_rsrivc_ros.core.modefind import OrderRow, _significant_gain
+
+    def row(e):
+        return OrderRow(1, np.nan, float(np.mean(e * e)), residual=e)
 
     rng = np.random.default_rng(5)
     n = 1500
@@ -322,9 +325,9 @@ def test_an_order_gain_must_hold_throughout_the_held_out_data():
     for _ in range(200):
         v = rng.standard_normal(n)
         a, b = v + 0.3 * rng.standard_normal(n), v + 0.3 * rng.standard_normal(n)
-        false_gains += _significant_gain(float(np.mean(a * a)), float(np.mean(b * b)), 0.0, a, b)
+        false_gains += _significant_gain(row(a), row(b), 0.0)
         s = np.sqrt(0.4) * np.sin(2 * np.pi * 7.3 * k / 1000.0 + rng.uniform(0, 2 * np.pi))
-        found += _significant_gain(float(np.mean(v * v)), float(np.mean((v + s) ** 2)), 0.02, v, v + s)
+        found += _significant_gain(row(v), row(v + s), 0.02)
     assert false_gains <= 6 and found == 200
 
 

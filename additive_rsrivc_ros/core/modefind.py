@@ -631,24 +631,24 @@ def _least_relevant(res: Any, u, y, rate_hz: float, r, controller, input_delay: 
     return best
 
 
-def _significant_gain(new: OrderRow | float, old: OrderRow | float, margin: float,
-                      new_residual: np.ndarray | None = None, old_residual: np.ndarray | None = None) -> bool:
-    """Does ``new`` predict the held-out data better than ``old``? Its mean squared error must be below
-    ``(1 - margin)`` times the other's and, when both held-out errors are known, the gain must hold throughout the
-    held-out data: the log ratio of the two mean squared errors over each of ``HELD_OUT_BATCHES`` consecutive
-    batches (correlated errors stay within a batch) has a mean above ``GAIN_T`` standard errors (Student t,
-    one-sided 1 %). Measured on 5 s windows: a split mode beside a well-damped one gained 2.8 % on 1.5 s of held-out
-    data with t = 1.1 (noise, not a mode); real modes gave t = 6 to 33. (The batch means of the squared-error
-    difference were no good: one batch with a step of the square wave dominates them, t = 2.1 for a 700 000-fold
-    gain.)"""
-    e_new = new.validation_error if isinstance(new, OrderRow) else float(new)
-    e_old = old.validation_error if isinstance(old, OrderRow) else float(old)
-    if not (np.isfinite(e_new) and e_new < (1.0 - margin) * e_old):
+def _beats(new: OrderRow, old: OrderRow, margin: float) -> bool:
+    """The margin rule: ``new``'s held-out error is finite and below ``(1 - margin)`` times ``old``'s."""
+    return bool(np.isfinite(new.validation_error) and new.validation_error < (1.0 - margin) * old.validation_error)
+
+
+def _significant_gain(new: OrderRow, old: OrderRow, margin: float) -> bool:
+    """Does ``new`` predict the held-out data better than ``old``? It must beat it by the margin (:func:`_beats`)
+    and, when both held-out errors are known, the gain must hold throughout the held-out data: the log ratio of
+    the two mean squared errors over each of ``HELD_OUT_BATCHES`` consecutive batches (correlated errors stay
+    within a batch) has a mean above ``GAIN_T`` standard errors (Student t, one-sided 1 %). Measured on 5 s
+    windows: a split mode beside a well-damped one gained 2.8 % on 1.5 s of held-out data with t = 1.1 (noise, not
+    a mode); real modes gave t = 6 to 33. (The batch means of the squared-error difference were no good: one batch
+    with a step of the square wave dominates them, t = 2.1 for a 700 000-fold gain.)"""
+    if not _beats(new, old, margin):
         return False
-    if not np.isfinite(e_old):
+    if not np.isfinite(old.validation_error):
         return True
-    a = new.residual if isinstance(new, OrderRow) else new_residual
-    b = old.residual if isinstance(old, OrderRow) else old_residual
+    a, b = new.residual, old.residual
     if a is None or b is None or a.size != b.size or a.size < 2 * HELD_OUT_BATCHES:
         return True
     ratios = np.array([np.log(np.mean(bb * bb) / np.mean(aa * aa)) if np.any(aa) else np.inf
@@ -664,11 +664,10 @@ def _choice(table: list[OrderRow], margin: float, paired: bool = True) -> OrderR
     """The order rule over the rows so far: from the smallest K that fitted, a larger K replaces the choice only if
     it is a significant gain over it (:func:`_significant_gain`; ``paired=False``: the margin alone, the scan's
     stepping stone); redundant rows are never chosen."""
+    gain = _significant_gain if paired else _beats
     chosen: OrderRow | None = None
     for row in table:
-        if not row.redundant and np.isfinite(row.validation_error) and (
-                chosen is None or (_significant_gain(row, chosen, margin) if paired
-                                   else row.validation_error < (1.0 - margin) * chosen.validation_error)):
+        if not row.redundant and np.isfinite(row.validation_error) and (chosen is None or gain(row, chosen, margin)):
             chosen = row
     return chosen
 
@@ -714,12 +713,12 @@ def order_table(u, y, rate_hz: float, r, controller, input_delay: int, candidate
             cand_row, cand_res = _evaluate(K, st, u, y, rate_hz, r, controller, input_delay, split, max_iterations)
             if row is None or cand_row.validation_error < row.validation_error:
                 row, res = cand_row, cand_res
-            if chosen is not None and row.validation_error < (1.0 - margin) * chosen.validation_error:
+            if chosen is not None and _beats(row, chosen, margin):
                 break  # a gain: no need to try the other peaks
         if res is not None:
             fits[K] = res
         table.append(row)
-        if res is not None and chosen is not None and row.validation_error < (1.0 - margin) * chosen.validation_error:
+        if res is not None and chosen is not None and _beats(row, chosen, margin):
             _check_relevance(table, fits, res, u, y, rate_hz, r, controller, input_delay, split, margin)
     chosen = _choice(table, margin)
     if chosen is not None:
@@ -735,9 +734,11 @@ def _check_relevance(table: list[OrderRow], fits: dict[int, Any], res: Any, u, y
     that reduction, a model of one order less, replaces the smaller order's row if it predicts better."""
     row = table[-1]
     least = _least_relevant(res, u, y, rate_hz, r, controller, input_delay, split)
-    if least is None or _significant_gain(row, least[2], margin, old_residual=least[3]):
+    if least is None:
         return
     j, e_fit, e_val, resid = least
+    if _significant_gain(row, OrderRow(row.K - 1, e_fit, e_val, residual=resid), margin):
+        return
     f_j = _fitted_candidates(res)[j].natural_frequency_hz
     what = f"{f_j:.4g} Hz mode" if f_j > 0.0 else "rigid body"
     row.redundant = True

@@ -595,8 +595,8 @@ def lssvf(data: OfflineData, structures, thetas0, *, method: str = "lssvf") -> I
     fy = svf(a_f, data.y, data.h, 0)
     fu = svf(a_f, data.u, data.h, su.integrators)
     Phi = np.hstack((-fy[:, 1: su.n + 1], fu[:, : su.m + 1]))
-    X, cond = equilibrated_solve(Phi.T @ Phi, (Phi.T @ fy[:, 0])[:, None], column_norms(Phi),
-                                  column_norms(Phi))
+    pn = column_norms(Phi)
+    X, cond = equilibrated_solve(Phi.T @ Phi, (Phi.T @ fy[:, 0])[:, None], pn, pn)
     th_u = X[:, 0]
     thetas = [th_u] if len(structures) == 1 else split_additive(th_u, su, structures, thetas0)
     res = _finalize(method, data, structures, thetas, False, 1, True, cond, 0, "least squares (one step)")
