@@ -15,6 +15,9 @@ Prints one row per plant, the failures with the reason (order table, candidates)
 
     python scripts/validate_autostart.py [--plants 40] [--seed 0]
 
+``--in-motion``: each record is cut from a loop that has already run for 2-6 square-wave periods, as when the monitor
+attaches to a running machine (the default records start from rest).
+
 ``--timing N``: the automatic start as the node and rsrivc_diagnose run it (``MonitorPipeline`` without guesses,
 ``init_duration_s`` 20 s) on N random plants with K = 4 at 4096 Hz, 20 s each: prints the time of the start (issue
 12 target < 2 s) and where it goes (FRF, the order scan's fits and held-out errors, the refit on the whole window).
@@ -116,7 +119,7 @@ def design_controller(modes: list[PlantMode], rate: float, delay: int) -> Discre
     raise RuntimeError("no stabilizing PI found")
 
 
-def run_plant(seed: int, rigid: bool = False) -> dict:
+def run_plant(seed: int, rigid: bool = False, in_motion: bool = False) -> dict:
     rng = np.random.default_rng(seed)
     modes, rate, delay = random_plant(rng)
     if rigid:
@@ -126,8 +129,11 @@ def run_plant(seed: int, rigid: bool = False) -> dict:
         ctrl = design_controller(modes, rate, delay)
     f1 = min(m.natural_frequency_hz for m in modes if not m.rigid)
     duration = float(min(60.0, max(20.0, 40.0 / f1)))
-    t = np.arange(int(duration * rate)) / rate
     f_sq = min(2.0, f1 / 5.0)
+    # --in-motion: the record is cut from a loop that has run for 2-6 square-wave periods (its own generator, so
+    # that the plants are those of the default run)
+    lead = int(np.random.default_rng(seed + 10 ** 6).uniform(2.0, 6.0) / f_sq * rate) if in_motion else 0
+    t = np.arange(int(duration * rate) + lead) / rate
     r = square_wave(t, f_sq, 1.0) + white_noise(t.size, 0.05, rng)
     clean = simulate_modes(modes, rate, r=r, controller=ctrl, input_delay=delay)
     noise_std = 0.01 * float(np.std(clean.y))
@@ -135,7 +141,7 @@ def run_plant(seed: int, rigid: bool = False) -> dict:
                          noise=white_noise(t.size, noise_std, rng), rng=rng)
     t0 = time.perf_counter()
     try:
-        res = find_modes(sim.u, sim.y, rate, r=sim.r, controller=ctrl, input_delay=delay)
+        res = find_modes(sim.u[lead:], sim.y[lead:], rate, r=sim.r[lead:], controller=ctrl, input_delay=delay)
     except ValueError as exc:
         return {"seed": seed, "modes": modes, "rate": rate, "delay": delay, "duration": duration, "ok": False,
                 "K": 0, "why": f"error: {exc}", "s": time.perf_counter() - t0}
@@ -235,6 +241,9 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--seed", type=int, default=0)
     ap.add_argument("--rigid", action="store_true",
                     help="every plant also has a rigid body b0/p^2 (lead controller; b0 within 1 %% to count)")
+    ap.add_argument("--in-motion", action="store_true",
+                    help="cut each record from a loop that has run for 2-6 square-wave periods (a monitor attached "
+                         "to a running machine) instead of starting it from rest")
     ap.add_argument("--timing", type=int, default=0, metavar="N",
                     help="time the automatic start in the pipeline on N plants (K = 4, 4096 Hz, 20 s)")
     args = ap.parse_args(argv)
@@ -245,7 +254,7 @@ def main(argv: list[str] | None = None) -> int:
     print(f"{'plant':>5} {'rate':>6} {'d':>1} {'T[s]':>5} {'K':>3} {'found':>5} {'ok':>3} {'time[s]':>7}  "
           "modes (f Hz / zeta)")
     for i in range(args.plants):
-        row = run_plant(args.seed * 100000 + i, args.rigid)
+        row = run_plant(args.seed * 100000 + i, args.rigid, args.in_motion)
         rows.append(row)
         desc = " ".join(f"rigid b0 {m.gain:.3g}" if m.rigid else f"{m.natural_frequency_hz:.4g}/{m.damping_ratio:.3g}"
                         for m in row["modes"])

@@ -1,4 +1,5 @@
-"""Offline identification from a record that starts with the plant in motion (filter warm-up)."""
+"""Offline identification from a record that starts with the plant in motion (free response projected out, or a
+filter warm-up)."""
 import numpy as np
 
 from additive_rsrivc_ros.config import load_config
@@ -37,20 +38,17 @@ def _fit(cfg, r, u, y, **kw):
 def test_no_warmup_for_a_record_that_starts_at_rest(repo):
     """From rest the start-up transient is information (with the four sines alone it is most of it): nothing is
     left out. A record cut from the running loop starts with the plant's free response: the fit is redone with
-    the warm-up left out."""
+    the model's free response projected out, on every sample."""
     cfg, r, u, y = _segment(repo, 0.0, 300.0)
     res = _fit(cfg, r, u, y)
     assert res.converged and not res.extra["initial_transient"]["detected"]
-    assert res.n_samples == y.size and "warm up" not in res.message
+    assert res.n_samples == y.size and "warm up" not in res.message and "free_response" not in res.extra
     for start in (100.0, 123.45, 200.0):
         cfg, r, u, y = _segment(repo, start, 300.0)
         res = _fit(cfg, r, u, y)
-        # detected, or the fit over every sample failed outright: either way refitted with the warm-up left out
+        # detected, or the fit over every sample failed outright: either way refitted with the free response
         assert res.converged and res.extra.get("initial_transient", {"detected": True})["detected"], res.extra
-        skip = res.extra["warmup_samples"]
-        assert res.n_samples == y.size - skip and "warm up" in res.message
-        # five decay times (8 s) of the fitted slowest mode, at most a quarter of the record
-        assert skip == min(skip, y.size // 4) and 0.8 * min(800, y.size // 4) <= skip
+        assert res.extra["free_response"] and res.n_samples == y.size and "free response" in res.message
 
 
 def test_transient_test_false_alarms_on_noise_alone():
@@ -75,29 +73,61 @@ def test_transient_test_false_alarms_on_noise_alone():
     assert initial_transient_test(free + rng.standard_normal(n), thetas, [MODE, MODE], h, window).detected
 
 
-def test_record_starting_in_motion_is_unbiased_with_warmup(repo):
+def test_record_starting_in_motion_is_unbiased(repo):
     """Mode 2 (zeta = 0.025 at 5 rad/s) rings at resonance under the sin(5t) reference when the record starts;
     filters from rest see an initial-condition transient of ~10x the input amplitude decaying over 8 s. With
-    the warm-up left out, every parameter is within 4 of its own reported standard deviations of the truth
-    (plus 0.5 % for the finite-sample interpolation error); using every sample biases b0 and zeta of mode 2
-    together by many standard deviations."""
+    the free response projected out, every parameter is within 4 of its own reported standard deviations of the
+    truth (plus 0.5 % for the finite-sample interpolation error); using every sample as if from rest biases b0 and
+    zeta of mode 2 together by many standard deviations."""
     cfg, r, u, y = _segment(repo, 300.0, 900.0)
     truth = [m.theta0() for m in cfg.modes]
     start = [th * np.array([1.05, 0.95, 1.05]) for th in truth]
     res = _fit(cfg, r, u, y)
-    assert res.converged and res.extra["initial_transient"]["detected"]
-    for th, th0, std in zip(res.thetas, truth, res.theta_std, strict=True):
-        assert np.all(np.abs(th - th0) <= 4 * std + 0.005 * np.abs(th0)), (th, th0, std)
+    assert res.converged and res.extra["initial_transient"]["detected"] and res.extra["free_response"]
+    _within(res, truth)
     bad = identify(u, y, 20.0, cfg.structures, start, r=r, controller=cfg.controller, warmup_s=0.0)
     err = np.abs(bad.thetas[1] - truth[1])
     assert err[2] > 4 * res.theta_std[1][2] + 0.005 * truth[1][2]
+
+
+def _within(res, truth, n_std: float = 4.0) -> bool:
+    ok = all(np.all(np.abs(th - th0) <= n_std * std + 0.005 * np.abs(th0))
+             for th, th0, std in zip(res.thetas, truth, res.theta_std, strict=True))
+    assert ok, [(th, th0, std) for th, th0, std in zip(res.thetas, truth, res.theta_std, strict=True)]
+    return ok
+
+
+def test_a_mode_slower_than_a_quarter_of_the_record_in_motion(repo, monkeypatch):
+    """60 s windows cut from the running loop: the slowest mode decays over 8 s, so five decay times (40 s) of
+    warm-up exceed the quarter of the record a warm-up may take. With the free response projected out, every sample
+    counts and every parameter is within 4 standard deviations (+ 0.5 %) of the truth in all four windows; with only
+    the 15 s warm-up, at least one window's fit fails or is biased beyond that (measured: the one from 300 s, by
+    52 standard deviations)."""
+    from additive_rsrivc_ros.core.offline import stable
+
+    windows = [_segment(repo, a, a + 60.0) for a in (100.0, 123.45, 200.0, 300.0)]
+    truth = [m.theta0() for m in windows[0][0].modes]
+    for cfg, r, u, y in windows:
+        res = _fit(cfg, r, u, y)
+        assert res.converged and res.extra["free_response"] and res.n_samples == y.size
+        _within(res, truth)
+    monkeypatch.setattr(stable, "FREE_RESPONSE_REFIT", False)
+    bad = 0
+    for cfg, r, u, y in windows:
+        res = _fit(cfg, r, u, y)
+        assert res.extra["warmup_samples"] == y.size // 4
+        try:
+            bad += not (res.converged and _within(res, truth))
+        except AssertionError:
+            bad += 1
+    assert bad >= 1
 
 
 def test_a_fit_out_of_iterations_but_nearly_converged_is_tested_not_refitted(repo):
     """A fit stopped by its iteration limit while its last step moved the parameters by less than
     ``NEARLY_CONVERGED`` is a model: tested for a start in motion like a converged one. From rest it is kept as it
     stands (before, it was refitted from the guess with a warm-up: twice the cost for the order scan's short fits);
-    cut from the running loop, the free response is detected and the refit leaves the warm-up out. A first fit
+    cut from the running loop, the free response is detected and projected out in the refit. A first fit
     still moving by more than that is refitted from the guess, as before."""
     from additive_rsrivc_ros.core.offline.stable import NEARLY_CONVERGED
 
@@ -108,8 +138,8 @@ def test_a_fit_out_of_iterations_but_nearly_converged_is_tested_not_refitted(rep
     assert res.n_samples == y.size and "warm up" not in res.message
     assert _fit(cfg, r, u, y, max_iterations=1, tol=1e-14, warmup_s=0.0).extra["change_at_limit"] >= NEARLY_CONVERGED
     moving = _fit(cfg, r, u, y, max_iterations=1, tol=1e-14)
-    assert "the fit over every sample failed" in moving.message and moving.extra["warmup_samples"] > 0
+    assert "the fit over every sample failed" in moving.message and moving.extra["free_response"]
     cfg, r, u, y = _segment(repo, 123.45, 300.0)
     res = _fit(cfg, r, u, y, max_iterations=6, tol=1e-14)
     assert res.extra["initial_transient"]["detected"], res.extra
-    assert res.n_samples == y.size - res.extra["warmup_samples"] and "free response" in res.message
+    assert res.extra["free_response"] and res.n_samples == y.size and "free response" in res.message

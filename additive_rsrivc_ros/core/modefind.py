@@ -47,6 +47,7 @@ import numpy as np
 from .estimator import MonitorSettings
 from .frf import FRFEstimate, estimate_frf, longest_finite, model_frf_on_bins
 from .model import TWO_PI, SubmodelStructure, guess_structure, guess_theta, modal_from_theta
+from .offline.stable import NEARLY_CONVERGED
 
 MIN_PROMINENCE_DECADES = 0.1  # 2 dB
 DEFAULT_MARGIN = 0.02
@@ -301,10 +302,47 @@ def finer_candidates(u, y, rate_hz: float, r, frf: FRFEstimate, input_delay: int
     return out
 
 
+SLOW_DECAY = 1e-6  # a free-response pole still above this fraction of its start where the held-out data begin
+
+
+def slow_free_response(thetas, structures, rate_hz: float, controller, input_delay: int, n: int,
+                       split: int) -> tuple[np.ndarray, int]:
+    """``(n, d)`` free responses ``Re lambda^k``, ``Im lambda^k`` of the stable poles of the model's autonomous loop
+    (closed loop: plant, delay line and controller, :func:`.filters.closed_loop_matrix`; open loop: the plant)
+    that are still above ``SLOW_DECAY`` of their start at sample ``split``, and the first sample from which the
+    other poles have decayed below 1e-3. A record cut from a running loop starts in a state the model, simulated
+    from rest, does not have; its free response is the output error's first part and, for a slow pole, lasts
+    into the held-out data: a PI controller's integrator state behind a square-wave level, a closed-loop pole
+    at 0.99998 (a 14 s decay at 4096 Hz), made the true model's held-out error 900 times its noise. Integrators
+    (``|lambda| = 1``) are left out (open loop: :func:`.offline.integrator_free_response`)."""
+    from .filters import closed_loop_matrix, total_model_discrete
+
+    plant = total_model_discrete(list(thetas), list(structures), 1.0 / rate_hz)
+    if controller is not None:
+        mat = closed_loop_matrix(plant, controller, input_delay)
+        if mat.shape[0] > 400:
+            return np.zeros((n, 0)), 0
+        lam = np.linalg.eigvals(mat.toarray())
+    else:
+        lam = np.linalg.eigvals(plant.phi) if plant.phi.size else np.zeros(0)
+    mod = np.abs(lam)
+    stable = (mod > 0.0) & (mod < 1.0 - 1e-12)
+    slow = stable & (mod ** max(split, 1) > SLOW_DECAY) & (lam.imag >= 0.0)
+    fast = stable & ~slow
+    skip = int(np.ceil(np.max(np.log(1e-3) / np.log(mod[fast])))) if fast.any() else 0
+    if not slow.any():
+        return np.zeros((n, 0)), skip
+    k = np.arange(n)[:, None]
+    powers = np.exp(k * np.log(lam[slow].astype(complex))[None, :])
+    cols = [powers.real] + ([powers[:, lam[slow].imag > 0].imag] if np.any(lam[slow].imag > 0) else [])
+    return np.hstack(cols), min(skip, split // 2)
+
+
 def _held_out_error(thetas, structures, rate_hz: float, u, y, r, controller, input_delay: int,
                     split: int) -> tuple[float, float, np.ndarray]:
     """Mean squared output error of the model on ``[:split]`` (fit) and ``[split:]`` (held out), and the held-out
-    output error itself (for :func:`_significant_gain`)."""
+    output error itself (for :func:`_significant_gain`). The model is simulated from rest; the free response of
+    its slow poles (:func:`slow_free_response`), fitted on the fit part, is taken out of the whole error."""
     if controller is not None:
         from .filters import closed_loop_response
         _, y_hat = closed_loop_response(list(thetas), list(structures), 1.0 / rate_hz, controller, r, input_delay)
@@ -319,6 +357,10 @@ def _held_out_error(thetas, structures, rate_hz: float, u, y, r, controller, inp
         from .offline import integrator_free_response
         q = integrator_free_response(e.size, integrators, 1.0 / rate_hz)
         e = e - q @ (q.T @ e)
+    basis, skip = slow_free_response(thetas, structures, rate_hz, controller, input_delay, e.size, split)
+    if basis.shape[1] and split - skip > 2 * basis.shape[1]:
+        coef = np.linalg.lstsq(basis[skip:split], e[skip:split], rcond=None)[0]
+        e = e - basis @ coef
     return float(np.mean(e[:split] ** 2)), float(np.mean(e[split:] ** 2)), e[split:]
 
 
@@ -785,10 +827,10 @@ def find_modes(u, y, rate_hz: float, *, r=None, controller=None, input_delay: in
     message = f"K = {chosen.K} by held-out output error (margin {margin:.0%})"
     try:
         full = _fit(u, y, rate_hz, r, controller, input_delay, start, max_iterations, refit_tol)
-        if _usable(full, rate_hz):
+        if _usable(full, rate_hz) and (full.converged or full.extra.get("change_at_limit", np.inf) < NEARLY_CONVERGED):
             res = full
         else:
-            message += "; refit on the whole record unstable: kept the fit on the first part"
+            message += "; refit on the whole record unstable or not converged: kept the fit on the first part"
     except Exception as exc:  # noqa: BLE001
         message += f"; refit on the whole record failed ({type(exc).__name__}): kept the fit on the first part"
     structures = list(res.structures)

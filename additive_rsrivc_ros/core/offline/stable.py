@@ -176,7 +176,7 @@ def _build(data: OfflineData, thetas, structures, closed_loop: bool, only: int |
             dss[i].run(z, rows=range(st.m + 1), out=Z[:, sl.start + st.n: sl.stop])
     s = data.skip  # the filters start from rest: leave their warm-up out (see warmup_samples)
     step = _Step(Z[s:], Phi[s:], Ups[s:], xhat, (data.y - total)[s:])
-    return _without_free_response(step, max(st.integrators for st in structures), data.h, s)
+    return _without_free_response(step, _free_response_space(data, thetas, structures))
 
 
 def integrator_free_response(n: int, integrators: int, h: float, start: int = 0) -> np.ndarray:
@@ -189,16 +189,37 @@ def integrator_free_response(n: int, integrators: int, h: float, start: int = 0)
     return q
 
 
-def _without_free_response(step: _Step, integrators: int, h: float, start: int) -> _Step:
-    """Project the integrators' free response out of instrument, regressor, filtered outputs and output error.
+def _free_response_space(data: OfflineData, thetas, structures) -> np.ndarray | None:
+    """Orthonormal ``(N - skip, d)`` basis of the free responses a model simulated from rest leaves out of the output
+    error: the integrators' polynomials (:func:`integrator_free_response`; a rigid body never decays) and, when the
+    record starts in motion (``data.free_response``), the decaying modes of every ``A_i``
+    (:func:`free_response_basis`). None when there is none."""
+    n = data.n - data.skip
+    integrators = max(st.integrators for st in structures)
+    cols = [integrator_free_response(n, integrators, data.h, data.skip)] if integrators else []
+    if data.free_response:
+        cols.append(free_response_basis(thetas, structures, data.h, n))
+    if not cols or n == 0:
+        return None
+    basis = np.hstack(cols)
+    if basis.shape[1] == 0:
+        return None
+    q, rr = np.linalg.qr(basis)
+    keep = np.abs(np.diag(rr)) > 1e-9 * max(float(np.max(np.abs(np.diag(rr)))), 1e-300)
+    return q[:, keep]
+
+
+def _without_free_response(step: _Step, q: np.ndarray | None) -> _Step:
+    """Project the free response (basis ``q``, :func:`_free_response_space`) out of instrument, regressor, filtered
+    outputs and output error.
 
     With the basis ``B`` among both regressors and instruments of every equation (001 eq. 21 plus the free response
-    ``c^T B``, which enters every residual output ``y~_i`` through the rigid body's simulated output), the IV
-    estimate of the model parameters equals the IV estimate on the data with ``B`` projected out (Frisch-Waugh-Lovell):
-    ``c`` need not be carried. No integrators: the step unchanged."""
-    if integrators == 0 or step.eps.size == 0:
+    ``c^T B``, which enters every residual output ``y~_i`` through the submodels' outputs simulated from rest: at
+    ``A_i`` the filtered equation's error is ``y~_i`` minus the forced response, i.e. the free responses plus noise),
+    the IV estimate of the model parameters equals the IV estimate on the data with ``B`` projected out
+    (Frisch-Waugh-Lovell): ``c`` need not be carried. No basis: the step unchanged."""
+    if q is None or step.eps.size == 0:
         return step
-    q = integrator_free_response(step.eps.size, integrators, h, start)
 
     def out(x: np.ndarray) -> np.ndarray:
         return x - q @ (q.T @ x)
@@ -403,8 +424,11 @@ def additive_iv(data: OfflineData, structures, thetas0, *, closed_loop: bool, me
     return res
 
 
-def _cost(data: OfflineData, xhat_sum: np.ndarray) -> float:
+def _cost(data: OfflineData, xhat_sum: np.ndarray, thetas=None, structures=None) -> float:
     e = (data.y - xhat_sum)[data.skip:]
+    q = _free_response_space(data, thetas, structures) if data.free_response and thetas is not None else None
+    if q is not None:
+        e = e - q @ (q.T @ e)
     return float(e @ e) / e.size
 
 
@@ -425,7 +449,7 @@ def bcd_srivc(data: OfflineData, structures, thetas0, *, max_iterations: int = 5
         old = [t.copy() for t in thetas]
         for i in range(K):
             others = np.sum(xhat, axis=0) - xhat[i]
-            v_start = _cost(data, others + xhat[i])
+            v_start = _cost(data, others + xhat[i], thetas, structures)
             trial = [t.copy() for t in thetas]
             for _s in range(inner_iterations):
                 try:
@@ -444,7 +468,7 @@ def bcd_srivc(data: OfflineData, structures, thetas0, *, max_iterations: int = 5
                     break
                 trial = cand
                 _, xi = _submodel_outputs(data, [trial[i]], [structures[i]])
-                if _cost(data, others + xi[0]) < v_start:       # 002 Algorithm 2 line 8
+                if _cost(data, others + xi[0], trial, structures) < v_start:       # 002 Algorithm 2 line 8
                     thetas = trial
                     xhat[i] = xi[0]
                     break
@@ -708,16 +732,22 @@ def warmup_samples(thetas, structures, rate_hz: float, n: int, warmup_s: float |
 
 
 NEARLY_CONVERGED = 1e-2  # relative parameter change of a last iterate that is tested, not refitted from the guess
+FREE_RESPONSE_REFIT = True  # a record in motion is refitted with the free response projected out (else: warm-up)
 
 
 def _refit_if_started_in_motion(res: IdentificationResult, data: OfflineData, structures, thetas0,
                                 refit) -> IdentificationResult:
-    """Automatic warm-up: keep the fit over every sample unless its output error starts with the plant's free
-    response (:func:`initial_transient_test`); then refit with the filters' warm-up left out. From rest the
-    start-up transient is information (with steady sine excitation often most of it), so nothing is lost there.
-    A first fit that failed is refitted with the warm-up of the initial guess; one that only ran out of iterations
-    while its last step moved the parameters by less than ``NEARLY_CONVERGED`` is a model like any other and is
-    tested (refitting it from the guess doubled the cost of the order scan's short fits)."""
+    """A record in motion: keep the fit over every sample unless its output error starts with the plant's free
+    response (:func:`initial_transient_test`); then refit on every sample with the free response of the model's
+    modes projected out (``data.free_response``, :func:`_free_response_space`: the initial conditions estimated
+    with the parameters), from the first fit and, failing that, from the initial guess; if neither converges, with
+    the filters' warm-up left out instead (at most a quarter of the record, which five decay times of a lightly
+    damped mode can exceed: a 60 s window of the paper's example was then biased by 52 standard deviations). From
+    rest the start-up transient is information (with steady sine excitation often most of it), so nothing is lost
+    there. A first fit that failed gets one refit from the initial guess with the free response projected out; one
+    that only ran out of iterations while its last step moved the parameters by less than ``NEARLY_CONVERGED`` is
+    a model like any other and is tested (refitting it from the guess doubled the cost of the order scan's short
+    fits)."""
     ok = _finite(res.thetas) and (res.converged or res.extra.get("change_at_limit", np.inf) < NEARLY_CONVERGED)
     base = res.thetas if ok else thetas0
     rate = 1.0 / data.h
@@ -731,6 +761,22 @@ def _refit_if_started_in_motion(res: IdentificationResult, data: OfflineData, st
         res.extra["initial_transient"] = test.to_dict()
         if not test.detected:
             return res
+    # the model's free response estimated with it (initial conditions, Frisch-Waugh): every sample is kept
+    why = (f"output error starts with the plant's free response (F = {test.statistic:.3g} > {test.threshold:.3g})"
+           if test is not None else "the fit over every sample failed")
+    # from the first fit and, if that fails (a transient can pull the first fit into another optimum, e.g. a
+    # lightly damped mode split in two while the other mode was lost), from the initial guess
+    data.free_response, data.skip = True, 0
+    for start in ([base, thetas0] if base is not thetas0 else [thetas0]) if FREE_RESPONSE_REFIT else []:
+        new = refit([np.asarray(t, float).copy() for t in start])
+        usable = _finite(new.thetas) and (new.converged or new.extra.get("change_at_limit", np.inf) < NEARLY_CONVERGED)
+        if usable or test is None:   # a first fit that failed gets one refit, as it had with the warm-up alone
+            new.message += f"; {why}: refitted with the free response of the model's modes projected out"
+            if test is not None:
+                new.extra["initial_transient"] = test.to_dict()
+            new.extra["free_response"] = True
+            return new
+    data.free_response = False
     # the fit over a transient is biased towards more damping (a shorter decay): take the longer of its warm-up
     # and the initial guess's, and lengthen it while the refitted model decays more slowly
     skip = max(skip, warmup_samples(thetas0, structures, rate, data.n))
@@ -743,8 +789,6 @@ def _refit_if_started_in_motion(res: IdentificationResult, data: OfflineData, st
         if longer <= 1.1 * skip:
             break
         skip, base = longer, new.thetas
-    why = (f"output error starts with the plant's free response (F = {test.statistic:.3g} > {test.threshold:.3g})"
-           if test is not None else "the fit over every sample failed")
     new.message += f"; {why}: the first {skip * data.h:.4g} s only warm up the filters"
     if test is not None:
         new.extra["initial_transient"] = test.to_dict()
@@ -764,8 +808,8 @@ def identify(u, y, rate_hz: float, structures, thetas0, *, r=None, controller: D
     reported in the result (``converged=False``, ``message``). The first ``warmup_s`` seconds only warm up
     the filters (:func:`warmup_samples`; 0 uses every sample). Default ``None``: every sample, unless the
     fit's output error starts with the plant's free response (:func:`initial_transient_test`, the record starts
-    in motion); then it is refitted with five decay times of the slowest mode as warm-up. The unstable-plant
-    methods (``*-uns``, ``*-monic``) use every sample by default.
+    in motion); then it is refitted with that free response projected out (:func:`_refit_if_started_in_motion`).
+    The unstable-plant methods (``*-uns``, ``*-monic``) use every sample by default.
     """
     if method not in METHODS:
         raise ValueError(f"unknown method {method!r}; choose one of {', '.join(METHODS)}")

@@ -96,6 +96,7 @@ class OfflineData:
     controller: DiscreteController | None
     delay: int
     skip: int = 0          # filter warm-up samples left out of the normal equations and the cost
+    free_response: bool = False  # the record starts in motion: the model's free response is projected out
 
     @property
     def closed_loop(self) -> bool:
