@@ -40,6 +40,7 @@ give ``time_s`` since the first sample ever pushed (kept across :meth:`get_state
 from __future__ import annotations
 
 import math
+import time
 from collections.abc import Callable, Mapping
 from dataclasses import dataclass, field, replace
 from typing import Any
@@ -281,6 +282,7 @@ class MonitorPipeline:
         self.next_publish = 0.0               # time (since t0) of the next report
         self.initialized = False
         self._data_start_tried = False        # guesses replaced by modes from the data (once per run)
+        self._order_restarted = False         # a restart after the model-order check (once per run)
         self.stuck = False
         self._init_buf: list[tuple[np.ndarray, ...]] = []
         self._init_n = 0
@@ -663,9 +665,75 @@ class MonitorPipeline:
         """Model-order check (:mod:`.adequacy`) on the first window of contiguous data after the initialization, once
         per run, against the estimate at its end; its finding goes on health (:meth:`ModelOrderCheck.apply`)."""
         if self.order_check.add(r, u, y, valid, self._rel(t_end), float(self.memory_s.max())):
+            window = self.order_check.window()
             line = self.order_check.run(self._modal(), self.cfg, self.settings.min_change)
             if line is not None:
                 self.notices.append(line)
+            res = self.order_check.result
+            if res is not None and res.flagged and not self._order_restarted:
+                self._order_restarted = True
+                self._restart_from_data(*window, t_end, res)
+
+    def _restart_from_data(self, r: np.ndarray, u: np.ndarray, y: np.ndarray, t_end: float, res: Any) -> None:
+        """The model-order check found the model wrong for the data (issue 12 item 4: ``misfit`` or ``too_low``; a
+        wrong optimum can look like either): the modes are found again on the check's window (:mod:`.modefind`; K
+        automatic when the run found its modes itself, else the configured K and integrators) and adopted only if
+        the same check on that window passes them; the estimator is then initialized on the window and the fault
+        monitors start over (a baseline learned on a wrong model is no baseline). Once per run. Otherwise the
+        flag stays on health: a model that misfits is never reported as healthy."""
+        from .adequacy import check_model_order
+        from .autostart import FoundModes
+        from .modefind import SCAN_TOL, autostart_config
+
+        auto = self.search is not None
+        closed = bool(self.cfg.closed_loop)
+        t_rel = self._rel(t_end)
+        a, b = res.window_s
+        where = f"t={a:.1f}–{b:.1f} s"
+        c0 = time.perf_counter()
+        try:
+            new, found = autostart_config(self.cfg_given if auto else self.cfg, r if closed else None, u, y,
+                                          count=None if auto else self.K, refit_tol=SCAN_TOL)
+        except ValueError as exc:
+            self.notices.append(f"restart from the data on {where} failed: {exc}; the model stays flagged")
+            return
+        if not auto and sorted(m.integrators for m in new.modes) != sorted(m.integrators for m in self.cfg.modes):
+            self.notices.append(f"restart from the data on {where}: the modes found have other integrators than "
+                                "modes.integrators; not used, the model stays flagged")
+            return
+        check = check_model_order(found.thetas, found.structures, u, y, self.rate, r=r if closed else None,
+                                  controller=self.cfg.controller if closed else None,
+                                  input_delay=self.cfg.input_delay_samples, min_change=self.settings.min_change,
+                                  relevance=self.order_check.relevance,
+                                  max_iterations=self.cfg.estimator.init_max_iterations)
+        modes = ", ".join(f"{m[0]:.5g} Hz" if m[0] > 0 else "rigid body" for m in np.asarray(found.modal))
+        if check.flagged or check.state == "skipped":
+            self.notices.append(f"restart from the data on {where}: the {found.K} mode(s) found there ({modes}) "
+                                f"do not pass the check either ({check.state}); the model stays flagged")
+            return
+        self._switch_modes(new)
+        if auto:
+            attempts = self.search.found.attempts + 1 if self.search.found is not None else 1
+            modal = np.array([[m.natural_frequency_hz, m.damping_ratio, m.gain] for m in new.modes], dtype=float)
+            self.search.found = FoundModes(modal, [int(m.integrators) for m in new.modes], (a, b),
+                                           f"restart after the model-order check: {found.message}",
+                                           time.perf_counter() - c0, attempts)
+        self.initialized = False
+        self._marked_gaps = 0
+        failure = self._fit_initial(r, u, y)
+        if failure is not None:
+            self._no_valid_model(t_rel, f"restart from the data: {failure[1]}")
+            return
+        self.initialized = True
+        self.no_model = None
+        self.health.clear_reference(self._modal())
+        check.window_s, check.frf = (a, b), None
+        self.order_check.result = check
+        line = (f"restarted from the data after the model-order check ({res.message}): the {self.K} mode(s) found "
+                f"on {where} ({modes}) fit it; fault monitoring starts over")
+        self.health.note("restart_from_data", t_rel, line)
+        self.notices.append(line)
+        self.counters.data_starts += 1
 
     def _search_modes(self, r: np.ndarray, u: np.ndarray, y: np.ndarray, valid: np.ndarray, t_end: float) -> None:
         """Automatic start (no guesses; :mod:`.autostart`): buffer the window, search it when full; once the modes
