@@ -189,40 +189,59 @@ def integrator_free_response(n: int, integrators: int, h: float, start: int = 0)
     return q
 
 
-def _free_response_space(data: OfflineData, thetas, structures) -> np.ndarray | None:
-    """Orthonormal ``(N - skip, d)`` basis of the free responses a model simulated from rest leaves out of the output
-    error: the integrators' polynomials (:func:`integrator_free_response`; a rigid body never decays) and, when the
+FREE_RESPONSE_FLOOR = 1e-16  # a free response below this fraction of its start is zero (its basis rows end there)
+
+
+def _free_response_space(data: OfflineData, thetas, structures) -> tuple[np.ndarray, int] | None:
+    """Orthonormal basis of the free responses a model simulated from rest leaves out of the output error, as
+    ``(q, L)``: ``q`` spans the first ``L`` rows of the ``N - skip`` samples (zero after them). The integrators'
+    polynomials (:func:`integrator_free_response`; a rigid body never decays, ``L`` is every row) and, when the
     record starts in motion (``data.free_response``), the decaying modes of every ``A_i``
-    (:func:`free_response_basis`). None when there is none."""
+    (:func:`free_response_basis`), over the rows until the slowest has decayed to ``FREE_RESPONSE_FLOOR`` (a
+    well-damped mode's free response is gone after a fraction of the record: the projection costs only that).
+    None when there is none."""
     n = data.n - data.skip
     integrators = max(st.integrators for st in structures)
+    rows = n if integrators else 0
+    if data.free_response:
+        rate = []
+        for th, st in zip(thetas, structures, strict=True):
+            if st.n:
+                a, _ = split_theta(th, st)
+                re = -np.roots(a[::-1]).real
+                rate += [float(v) for v in re[re > 0]]
+        if rate:
+            rows = max(rows, min(n, int(np.ceil(-np.log(FREE_RESPONSE_FLOOR) / (min(rate) * data.h))) + 1))
+    if rows == 0:
+        return None
     cols = [integrator_free_response(n, integrators, data.h, data.skip)] if integrators else []
     if data.free_response:
-        cols.append(free_response_basis(thetas, structures, data.h, n))
-    if not cols or n == 0:
-        return None
-    basis = np.hstack(cols)
+        cols.append(free_response_basis(thetas, structures, data.h, rows))
+    basis = np.hstack([c[:rows] for c in cols])
     if basis.shape[1] == 0:
         return None
     q, rr = np.linalg.qr(basis)
     keep = np.abs(np.diag(rr)) > 1e-9 * max(float(np.max(np.abs(np.diag(rr)))), 1e-300)
-    return q[:, keep]
+    return q[:, keep], rows
 
 
-def _without_free_response(step: _Step, q: np.ndarray | None) -> _Step:
-    """Project the free response (basis ``q``, :func:`_free_response_space`) out of instrument, regressor, filtered
-    outputs and output error.
+def _without_free_response(step: _Step, space: tuple[np.ndarray, int] | None) -> _Step:
+    """Project the free response (basis ``q`` of the first ``L`` rows, :func:`_free_response_space`) out of
+    instrument, regressor, filtered outputs and output error.
 
     With the basis ``B`` among both regressors and instruments of every equation (001 eq. 21 plus the free response
     ``c^T B``, which enters every residual output ``y~_i`` through the submodels' outputs simulated from rest: at
     ``A_i`` the filtered equation's error is ``y~_i`` minus the forced response, i.e. the free responses plus noise),
     the IV estimate of the model parameters equals the IV estimate on the data with ``B`` projected out
     (Frisch-Waugh-Lovell): ``c`` need not be carried. No basis: the step unchanged."""
-    if q is None or step.eps.size == 0:
+    if space is None or step.eps.size == 0:
         return step
+    q, rows = space
 
     def out(x: np.ndarray) -> np.ndarray:
-        return x - q @ (q.T @ x)
+        x = x.copy()
+        x[:rows] -= q @ (q.T @ x[:rows])
+        return x
 
     return _Step(out(step.Z), out(step.Phi), out(step.Ups), step.xhat, out(step.eps))
 
@@ -426,9 +445,11 @@ def additive_iv(data: OfflineData, structures, thetas0, *, closed_loop: bool, me
 
 def _cost(data: OfflineData, xhat_sum: np.ndarray, thetas=None, structures=None) -> float:
     e = (data.y - xhat_sum)[data.skip:]
-    q = _free_response_space(data, thetas, structures) if data.free_response and thetas is not None else None
-    if q is not None:
-        e = e - q @ (q.T @ e)
+    space = _free_response_space(data, thetas, structures) if data.free_response and thetas is not None else None
+    if space is not None:
+        q, rows = space
+        e = e.copy()
+        e[:rows] -= q @ (q.T @ e[:rows])
     return float(e @ e) / e.size
 
 
