@@ -240,3 +240,29 @@ def test_guesses_that_lead_to_a_wrong_optimum_are_flagged_and_restarted():
     for m, truth in zip(last.modal, MODES, strict=True):
         assert abs(m[0] / truth.natural_frequency_hz - 1.0) < 0.01
         assert abs(m[1] / truth.damping_ratio - 1.0) < 0.15
+
+
+def test_a_restart_that_fails_leaves_the_model_flagged_not_crashed(monkeypatch):
+    """The forced one-mode start of the test above, and the search on the check's window raises: the run goes on
+    with the one-mode model, its flag on health (WARN) with the check's reason, and a notice says why the restart
+    failed; nothing crashes and nothing is reported as healthy."""
+    from additive_rsrivc_ros.core import modefind
+
+    calls: list = []
+    orig = modefind.autostart_config
+
+    def second_search_breaks(cfg, r, u, y, count=None, refit_tol=modefind.FINAL_TOL):
+        calls.append(count)
+        if len(calls) > 1:
+            raise RuntimeError("simulated failure\nsecond line")
+        return orig(cfg, r, u, y, count=1, refit_tol=refit_tol)
+
+    monkeypatch.setattr(modefind, "autostart_config", second_search_breaks)
+    t, r, u, y = _sim(11, 40.0)
+    pipe, reports = _run(_cfg(), t, r, u, y)
+    assert len(calls) == 2 and pipe.K == 1
+    notices = [n for rep in reports for n in rep.notices]
+    assert "restart from the data failed (RuntimeError: simulated failure); the model stays flagged" in notices
+    last = reports[-1]
+    assert last.health["model_order"]["state"] in ("too_low", "misfit") and last.health_level >= Level.WARN
+    assert last.health["model_order"]["message"] in last.health["reasons"]

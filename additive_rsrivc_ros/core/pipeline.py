@@ -672,7 +672,12 @@ class MonitorPipeline:
             res = self.order_check.result
             if res is not None and res.flagged and not self._order_restarted:
                 self._order_restarted = True
-                self._restart_from_data(*window, t_end, res)
+                try:
+                    self._restart_from_data(*window, t_end, res)
+                except Exception as exc:  # noqa: BLE001 - a failed restart is a line, never a crash
+                    self.notices.append(f"restart from the data failed ({type(exc).__name__}: "
+                                        f"{str(exc).splitlines()[0][:120] if str(exc) else ''}); the model stays "
+                                        "flagged")
 
     def _restart_from_data(self, r: np.ndarray, u: np.ndarray, y: np.ndarray, t_end: float, res: Any) -> None:
         """The model-order check found the model wrong for the data (issue 12 item 4: ``misfit`` or ``too_low``; a
