@@ -93,6 +93,7 @@ def test_no_guesses_finds_the_modes_and_then_estimates_as_with_guesses(clean):
         assert rep.health["level"] == Level.STALE and rep.health["autostart"]["state"] == "finding"
     notices = [n for rep in reports for n in rep.notices]
     assert len(notices) == 1 and notices[0].startswith("no mode guesses: found 2 mode(s) on the first 5 s")
+    assert all(rep.health["model_order"]["state"] in ("pending", "adequate") for rep in reports if rep.estimating)
     assert reports[-1].health["autostart"]["K"] == 2
     # the same estimator as a pipeline started with the found modes as guesses: same init window, same updates
     _, guess = _run(cfg.with_modes(found.modal, found.integrators), t, r, u, y)
@@ -183,8 +184,9 @@ def test_guesses_without_a_valid_model_are_replaced_by_modes_from_the_data(clean
 def test_a_wrong_start_is_flagged_by_the_model_check_and_restarted_from_the_data(monkeypatch):
     """Issue 12 item 4: a start that is wrong for the data is not reported as healthy. The first automatic start
     is forced to one mode (as a start cut from a running loop with a slow closed-loop pole found, measured on
-    20 s at 4096 Hz: one or two modes of four): the 40 Hz mode is then unmodelled and biases the 5 Hz one. The
-    model-order check on the first 4 memory lengths after the start names it (health WARN, no structural event),
+    20 s at 4096 Hz: one or two modes of four): the 40 Hz mode is then unmodelled and biases the 5 Hz one. It
+    misfits its own window, so it is flagged from its first estimate (health WARN, ``model_order`` stage
+    ``start``); the model-order check on the first 4 memory lengths after the start names it (no structural event),
     the modes are found again on that window (K automatic: the true two), pass the same check, and the estimator
     starts over from them; at the end the estimates are the truth's and the check passes."""
     from additive_rsrivc_ros.core import modefind
@@ -208,6 +210,12 @@ def test_a_wrong_start_is_flagged_by_the_model_check_and_restarted_from_the_data
     i = next(k for k, rep in enumerate(reports) if line in rep.notices)
     before = [rep.modal.shape[0] for rep in reports[:i]]
     assert set(before) == {0, 1} and reports[i].modal.shape[0] == 2     # finding modes, then the wrong start
+    # flagged from its first estimate: the start misfits its own window (adequacy.check_start)
+    assert notices[0].startswith("no mode guesses: found 1 mode(s)")
+    assert notices[1].startswith("model check of the automatic start on t=0.0–5.0 s: ")
+    wrong = [rep for rep in reports[:i] if rep.estimating]
+    assert wrong and all(rep.health_level >= Level.WARN and rep.health["model_order"]["stage"] == "start"
+                         and rep.health["model_order"]["message"] in rep.health["reasons"] for rep in wrong)
     assert reports[i].health_level >= Level.WARN and any(x.startswith(line) for x in reports[i].health["reasons"])
     assert not any(rep.events_opened for rep in reports)
     _check_found(pipe)

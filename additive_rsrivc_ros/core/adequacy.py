@@ -332,6 +332,24 @@ def check_model_order(thetas: Sequence[np.ndarray], structures: Sequence[Submode
     return out
 
 
+def check_start(found: Any, r, u, y, rate_hz: float, *, controller: DiscreteController | None = None,
+                input_delay: int = 0, min_change: Sequence[float] = (0.02, 0.20, 0.10), relevance: float = 0.25,
+                max_iterations: int = 30) -> OrderCheckResult | None:
+    """The automatic start's model (``found``: :class:`.modefind.ModeFindResult`) against the FRF of the window it was
+    found on: None when at most :data:`MISFIT_FRACTION` of the valid bins misfit (a few milliseconds: that FRF is
+    already estimated); otherwise the whole check (:func:`check_model_order`), which tells a wrong start (``misfit``,
+    ``too_low``) from modes left out that do not matter. So a start that misfits its own data is flagged from the
+    first estimate, not after the regular check's window (4 memory lengths later)."""
+    frf = found.frf
+    z, usable, thr = misfit(frf, model_frf_on_bins(frf, found.thetas, found.structures, input_delay))
+    n_bins, n_mis = int(usable.sum()), int(np.sum(z > thr))
+    if n_mis < max(MIN_MISFIT_BINS, MISFIT_FRACTION * n_bins):
+        return None
+    return check_model_order(found.thetas, found.structures, u, y, rate_hz, r=r, controller=controller,
+                             input_delay=input_delay, min_change=min_change, relevance=relevance,
+                             max_iterations=max_iterations)
+
+
 def _verdict(res: OrderCheckResult, thresholds: np.ndarray) -> tuple[str, str]:
     """State and the one health line."""
     moving = [e for e in res.extras if e.moves]
@@ -381,6 +399,7 @@ class ModelOrderCheck:
     t_next_s: float = math.nan            # time the next contiguous sample would have
     window_s: float = math.nan
     result: OrderCheckResult | None = None
+    start_result: OrderCheckResult | None = None   # a flagged check of the automatic start on its own window
 
     @property
     def enabled(self) -> bool:
@@ -446,6 +465,13 @@ class ModelOrderCheck:
             health["model_order"] = {"state": "off"}
             return
         if self.result is None:
+            start = self.start_result
+            if start is not None and start.flagged:   # the start misfits its own window: flagged until checked again
+                health["model_order"] = {**start.to_dict(), "stage": "start", "collected_s": self.n / self.rate_hz}
+                health["reasons"] = [*health["reasons"], start.message]
+                health["level"] = max(int(health["level"]), int(warn_level))
+                health["ok"] = False
+                return
             health["model_order"] = {"state": "pending", "collected_s": self.n / self.rate_hz,
                                      "window_s": _num(self.window_s)}
             return

@@ -93,6 +93,7 @@ class ModeSearch:
     growth: int = 1                           # window length factor (doubled after an excited window without modes)
     last_failure: str = ""
     found: FoundModes | None = None
+    evidence: Any = None                      # the last successful search's modefind.ModeFindResult
 
     @property
     def rate(self) -> float:
@@ -150,6 +151,7 @@ class ModeSearch:
                 from .modefind import SCAN_TOL, autostart_config
                 # the estimator's offline initialization refines the start on these samples right after
                 new, res = autostart_config(self.cfg, r if closed else None, u, y, refit_tol=SCAN_TOL)
+                self.evidence = res
                 if not all(res.identifiable) and self.growth < MAX_GROWTH:
                     bad = ", ".join(f"{m[0]:.4g} Hz" for m, ok in zip(res.modal, res.identifiable, strict=True)
                                     if not ok)

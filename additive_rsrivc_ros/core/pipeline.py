@@ -756,8 +756,36 @@ class MonitorPipeline:
             self.health.note("no_modes", t_rel, line)
             return
         self._adopt_modes(new, t_rel)
-        for blk in search.take():
+        blocks = search.take()
+        self._check_start(blocks, search)
+        for blk in blocks:
             self._feed(blk.r, blk.u, blk.y, blk.valid, blk.t_end)
+
+    def _check_start(self, blocks: list, search: ModeSearch) -> None:
+        """The automatic start's model against its own window (:func:`.adequacy.check_start`): a start that misfits
+        it is flagged on health at once (the regular check, on later data, may then restart from the data)."""
+        from .adequacy import check_start
+
+        found, closed = search.evidence, bool(self.cfg.closed_loop)
+        if found is None or search.found is None:
+            return
+        r, u, y = (np.concatenate([getattr(b, k) for b in blocks]) for k in ("r", "u", "y"))
+        y = np.where(np.concatenate([b.valid for b in blocks]), y, np.nan)
+        try:
+            res = check_start(found, r if closed else None, u, y, self.rate,
+                              controller=self.cfg.controller if closed else None,
+                              input_delay=self.cfg.input_delay_samples, min_change=self.settings.min_change,
+                              relevance=self.order_check.relevance,
+                              max_iterations=self.cfg.estimator.init_max_iterations)
+        except Exception as exc:  # noqa: BLE001 - a failed check is a line, never a crash
+            self.notices.append(f"check of the automatic start failed ({type(exc).__name__})")
+            return
+        if res is None or not res.flagged:
+            return
+        res.window_s, res.frf = search.found.window_s, None
+        self.order_check.start_result = res
+        a, b = res.window_s
+        self.notices.append(f"model check of the automatic start on t={a:.1f}–{b:.1f} s: {res.message}")
 
     def _adopt_modes(self, cfg: MonitorSettings, t_rel: float) -> None:
         """Build estimator and monitors for the modes found; health notes so far are kept (the failed searches'
