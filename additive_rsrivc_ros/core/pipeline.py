@@ -59,6 +59,11 @@ STATE_VERSION = 1
 FLOAT64_TYPE = "std_msgs/msg/Float64"
 
 
+def _modes_text(modal: np.ndarray) -> str:
+    """``3.2487 Hz, 32.971 Hz`` (a rigid body, frequency 0, by name) for a notice line."""
+    return ", ".join(f"{m[0]:.5g} Hz" if m[0] > 0 else "rigid body" for m in np.asarray(modal))
+
+
 class PipelineError(ValueError):
     """Unusable call (shape mismatch, incompatible saved state); one-line message."""
 
@@ -711,7 +716,7 @@ class MonitorPipeline:
                                   input_delay=self.cfg.input_delay_samples, min_change=self.settings.min_change,
                                   relevance=self.order_check.relevance,
                                   max_iterations=self.cfg.estimator.init_max_iterations)
-        modes = ", ".join(f"{m[0]:.5g} Hz" if m[0] > 0 else "rigid body" for m in np.asarray(found.modal))
+        modes = _modes_text(found.modal)
         if check.flagged or check.state == "skipped":
             self.notices.append(f"restart from the data on {where}: the {found.K} mode(s) found there ({modes}) "
                                 f"do not pass the check either ({check.state}); the model stays flagged")
@@ -855,7 +860,7 @@ class MonitorPipeline:
                                 f"other integrators than modes.integrators {given}: not used")
             return False
         self._switch_modes(new)
-        modes = ", ".join(f"{m[0]:.5g} Hz" if m[0] > 0 else "rigid body" for m in np.asarray(found.modal))
+        modes = _modes_text(found.modal)
         line = (f"the mode guesses gave no valid model ({why}); started from the {self.K} mode(s) found in the "
                 f"data instead ({modes})")
         self.health.note("start_from_data", t_rel, line)

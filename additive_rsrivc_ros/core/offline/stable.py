@@ -204,14 +204,9 @@ def _free_response_space(data: OfflineData, thetas, structures) -> tuple[np.ndar
     integrators = max(st.integrators for st in structures)
     rows = n if integrators else 0
     if data.free_response:
-        rate = []
-        for th, st in zip(thetas, structures, strict=True):
-            if st.n:
-                a, _ = split_theta(th, st)
-                re = -np.roots(a[::-1]).real
-                rate += [float(v) for v in re[re > 0]]
-        if rate:
-            rows = max(rows, min(n, int(np.ceil(-np.log(FREE_RESPONSE_FLOOR) / (min(rate) * data.h))) + 1))
+        sigma = slowest_decay_rate(thetas, structures)
+        if sigma > 0.0:
+            rows = max(rows, min(n, int(np.ceil(-np.log(FREE_RESPONSE_FLOOR) / (sigma * data.h))) + 1))
     if rows == 0:
         return None
     cols = [integrator_free_response(n, integrators, data.h, data.skip)] if integrators else []
@@ -236,14 +231,20 @@ def _without_free_response(step: _Step, space: tuple[np.ndarray, int] | None) ->
     (Frisch-Waugh-Lovell): ``c`` need not be carried. No basis: the step unchanged."""
     if space is None or step.eps.size == 0:
         return step
-    q, rows = space
 
     def out(x: np.ndarray) -> np.ndarray:
-        x = x.copy()
-        x[:rows] -= q @ (q.T @ x[:rows])
-        return x
+        return _projected_out(x, space)
 
     return _Step(out(step.Z), out(step.Phi), out(step.Ups), step.xhat, out(step.eps))
+
+
+def _projected_out(x: np.ndarray, space: tuple[np.ndarray, int]) -> np.ndarray:
+    """A copy of ``x`` (vector or columns) with the span of ``q`` removed from its first ``L`` rows
+    (``space = (q, L)``, :func:`_free_response_space`)."""
+    q, rows = space
+    x = x.copy()
+    x[:rows] -= q @ (q.T @ x[:rows])
+    return x
 
 
 def _iv_update(step: _Step, structures: list[SubmodelStructure], only: int | None = None) -> tuple[list, float]:
@@ -447,9 +448,7 @@ def _cost(data: OfflineData, xhat_sum: np.ndarray, thetas=None, structures=None)
     e = (data.y - xhat_sum)[data.skip:]
     space = _free_response_space(data, thetas, structures) if data.free_response and thetas is not None else None
     if space is not None:
-        q, rows = space
-        e = e.copy()
-        e[:rows] -= q @ (q.T @ e[:rows])
+        e = _projected_out(e, space)
     return float(e @ e) / e.size
 
 
@@ -724,6 +723,19 @@ def initial_transient_test(eps: np.ndarray, thetas, structures, h: float, window
     return TransientTest(float(stat), threshold, window, bool(stat > threshold))
 
 
+def slowest_decay_rate(thetas, structures) -> float:
+    """``min |Re p|`` [1/s] over the asymptotically stable poles ``p`` of every ``A_i`` (0 when there is none;
+    integrators never decay and do not count): one over the longest decay time of the model's free response."""
+    rates = []
+    for th, st in zip(thetas, structures, strict=True):
+        if st.n == 0:
+            continue
+        a, _ = split_theta(th, st)
+        re = -np.roots(a[::-1]).real
+        rates += [float(v) for v in re[re > 0]]
+    return min(rates, default=0.0)
+
+
 def warmup_samples(thetas, structures, rate_hz: float, n: int, warmup_s: float | None = None) -> int:
     """Samples at the start of the record left out of the IV normal equations and the cost.
 
@@ -737,16 +749,8 @@ def warmup_samples(thetas, structures, rate_hz: float, n: int, warmup_s: float |
     and do not count. At most a quarter of the record either way.
     """
     if warmup_s is None:
-        tau = 0.0
-        for th, st in zip(thetas, structures, strict=True):
-            if st.n == 0:
-                continue
-            a, _ = split_theta(th, st)
-            poles = np.roots(a[::-1])
-            re = -poles.real[poles.real < 0]
-            if re.size:
-                tau = max(tau, 1.0 / float(np.min(re)))
-        warmup_s = WARMUP_DECAY_TIMES * tau
+        sigma = slowest_decay_rate(thetas, structures)
+        warmup_s = WARMUP_DECAY_TIMES * (1.0 / sigma) if sigma > 0.0 else 0.0
     if not (np.isfinite(warmup_s) and warmup_s >= 0):
         raise ValueError(f"warmup_s must be >= 0, got {warmup_s!r}")
     return int(min(round(warmup_s * rate_hz), n // 4))
