@@ -45,7 +45,7 @@ setup(
     ],
     install_requires=[
         # third-party Python modules imported by the package (ROS interfaces: see package.xml)
-        "setuptools", "numpy", "scipy", "numba", "pyyaml", "matplotlib", "rosbags",
+        "setuptools", "numpy", "scipy", "numba", "pyyaml", "rosbags",
     ],
     # optional MCAP bulk reader (mcap_fast.py); without it bags are read by rosbags (bagio._read_fast)
     extras_require={

@@ -1,22 +1,21 @@
-"""``rsrivc_fleet``'s human report: ``fleet.html`` (self-contained, embedded PNGs) from the fleet summary.
+"""``rsrivc_fleet``'s human report: ``fleet.html`` (self-contained, inline SVG figures) from the fleet summary.
 
 Per machine (params file): the recordings in order of their first sample's time with their verdicts, each mode's
 quantities across the recordings (levels with +-2 standard errors, the fitted trend and the relevant-change band
 of the fault logic around the first recording's fitted level), the drift tests (:mod:`.core.trend`) and the bags
-that did not feed them; then the bags that failed. :func:`trend_png` renders one machine's figure.
+that did not feed them; then the bags that failed. :func:`trend_svg` renders one machine's figure.
 """
 
 from __future__ import annotations
 
-import base64
 import html
-import io
 import math
 from collections.abc import Iterable, Mapping
 from datetime import UTC, datetime
 from typing import Any
 
 from .core.vocabulary import QUANTITIES
+from .svgplot import Axes, Figure
 
 LABELS = dict(zip(QUANTITIES, ("natural frequency [Hz]", "damping ratio [-]", "gain (DC)"), strict=True))
 _CSS = ("body{font-family:sans-serif;margin:1.5em;max-width:1200px}table{border-collapse:collapse;margin:.5em 0}"
@@ -24,21 +23,17 @@ _CSS = ("body{font-family:sans-serif;margin:1.5em;max-width:1200px}table{border-
         "font-weight:bold}.note{color:#444;font-size:90%}.ok{color:#070}")
 
 
-def trend_png(machine: Mapping[str, Any], dpi: int = 80) -> bytes:
-    """One machine's trend figure: rows = quantities, columns = modes, x = recording order."""
-    from matplotlib.figure import Figure
-
+def trend_svg(machine: Mapping[str, Any], id_prefix: str = "tr", standalone: bool = False) -> str:
+    """One machine's trend figure (SVG, see :meth:`..svgplot.Figure.svg`): rows = quantities, columns = modes,
+    x = recording order."""
     bags, tests = machine["bags"], machine["tests"]
     k = int(machine["K"])
-    w, h = 3.2 * k + 0.6, 6.4
-    fig = Figure(figsize=(w, h))
-    fig.subplots_adjust(left=0.75 / w + 0.02, right=1 - 0.15 / w, bottom=0.8 / h, top=1 - 0.6 / h, hspace=0.25,
-                        wspace=0.35)
+    w, h = 3.2 * k + 0.9, 6.4
+    fig = Figure(w, h, left_in=1.05, right_in=0.15, top_in=0.6, bottom_in=0.9, hspace=0.25, wspace=0.35)
     title = "; ".join(f"DRIFT: mode {f['mode']} {f['quantity'].replace('_', ' ')} {f['direction']} "
                       f"{f['change_percent']:+.2f} % (relevant from {f['first_bag']})" for f in machine["findings"])
-    fig.suptitle(title or "no drift across the recordings", fontsize=9, color="C3" if title else "0.2")
-    axes = fig.subplots(3, k, squeeze=False, sharex=True)
-    x = list(range(len(bags)))
+    fig.suptitle(title or "no drift across the recordings", color="#d62728" if title else "#333", size=9)
+    axes = fig.subplots(3, k, sharex=True)
     for test in tests:
         i, q = test["mode"] - 1, QUANTITIES.index(test["quantity"])
         if i >= k:
@@ -49,41 +44,39 @@ def trend_png(machine: Mapping[str, Any], dpi: int = 80) -> bytes:
                 continue
             v, s = b["value"][i][q], b["std"][i][q]
             if b["used"] and v is not None and s is not None:
-                ax.errorbar([j], [v], yerr=[2 * s], fmt="o", color="C0", ms=4, capsize=2)
+                ax.errorbar(j, v, 2 * s, color="#1f77b4", ms=4)
             elif v is not None:
-                ax.plot([j], [v], "o", mfc="none", color="0.6", ms=4)
+                ax.plot([j], [v], ls="", marker="o", mfc="none", color="0.6", ms=4)
         _trend_lines(ax, test)
         if q == 0:
-            ax.set_title(f"mode {i + 1}", fontsize=9)
+            ax.set_title(f"mode {i + 1}")
         if i == 0:
-            ax.set_ylabel(LABELS[test["quantity"]], fontsize=8)
-        ax.tick_params(labelsize=7)
-        ax.ticklabel_format(axis="y", useOffset=False)
-        ax.grid(alpha=0.3)
+            ax.set_ylabel(LABELS[test["quantity"]], size=8)
+        ax.tick_pt = 7.0
+        ax.grid()
     step = max(1, math.ceil(len(bags) / 12))
     for ax in axes[-1]:
-        ax.set_xticks(x[::step])
-        ax.set_xticklabels([b["bag"] for b in bags][::step], rotation=30, ha="right", fontsize=7)
-    buf = io.BytesIO()
-    fig.savefig(buf, format="png", dpi=dpi)
-    return buf.getvalue()
+        ax.set_xticks(list(range(len(bags)))[::step], [b["bag"] for b in bags][::step], rotation=30)
+    axes[0, 0].set_xlim(-0.5, len(bags) - 0.5)
+    return fig.svg(id_prefix, standalone)
 
 
-def _trend_lines(ax: Any, test: Mapping[str, Any]) -> None:
+def _trend_lines(ax: Axes, test: Mapping[str, Any]) -> None:
     """The fitted line (red when flagged) and the relevant-change band around the first recording's level."""
     idx, fitted = test.get("indices") or [], test.get("fitted") or []
     if len(fitted) < 2:
         return
-    color = "C3" if test["flagged"] else "0.3"
-    ax.plot(idx, fitted, "-", color=color, lw=1.5 if test["flagged"] else 1.0)
+    color = "#d62728" if test["flagged"] else "0.3"
+    ax.plot(idx, fitted, color=color, lw=1.5 if test["flagged"] else 1.0)
     lv, thr = test.get("level0"), test.get("threshold_percent")
     if lv is not None and thr is not None:
         for sgn in (-1, 1):
             ax.axhline(lv + sgn * abs(lv) * thr / 100.0, color="0.5", ls="--", lw=0.7)
 
 
-def _img(png: bytes, alt: str) -> str:
-    return f'<img alt="{html.escape(alt)}" src="data:image/png;base64,{base64.b64encode(png).decode("ascii")}">'
+def _img(svg: str, alt: str) -> str:
+    """An inline SVG figure with its alternative text."""
+    return f'<figure role="img" aria-label="{html.escape(alt)}">{svg}</figure>'
 
 
 def _table(header: Iterable[str], rows: Iterable[Iterable[str]]) -> str:
@@ -110,7 +103,7 @@ def _use_text(b: Mapping[str, Any]) -> str:
     return f"yes ({b['note']})" if b.get("note") else "yes"
 
 
-def _machine_html(g: Mapping[str, Any]) -> list[str]:
+def _machine_html(g: Mapping[str, Any], index: int = 0) -> list[str]:
     esc = html.escape
     parts = [f"<h2>Machine: {esc(str(g['machine']))}</h2>", f"<p class='note'>params file {esc(g['params_file'])}</p>"]
     if g["findings"]:
@@ -128,7 +121,7 @@ def _machine_html(g: Mapping[str, Any]) -> list[str]:
               "tests ran) with ±2 standard errors; hollow grey: a recording left out of the test; line: the "
               "fitted trend (red: drift flagged); dashed: the relevant change of the fault logic "
               "(faults.min_change) around the first recording's fitted level.</p>",
-              _img(trend_png(g, dpi=90), "trend across recordings")]
+              _img(trend_svg(g, f"tr{index}_"), "trend across recordings")]
     trows = [[str(t["mode"]), esc(t["quantity"]), str(len(t["indices"])),
               _num_td(f"{_n(t['change_percent'], '+.3f')} ± {_n(t['change_std_percent'], '.2g')}"),
               _num_td(_n(t["p_value"], ".2g")), _num_td(_n(t["alpha"], ".2g")),
@@ -154,8 +147,8 @@ def render_fleet_html(summary: Mapping[str, Any]) -> str:
              f"<style>{_CSS}</style></head><body><h1>Fleet: resonance trends across recordings</h1>",
              f"<p>{n_bags} recording(s) diagnosed on {len(summary['machines'])} machine(s); "
              f"{len(summary['failures'])} failed; {len(summary['findings'])} drift finding(s).</p>"]
-    for g in summary["machines"]:
-        parts += _machine_html(g)
+    for index, g in enumerate(summary["machines"]):
+        parts += _machine_html(g, index)
     if summary["failures"]:
         parts += ["<h2>Failed bags (skipped)</h2>",
                   _table(["bag", "path", "error"], [[esc(f["bag"]), esc(f["path"]), esc(f["error"])]

@@ -5,6 +5,7 @@ from __future__ import annotations
 import csv
 import json
 from pathlib import Path
+from xml.etree import ElementTree
 
 import numpy as np
 import pytest
@@ -83,8 +84,9 @@ def test_outputs_follow_contract(beam_run: dict) -> None:
     assert sum(ln.startswith(("1 ", "2 ")) for ln in lines) == 3 * K
     assert "100.0 %" in beam_run["stderr"]  # --progress bar reached the end
     html = (out / "report.html").read_text()
-    assert html.count("data:image/png;base64,") == 4 and "src=\"http" not in html
-    assert (out / "modes.png").read_bytes()[:8] == b"\x89PNG\r\n\x1a\n"
+    assert html.count("<svg ") == 4 and "src=\"http" not in html
+    svg = ElementTree.fromstring((out / "modes.svg").read_text())      # a well-formed SVG file
+    assert svg.tag == "{http://www.w3.org/2000/svg}svg" and len(svg.findall(".//{*}clipPath")) == 3 * K
 
 
 def test_estimates_track_truth(beam_run: dict) -> None:

@@ -130,7 +130,7 @@ def _old_run(out: Path) -> dict[str, bytes]:
     out.mkdir(parents=True)
     files = {"estimates.csv": b"old estimates\n", "events.csv": b"old events\n",
              "summary.json": b'{"bag": "an older run"}\n', "report.html": b"<html>old</html>\n",
-             "modes.png": b"old png"}
+             "modes.png": b"old png"}   # the figure of versions before modes.svg: still ours to replace
     for k, v in files.items():
         (out / k).write_bytes(v)
     return files
@@ -276,11 +276,11 @@ def test_atomic_dir_commit_and_discard(tmp_path: Path, monkeypatch: pytest.Monke
         monkeypatch.setattr(atomic, "_exchange", lambda a, b: False)
     out = tmp_path / "out"
     _old_run(out)
-    d = atomic.AtomicDir(out, diagnose.OUTPUT_FILES)
+    d = atomic.AtomicDir(out, diagnose.OWNED_FILES)
     (d.open() / "summary.json").write_text("new")
     d.discard()                                  # abandoned: the old folder stays, the temporary one is gone
     assert (out / "summary.json").read_bytes() == b'{"bag": "an older run"}\n' and _siblings(out) == []
-    d = atomic.AtomicDir(out, diagnose.OUTPUT_FILES)
+    d = atomic.AtomicDir(out, diagnose.OWNED_FILES)
     (d.open() / "summary.json").write_text("new")
     d.commit()
     d.discard()                                  # no-op after a commit

@@ -18,7 +18,7 @@ EXECUTABLES = ["rsrivc_monitor", "rsrivc_diagnose", "rsrivc_simulate", "rsrivc_r
 # import name -> (package.xml key, pip distribution name or None for ROS packages)
 THIRD_PARTY = {
     "numpy": ("python3-numpy", "numpy"), "scipy": ("python3-scipy", "scipy"), "numba": ("python3-numba", "numba"),
-    "yaml": ("python3-yaml", "pyyaml"), "matplotlib": ("python3-matplotlib", "matplotlib"),
+    "yaml": ("python3-yaml", "pyyaml"),
     "rosbags": ("python3-rosbags-pip", "rosbags"),
 }
 # optional imports (setup.py extra, requirements.txt; no rosdep key): import name -> pip distribution
@@ -47,7 +47,6 @@ ROSDEP_KEYS = {
     "python3-scipy": "rosdep/python.yaml:8194",
     "python3-numba": "rosdep/python.yaml:5920",
     "python3-yaml": "rosdep/python.yaml:9553",
-    "python3-matplotlib": "rosdep/python.yaml:5437",
     "python3-rosbags-pip": "rosdep/python.yaml:7996",
     "python3-pytest": "rosdep/python.yaml:7446",
     "python3-ruff-pip": "rosdep/python.yaml:8114",

@@ -3,8 +3,10 @@
 from __future__ import annotations
 
 import math
+import re
 from pathlib import Path
 from types import SimpleNamespace
+from xml.etree import ElementTree
 
 import numpy as np
 import pytest
@@ -187,11 +189,14 @@ def test_write_report_self_contained(tmp_path: Path) -> None:
                          param_help={"loop_rate_hz": "Sample rate"})
     path = rp.write_report(inp, tmp_path)
     text = path.read_text()
-    assert text.count("data:image/png;base64,") == 4
+    assert text.count("<svg ") == 4
     assert "synthetic &lt;bag&gt;" in text and "<bag>" not in text  # escaped
     assert "FAULT" in text and "Parameters used" in text and "Sample rate" in text
     assert "http://" not in text and "https://" not in text  # no external resources
-    assert (tmp_path / "modes.png").read_bytes()[:4] == b"\x89PNG"
+    svg = ElementTree.fromstring((tmp_path / "modes.svg").read_text())
+    assert svg.tag == "{http://www.w3.org/2000/svg}svg"
+    ids = re.findall(r' id="([^"]+)"', text)
+    assert ids and len(ids) == len(set(ids)), "the page's figures share element ids"
     rows = rp.summary_rows(inp)
     r = next(x for x in rows if x["mode"] == 2 and x["quantity"] == "natural_frequency")
     assert r["change_pct"] == pytest.approx(-5.0) and r["fault"].startswith("DOWN since 3.00")

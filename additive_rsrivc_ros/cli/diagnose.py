@@ -9,7 +9,7 @@ checks topics, types, counts, sample spacing and reports NaNs). Writes into DIR 
 * ``events.csv``: one row per structural fault event (empty clear time while open);
 * ``summary.json``: verdict (:mod:`..verdict`: ``verdict`` OK | FAULT | DEGRADED | NO ESTIMATE, ``monitored_s``,
   ``blind_intervals``), per-mode final values, events, timings, health and parameters;
-* ``report.html`` (self-contained, :mod:`..report`) and ``modes.png``.
+* ``report.html`` (self-contained, :mod:`..report`) and ``modes.svg`` (the modal-estimates figure).
 
 DIR is written all-or-nothing (:class:`.atomic.AtomicDir`): the files go to a temporary sibling folder that
 replaces DIR (an older run's folder is replaced whole) only when complete. Prints a verdict and a per-mode
@@ -70,7 +70,7 @@ def _parser() -> argparse.ArgumentParser:
     prog.add_argument("--progress", dest="progress", action="store_true", default=None,
                       help="show a progress bar on stderr (default: only when stderr is a terminal)")
     prog.add_argument("--no-progress", dest="progress", action="store_false", help="never show a progress bar")
-    p.add_argument("--no-report", action="store_true", help="skip report.html and modes.png (CSV/JSON only)")
+    p.add_argument("--no-report", action="store_true", help="skip report.html and modes.svg (CSV/JSON only)")
     p.add_argument("--chunk-s", type=float, default=1.0, help="seconds of data per pipeline call (default 1)")
     p.add_argument("--fail-on-fault", action="store_true", help="exit with status 3 when a fault event was found")
     p.add_argument("--quiet", action="store_true", help="print only the verdict line")
@@ -224,7 +224,8 @@ def format_table(rows: Sequence[dict[str, Any]]) -> str:
 
 
 # ------------------------------------------------------------------------------------------------- main
-OUTPUT_FILES = ("estimates.csv", "events.csv", "summary.json", "report.html", "modes.png")
+OUTPUT_FILES = ("estimates.csv", "events.csv", "summary.json", "report.html", "modes.svg")
+OWNED_FILES = (*OUTPUT_FILES, "modes.png")   # modes.png: the figure of earlier versions (an old --out is replaced)
 
 
 def _warn_bad_samples(sig: Signals, stderr: TextIO) -> None:
@@ -308,7 +309,7 @@ def diagnose(args: argparse.Namespace, stdout: TextIO, stderr: TextIO, state: di
     cfg = load_config(args.params_file, args.node_name or DEFAULT_NODE_NAME)
     bag = Path(args.bag)
     out = _out_dir(bag, args.out)
-    check_replaceable(out, OUTPUT_FILES)            # fail before the long work, not after it
+    check_replaceable(out, OWNED_FILES)            # fail before the long work, not after it
     sig = read_signals(bag, cfg)
     state["t0_ns"] = int(sig.t0_ns)                 # the first sample's absolute time (rsrivc_fleet orders by it)
     t_read = time.monotonic()
@@ -325,7 +326,7 @@ def diagnose(args: argparse.Namespace, stdout: TextIO, stderr: TextIO, state: di
     t_est = time.monotonic()
     events = [event_dict(e) for e in ev_objs]
     verdict = assess(reports, duration, events)
-    tmp = state["out"] = AtomicDir(out, OUTPUT_FILES)
+    tmp = state["out"] = AtomicDir(out, OWNED_FILES)
     tmp.open()
     n_rows = write_estimates_csv(tmp.tmp / "estimates.csv", reports)
     write_events_csv(tmp.tmp / "events.csv", ev_objs)
@@ -397,7 +398,7 @@ def diagnose(args: argparse.Namespace, stdout: TextIO, stderr: TextIO, state: di
               f"({duration / max(timings['estimate_s'], 1e-9):.0f}x real time), report {timings['report_s']:.2f} s, "
               f"total {timings['total_s']:.2f} s", file=stdout)
         print(f"wrote {out}/: estimates.csv ({n_rows} rows), events.csv ({len(events)} events), summary.json"
-              f"{'' if args.no_report else ', report.html, modes.png'}", file=stdout)
+              f"{'' if args.no_report else ', report.html, modes.svg'}", file=stdout)
     return 3 if (args.fail_on_fault and events) else 0
 
 

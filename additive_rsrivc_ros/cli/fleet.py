@@ -69,7 +69,7 @@ def _parser() -> argparse.ArgumentParser:
     p.add_argument("--workers", type=int, default=None, help="LocalCluster worker processes (default: the CPUs "
                    "available to this process)")
     p.add_argument("--node-name", default=None, help="node name whose section of the params file is used")
-    p.add_argument("--no-report", action="store_true", help="per bag: skip report.html and modes.png")
+    p.add_argument("--no-report", action="store_true", help="per bag: skip report.html and modes.svg")
     p.add_argument("--alpha", type=float, default=None, help="family-wise false-alarm probability of the drift "
                    "tests per machine (default 0.01)")
     prog = p.add_mutually_exclusive_group()
