@@ -813,7 +813,8 @@ def find_modes(u, y, rate_hz: float, *, r=None, controller=None, input_delay: in
     frf = estimate_frf(u, y, rate_hz, r) if frf is None else frf
     candidates = finer_candidates(u, y, rate_hz, r, frf, input_delay, frequency_range_hz,
                                   find_candidates(frf, input_delay, frequency_range_hz))
-    if not candidates:
+    if not candidates and (controller is None or _rigid_start(None, [], frf, 1, input_delay) is None):
+        # (closed loop: a rigid body whose slope the few lowest bins could not show is still tried, K = 1 first)
         raise ValueError("no resonance or rigid-body behaviour found in the valid FRF band "
                          f"({frf.band_hz}): the data do not excite the plant enough to find modes")
     orders = [count] if count > 0 else list(range(1, max_count + 1))  # the residual FRF may add candidates
