@@ -123,7 +123,6 @@ class Axes:
         self.label_pt = 10.0
         self.tick_pt = 9.0
         self.grid_axes = ""         # "", "x", "y", "xy"
-        self.off = False
         self.share: list[Axes] = [self]
         self.show_xticklabels = True
         self.legend_spec: dict[str, Any] | None = None
@@ -216,9 +215,6 @@ class Axes:
     def grid(self, axis: str = "xy") -> None:
         self.grid_axes = axis
 
-    def axis_off(self) -> None:
-        self.off = True
-
     def legend(self, entries: Sequence[LegendEntry] | None = None, loc: str = "best", size: float = 8.0) -> None:
         """A legend of ``entries`` (default: the labelled layers); ``loc`` ``best`` picks the emptiest corner,
         ``outside right`` puts it right of the axes."""
@@ -278,9 +274,6 @@ class Axes:
 
     def render(self, out: list[str], clip_id: str) -> None:
         x0, y0, w, h = self.box
-        if self.off:
-            self._render_layers(out, clip_id, (0.0, 1.0), (0.0, 1.0), texts_only=True)
-            return
         xl, yl = self._limits("x"), self._limits("y")
         out.append(f'<clipPath id="{clip_id}"><rect x="{_f(x0)}" y="{_f(y0)}" width="{_f(w)}" height="{_f(h)}"/>'
                    "</clipPath>")
@@ -357,8 +350,7 @@ class Axes:
                 out.append(f'<text x="{_f(p)}" y="{_f(ty)}" text-anchor="{"end" if rot else "middle"}" '
                            f'font-size="{fs:.1f}"{turn}>{_esc(lab)}</text>')
 
-    def _render_layers(self, out: list[str], clip_id: str, xl: tuple[float, float], yl: tuple[float, float],
-                       texts_only: bool = False) -> None:
+    def _render_layers(self, out: list[str], clip_id: str, xl: tuple[float, float], yl: tuple[float, float]) -> None:
         x0, y0, w, h = self.box
         body: list[str] = []
         texts: list[str] = []
@@ -366,8 +358,6 @@ class Axes:
             st = ly.style
             if ly.kind == "text":
                 texts.append(self._text_svg(ly, xl, yl))
-            elif texts_only:
-                continue
             elif ly.kind == "vspan":
                 a, b = sorted(self._map(ly.x, xl, "x"))
                 if math.isfinite(a) and math.isfinite(b):
@@ -381,8 +371,7 @@ class Axes:
                     p = float(self._map(ly.y, yl, "y")[0])
                     seg = (x0, p, x0 + w, p)
                 if math.isfinite(p):
-                    body.append(f'<line x1="{_f(seg[0])}" y1="{_f(seg[1])}" x2="{_f(seg[2])}" y2="{_f(seg[3])}" '
-                                f'{_stroke(st["color"], st["lw"], st["ls"])}/>')
+                    body.append(_line(*seg, _stroke(st["color"], st["lw"], st["ls"])))
             elif ly.kind == "rect":
                 xa, xb = sorted(self._map(ly.x, xl, "x"))
                 ya, yb = sorted(self._map(ly.y, yl, "y"))
@@ -509,6 +498,7 @@ class Figure:
         self.axes: list[Axes] = []
         self.texts: list[str] = []
         self.legend_entries: list[LegendEntry] = []
+        self._legend_size = 10.0
         self._hatches: dict[tuple[str, str], str] = {}
 
     def subplots(self, nrows: int = 1, ncols: int = 1, sharex: bool = False) -> np.ndarray:
