@@ -29,7 +29,7 @@ import numpy as np
 
 from .core.model import SubmodelStructure, theta_from_modal
 from .core.vocabulary import LEVEL_NAMES, QUANTITIES
-from .svgplot import Axes, Figure, LegendEntry
+from .svgplot import Axes, Figure, LegendEntry, as_file
 from .verdict import Verdict, assess, relative_change
 
 QUANTITY_LABELS = ("natural frequency [Hz]", "damping ratio [-]", "gain (DC) [y/u]")
@@ -647,15 +647,14 @@ def write_report(inp: ReportInput, out_dir: str | Path, *, modes_svg: bool = Tru
     out_dir = Path(out_dir)
     figures: dict[str, str] = {}
     if inp.series.n:
-        modes = modes_figure(inp)
-        figures["modes"] = modes.svg("m")
+        figures["modes"] = modes_figure(inp).svg("m")
         figures["timeline"] = timeline_figure(inp).svg("t")
         frf = frf_figure(inp)
         if frf is not None:
             figures["frf"] = frf.svg("b")
         figures["health"] = health_figure(inp).svg("h")
     if modes_svg and "modes" in figures:
-        (out_dir / "modes.svg").write_text(modes.svg("m", standalone=True), encoding="utf-8")
+        (out_dir / "modes.svg").write_text(as_file(figures["modes"]), encoding="utf-8")   # drawn once
     path = out_dir / "report.html"
     path.write_text(render_html(inp, figures), encoding="utf-8")
     return path

@@ -559,11 +559,16 @@ class Figure:
         defs = "".join(_hatch_pattern(pid, h, c) for (h, c), pid in self._hatches.items())
         body = [b.replace('url(#hatch', f'url(#{id_prefix}hatch') for b in body]
         defs = defs.replace('id="hatch', f'id="{id_prefix}hatch')
-        ns = ' xmlns="http://www.w3.org/2000/svg"' if standalone else ""
-        return (f'<svg{ns} width="{self.w:.0f}" height="{self.h:.0f}" '
+        text = (f'<svg width="{self.w:.0f}" height="{self.h:.0f}" '
                 f'viewBox="0 0 {self.w:.0f} {self.h:.0f}" font-family="{FONT}" fill="#222">'
                 f'<rect width="100%" height="100%" fill="#fff"/>' + (f"<defs>{defs}</defs>" if defs else "")
                 + "".join(body) + "</svg>")
+        return as_file(text) if standalone else text
+
+
+def as_file(svg: str) -> str:
+    """An ``<svg>`` element for an HTML page (:meth:`Figure.svg`) as an SVG file's content: with its XML namespace."""
+    return svg.replace("<svg ", '<svg xmlns="http://www.w3.org/2000/svg" ', 1)
 
 
 def legend_handle(fig: Figure, e: LegendEntry, x: float, cy: float) -> str:
