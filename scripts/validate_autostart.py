@@ -9,7 +9,8 @@ the output's standard deviation; record length 20 s or 40 periods of the lowest 
 
 Criterion: K right, every mode within 1 % in frequency and 15 % in damping (matched by order of frequency).
 Column ``flagged``: the pipeline's check of the start on its own window (``adequacy.check_start``): a wrong start
-should be flagged on health from its first estimate, a right one never.
+should be flagged on health from its first estimate, a right one never. Column ``run``: the longest run of FRF bins
+in a row that the start misfits on its own window (flagged from ``adequacy.MISFIT_RUN_BINS``).
 ``--rigid``: every plant also has a rigid body ``b0/p^2`` (its line 1-10x the first mode's static gain at that mode's
 frequency) under a lead controller (crossover
 a quarter of the lowest flexible mode, at most 5 Hz); it counts if found as ``b0/p^2`` with b0 within 1 %.
@@ -38,9 +39,9 @@ os.environ.setdefault("OMP_NUM_THREADS", "1")
 
 import numpy as np  # noqa: E402
 
-from additive_rsrivc_ros.core.adequacy import check_start  # noqa: E402
+from additive_rsrivc_ros.core.adequacy import check_start, longest_misfit_run, misfit  # noqa: E402
 from additive_rsrivc_ros.core.controller import DiscreteController  # noqa: E402
-from additive_rsrivc_ros.core.frf import discrete_model_frf  # noqa: E402
+from additive_rsrivc_ros.core.frf import discrete_model_frf, model_frf_on_bins  # noqa: E402
 from additive_rsrivc_ros.core.modefind import find_modes  # noqa: E402
 from additive_rsrivc_ros.core.plant import loop_margins  # noqa: E402
 from additive_rsrivc_ros.sim.simulate import (  # noqa: E402
@@ -147,11 +148,14 @@ def run_plant(seed: int, rigid: bool = False, in_motion: bool = False) -> dict:
         res = find_modes(sim.u[lead:], sim.y[lead:], rate, r=sim.r[lead:], controller=ctrl, input_delay=delay)
     except ValueError as exc:
         return {"seed": seed, "modes": modes, "rate": rate, "delay": delay, "duration": duration, "ok": False,
-                "K": 0, "why": f"error: {exc}", "s": time.perf_counter() - t0, "flagged": "no start"}
+                "K": 0, "why": f"error: {exc}", "s": time.perf_counter() - t0, "flagged": "no start",
+                "run": 0}
     elapsed = time.perf_counter() - t0
     # the pipeline's check of an automatic start on its own window (a wrong start is flagged on health at once)
     chk = check_start(res, sim.r[lead:], sim.u[lead:], sim.y[lead:], rate, controller=ctrl, input_delay=delay)
     flagged = chk.state if chk is not None and chk.flagged else ""
+    z, usable, thr = misfit(res.frf, model_frf_on_bins(res.frf, res.thetas, res.structures, delay))
+    run = longest_misfit_run(res.frf, z, usable, thr)[0]      # misfit bins in a row (adequacy.MISFIT_RUN_BINS)
     why = []
     if res.K != len(modes):
         why.append(f"K = {res.K}, true {len(modes)}; table " + ", ".join(
@@ -173,7 +177,8 @@ def run_plant(seed: int, rigid: bool = False, in_motion: bool = False) -> dict:
                 why.append(f"mode {truth.natural_frequency_hz:.4g} Hz zeta {truth.damping_ratio:.3g}: "
                            f"found {m[0]:.4g} Hz ({ef:+.1%}) zeta {m[1]:.3g} ({ez:+.0%})")
     return {"seed": seed, "modes": modes, "rate": rate, "delay": delay, "duration": duration, "ok": not why,
-            "K": res.K, "why": "; ".join(why), "s": elapsed, "band": res.frf.band_hz, "flagged": flagged}
+            "K": res.K, "why": "; ".join(why), "s": elapsed, "band": res.frf.band_hz, "flagged": flagged,
+            "run": run}
 
 
 def _timed(module, name: str, acc: dict[str, float]):
@@ -258,14 +263,15 @@ def main(argv: list[str] | None = None) -> int:
         return 0
     rows = []
     print(f"{'plant':>5} {'rate':>6} {'d':>1} {'T[s]':>5} {'K':>3} {'found':>5} {'ok':>3} {'time[s]':>7} "
-          f"{'flagged':>8}  modes (f Hz / zeta)")
+          f"{'flagged':>8} {'run':>4}  modes (f Hz / zeta)")
     for i in range(args.plants):
         row = run_plant(args.seed * 100000 + i, args.rigid, args.in_motion)
         rows.append(row)
         desc = " ".join(f"rigid b0 {m.gain:.3g}" if m.rigid else f"{m.natural_frequency_hz:.4g}/{m.damping_ratio:.3g}"
                         for m in row["modes"])
         print(f"{i:>5} {row['rate']:>6.0f} {row['delay']:>1} {row['duration']:>5.0f} {len(row['modes']):>3} "
-              f"{row['K']:>5} {'yes' if row['ok'] else 'NO':>3} {row['s']:>7.2f} {row['flagged'] or '-':>8}  {desc}",
+              f"{row['K']:>5} {'yes' if row['ok'] else 'NO':>3} {row['s']:>7.2f} {row['flagged'] or '-':>8} "
+              f"{row['run']:>4}  {desc}",
               flush=True)
     fails = [r for r in rows if not r["ok"]]
     print(f"\n{len(rows) - len(fails)} of {len(rows)} plants right (K and every mode within 1 % frequency, 15 % "
@@ -273,7 +279,9 @@ def main(argv: list[str] | None = None) -> int:
     right = [r for r in rows if r["ok"]]
     n_wrong, n_right = sum(bool(r["flagged"]) for r in fails), sum(bool(r["flagged"]) for r in right)
     print(f"the start check (adequacy.check_start, what the pipeline puts on health): {n_wrong} of {len(fails)} wrong "
-          f"starts flagged, {n_right} of {len(right)} right ones")
+          f"starts flagged, {n_right} of {len(right)} right ones; longest run of misfit bins on the start's own FRF: "
+          f"right starts at most {max((r['run'] for r in right), default=0)}, wrong ones "
+          f"{', '.join(str(r['run']) for r in fails) or '-'} (flagged from adequacy.MISFIT_RUN_BINS)")
     if fails:
         print("failures:")
         for r in fails:
