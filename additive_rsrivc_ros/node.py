@@ -34,6 +34,8 @@ import threading
 import time
 from typing import Any
 
+from .process_exit import console_entry
+
 _STOP_REQUESTED = threading.Event()
 _SIGNAL_NAME = [""]
 
@@ -87,6 +89,7 @@ def _own_arguments(args: list[str]) -> int | None:
     return None
 
 
+@console_entry
 def main(argv: list[str] | None = None) -> int:
     """Console script ``rsrivc_monitor``."""
     args = list(sys.argv[1:] if argv is None else argv)

@@ -20,6 +20,7 @@ import time
 from pathlib import Path
 
 from . import numba_cache
+from .process_exit import console_entry
 
 #: (scenario, params file, seconds after the init window): every structural code path of the kernels
 CASES = (
@@ -130,6 +131,7 @@ def is_warm() -> bool:
     return bool(directory) and (Path(directory) / MARKER).is_file()
 
 
+@console_entry
 def main(argv: list[str] | None = None) -> int:
     ap = argparse.ArgumentParser(prog="rsrivc_warmup", description=__doc__.split("\n\n")[0])
     ap.add_argument("--if-needed", action="store_true", help="do nothing when this source's cache is warm")

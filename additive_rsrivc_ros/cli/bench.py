@@ -26,6 +26,7 @@ import time  # noqa: E402
 import numpy as np  # noqa: E402
 
 from ..core.model import SubmodelStructure  # noqa: E402
+from ..process_exit import console_entry  # noqa: E402
 
 
 def _case_data(case: str, seconds: float) -> tuple:
@@ -157,6 +158,7 @@ CASES = {"k3_20hz_closed_1_0": ("k3", 1, 0), "k4_4096hz_closed_1_0": ("k4", 1, 0
          "k4_4096hz_closed_3_2": ("k4", 3, 2)}
 
 
+@console_entry
 def main(argv: list[str] | None = None) -> int:
     ap = argparse.ArgumentParser(prog="rsrivc_bench", description="Speed figures of the recursive estimator.")
     ap.add_argument("--json", action="store_true", help="print one JSON object (CONTRACT)")

@@ -43,6 +43,7 @@ from ..core.vocabulary import (
     num,
     one_line,
 )
+from ..process_exit import console_entry
 
 if TYPE_CHECKING:
     from ..bagio import Signals
@@ -468,6 +469,7 @@ def _alignment_summary(last: Report | None) -> dict[str, Any]:
             "undecided_samples": int(al.get("undecided", 0)), "late_samples": int(al.get("late", 0))}
 
 
+@console_entry
 def main(argv: list[str] | None = None) -> int:
     """Console entry point: 0 on success, 2 on bad input (one line on stderr), 3 with --fail-on-fault,
     130/143 when interrupted by SIGINT/SIGTERM (one line on stderr; the output folder is left as it was)."""

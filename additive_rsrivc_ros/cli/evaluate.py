@@ -27,6 +27,7 @@ import numpy as np
 from ..core.faults import FaultEvent
 from ..core.pipeline import MonitorPipeline
 from ..core.vocabulary import quantity_of, sim_quantity_of
+from ..process_exit import console_entry
 
 DRIFT_OFF = {"drift1_start_s": 1e9, "drift1_end_s": 1e9 + 1.0, "drift2_start_s": 1e9, "drift2_end_s": 1e9 + 1.0}
 
@@ -303,6 +304,7 @@ def format_table(res: dict[str, Any]) -> str:
     return "\n".join(lines)
 
 
+@console_entry
 def main(argv: list[str] | None = None) -> int:
     ap = argparse.ArgumentParser(prog="rsrivc_evaluate", description=__doc__.splitlines()[0])
     ap.add_argument("--quick", action="store_true", help="a small run (about a minute)")

@@ -43,6 +43,7 @@ from pathlib import Path
 from typing import Any, TextIO
 
 from ..core.vocabulary import BASELINE_KEYS, FINDING_KEYS, FLEET_HEADER, QUANTITIES, json_clean, num, one_line
+from ..process_exit import console_entry
 
 PROG = "rsrivc_fleet"
 DASK_HINT = ("dask.distributed is not installed; rsrivc_fleet needs the optional extra: "
@@ -573,6 +574,7 @@ def fleet(args: argparse.Namespace, stdout: TextIO, stderr: TextIO, state: dict[
     return 0 if n_ok else 1
 
 
+@console_entry
 def main(argv: list[str] | None = None) -> int:
     """Console entry point (exit status: see the module docstring)."""
     from .atomic import exit_code, interrupts

@@ -29,6 +29,7 @@ from pathlib import Path
 from typing import TYPE_CHECKING, Any
 
 from ..core.vocabulary import BASELINE_KEYS, json_clean
+from ..process_exit import console_entry
 from .atomic import Interrupted, atomic_write_text, exit_code, interrupts, raise_if_interrupted, received
 
 if TYPE_CHECKING:   # the numerical modules are imported inside the functions: SIGINT/SIGTERM handling comes first
@@ -303,6 +304,7 @@ def _error(exc: Exception) -> int:
     return 1
 
 
+@console_entry
 def main(argv: list[str] | None = None) -> int:
     """0 on success, 2 with a one-line reason on bad input, 1 on an internal error, 130/143 on SIGINT/SIGTERM
     (one line; the output file is then left as it was)."""

@@ -40,6 +40,8 @@ from typing import Any
 
 import numpy as np
 
+from ..process_exit import console_entry
+
 PROG = "rsrivc_replay"
 
 
@@ -355,6 +357,7 @@ def _install_stop_handlers(stop: threading.Event) -> None:
     signal.signal(signal.SIGTERM, handler)
 
 
+@console_entry
 def main(argv: list[str] | None = None) -> int:
     """Console entry point; returns the exit status (0 also after Ctrl-C/SIGTERM)."""
     args = _parser().parse_args(argv)

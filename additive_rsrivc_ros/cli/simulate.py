@@ -19,6 +19,8 @@ import sys
 from pathlib import Path
 from typing import Any
 
+from ..process_exit import console_entry
+
 
 class _Parser(argparse.ArgumentParser):
     def error(self, message: str) -> None:  # one line, no usage dump
@@ -53,6 +55,7 @@ def _overrides(items: list[str]) -> dict[str, Any]:
     return out
 
 
+@console_entry
 def main(argv: list[str] | None = None) -> int:
     args = _parser().parse_args(argv)
     from ..sim.scenarios import SCENARIOS, build, list_scenarios
