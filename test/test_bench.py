@@ -6,7 +6,7 @@ import sys
 
 def test_bench_json_keys():
     res = subprocess.run([sys.executable, "-m", "additive_rsrivc_ros.cli.bench", "--json", "--seconds", "2",
-                          "--diagnose-seconds", "6"],
+                          "--diagnose-seconds", "6", "--autostart-seconds", "10"],
                          capture_output=True, text=True, timeout=600)
     assert res.returncode == 0, res.stderr[-2000:]
     out = json.loads(res.stdout.strip().splitlines()[-1])
@@ -16,6 +16,9 @@ def test_bench_json_keys():
     assert out["cold_start"]["warm_cache_s"] > 0 and out["cold_start"]["empty_cache_s"] > 0
     dg = out["diagnose_4096hz_k2"]
     assert dg["process_s"] >= dg["total_s"] > 0 and dg["seconds_of_data"] == 6
+    st = out["autostart_4096hz_k4"]
+    assert st["seconds_of_data"] == 10 and st["start_s"] > 0 and st["modes_true"] == 4
+    assert 1 <= st["modes_found"] <= 6   # a start was made (10 s need not show all four modes)
 
 
 def test_bench_bad_argument_exits_nonzero():
