@@ -12,7 +12,7 @@ def test_bench_json_keys():
     out = json.loads(res.stdout.strip().splitlines()[-1])
     for key in ("k3_20hz_closed_1_0", "k4_4096hz_closed_1_0", "k4_4096hz_closed_3_2"):
         assert out[key]["us_per_sample"] > 0 and out[key]["realtime_factor"] > 0
-    assert out["start_to_first_estimate_s"] > 0
+    assert out["start_to_first_estimate_s"] > 0 and out["first_estimate_after_init_s"] > 0
     assert out["cold_start"]["warm_cache_s"] > 0 and out["cold_start"]["empty_cache_s"] > 0
     dg = out["diagnose_4096hz_k2"]
     assert dg["process_s"] >= dg["total_s"] > 0 and dg["seconds_of_data"] == 6
