@@ -19,7 +19,8 @@ by :func:`..ros.convert.block_rows`; this module checks the index and turns rows
   A block that arrives after its hole was declared a gap (or, at the start, a block older than the first one) is
   dropped (``block_late_samples``).
 * **Duplicates**: rows whose index was already released (a retransmitted or overlapping block) are compared with
-  the released values (the last ``DUPLICATE_MEMORY_S``): equal rows are dropped (``block_duplicate_samples``).
+  the released values (the last ``DUPLICATE_MEMORY_S``, and at least the last two of the largest blocks seen): equal
+  rows are dropped (``block_duplicate_samples``).
 * **Controller restart**: a block whose rows contradict released rows (same index, other values) or lie before
   the duplicate memory's span (the counter went back by more than ``DUPLICATE_MEMORY_S``) starts a new index
   run: rows held after a hole are released first, then the time jumps by at least ``RESTART_GAP_S`` so the
@@ -33,7 +34,8 @@ by :func:`..ros.convert.block_rows`; this module checks the index and turns rows
 
 Bounded resources: the callback queue holds at most ``max_queue`` rows (the oldest blocks are dropped, counted as
 ``queue_dropped`` and then seen as an index gap), rows held behind a hole at most ``max_queue`` (then the hole is
-declared a gap at once), the duplicate memory ``DUPLICATE_MEMORY_S`` of rows.
+declared a gap at once), the duplicate memory ``DUPLICATE_MEMORY_S`` of rows or two of the largest blocks (at most
+``max_queue`` rows).
 """
 
 from __future__ import annotations
@@ -324,12 +326,25 @@ class BlockSync(InputSync):
             t = t + (self.last_t - t[0]) + 1.0 / self.rate
         self.last_t = float(t[-1])
         self.next_k = int(k[-1]) + 1
+        self._remember(k, vals)
+        self._check_invariant(k, vals)
+        out.append((t, vals.astype(np.float64, copy=True), np.full(k.size, arrival, dtype=np.int64)))
+
+    def _remember(self, k: np.ndarray, vals: np.ndarray) -> None:
+        """Keep released rows for the duplicate check: the last ``DUPLICATE_MEMORY_S``, and at least the last two of
+        the largest blocks seen (a block of more than ``DUPLICATE_MEMORY_S`` sent again after its release, or one
+        overlapping two released blocks, must still be recognized as released rows, not as a counter that went
+        back: a controller restart), at most ``max_queue`` rows."""
         n, m = k.size, self.mem_k.size
+        want = min(2 * n, max(self.max_queue, m))
+        if want > m:                       # grow the ring, oldest row first, so that the oldest is overwritten first
+            order = (self.mem_i + np.arange(m)) % m
+            self.mem_k = np.concatenate((self.mem_k[order], np.full(want - m, -1, dtype=np.int64)))
+            self.mem_v = np.concatenate((self.mem_v[order], np.zeros((want - m, 3))))
+            self.mem_i, m = m, want
         idx = (self.mem_i + np.arange(min(n, m))) % m
         self.mem_k[idx], self.mem_v[idx] = k[-m:], vals[-m:]
         self.mem_i = int((self.mem_i + min(n, m)) % m)
-        self._check_invariant(k, vals)
-        out.append((t, vals.astype(np.float64, copy=True), np.full(n, arrival, dtype=np.int64)))
 
     def _restart(self, k: np.ndarray, vals: np.ndarray, arrival_ns: int, now_ns: int, ros_now_s: float,
                  out: list, conflict: int, unknown: int) -> None:
