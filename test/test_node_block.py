@@ -143,6 +143,22 @@ def test_a_retransmitted_block_longer_than_the_duplicate_memory_is_a_duplicate_n
     assert s.block["restarts"] == 1
 
 
+def test_blocks_longer_than_the_stale_timeout_are_named_once_and_while_they_last():
+    """A block of 100 rows at 20 Hz covers 5 s: with stale_timeout_s 1 s the input looks silent between blocks; the
+    node must say why (one log line, a lasting reason) instead of only flapping to 'no data'."""
+    s = _sync(silent_s=1.0)
+    _feed(s, [_blk(0, 10)], 1 * MS)                                  # 0.5 s: fine
+    assert s.lasting_reasons() == [] and not any("stale_timeout_s" in ev for ev in s.events)
+    _feed(s, [_blk(10, 100), _blk(110, 100)], 2 * MS)
+    lines = [ev for ev in s.events if "stale_timeout_s" in ev]
+    assert len(lines) == 1 and "100 rows cover 5 s" in lines[0] and "above 5 s" in lines[0]
+    assert any("stale_timeout_s" in r for r in s.lasting_reasons())
+    s.update(silent_s=6.0)                                            # the user follows the advice (runtime change)
+    assert s.lasting_reasons() == []
+    _feed(s, [_blk(210, 100)], 3 * MS)
+    assert len([ev for ev in s.events if "stale_timeout_s" in ev]) == 1
+
+
 def test_counter_going_back_is_a_restart_with_a_time_gap():
     s = _sync()
     msgs = [_blk(10 * j, 10) for j in range(10)]                 # 0..99
@@ -213,14 +229,14 @@ def test_invariant_flags_swapped_columns():
     sc = scenarios.build("paper_example", duration_s=20.0, seed=1)
     cfg = MonitorConfig.from_params(load_params_file(PAPER))
     k = np.arange(sc.t.size, dtype=float)
-    ok = _sync(controller=cfg.controller)
+    ok = _sync(controller=cfg.controller, silent_s=5.0)                # blocks of 50 rows cover 2.5 s
     _feed(ok, [block_message(k[j:j + 50], sc.r[j:j + 50], sc.u[j:j + 50], sc.y[j:j + 50])
                for j in range(0, k.size, 50)], 1 * MS)
     assert ok.invariant_relative < 1e-12 and ok.lasting_reasons() == []
-    bad = _sync(controller=cfg.controller)
+    bad = _sync(controller=cfg.controller, silent_s=30.0)
     _feed(bad, [block_message(k, sc.r, sc.y, sc.u)], 1 * MS)          # input and output swapped
     assert bad.invariant_relative > blocks.INVARIANT_WARN
-    assert "column order" in bad.lasting_reasons()[0]
+    assert len(bad.lasting_reasons()) == 1 and "column order" in bad.lasting_reasons()[0]
     assert isinstance(cfg.controller, DiscreteController)
 
 

@@ -109,6 +109,8 @@ class BlockSync(InputSync):
         self._tail: tuple[np.ndarray, np.ndarray] | None = None     # last released rows for the invariant
         self.invariant_relative = math.nan
         self._inv_rows = 0
+        self.last_block_rows = 0                   # rows of the latest valid block (its span vs stale_timeout_s)
+        self._span_warned = False
 
     @property
     def pairing(self) -> str:
@@ -180,6 +182,7 @@ class BlockSync(InputSync):
                 continue
             self.counters.received[0] += rows.shape[0]
             self.last_arrival_ns[0] = arrival
+            self._note_block_span(rows.shape[0], now_ns)
             self.add_rows(rows, arrival, now_ns, ros_now_s, out)
         shed = self.rows_shed - self._shed_seen
         self._shed_seen += shed
@@ -189,6 +192,22 @@ class BlockSync(InputSync):
             while pts and pts[0][0] < now_ns - 2 * self.rate_window_ns:
                 pts.popleft()
         self._shed(now_ns, shed)
+
+    def _note_block_span(self, n_rows: int, now_ns: int) -> None:
+        """Blocks that cover more than ``stale_timeout_s`` make the input look silent between them: one log line when
+        that begins (and again if it returns), and a lasting reason while it holds (:meth:`lasting_reasons`)."""
+        self.last_block_rows = n_rows
+        too_long = self._span_reason() != ""
+        if too_long and not self._span_warned:
+            self._event(now_ns, self._span_reason())
+        self._span_warned = too_long
+
+    def _span_reason(self) -> str:
+        span, silent = self.last_block_rows / self.rate, self.silent_ns * 1e-9
+        if silent <= 0.0 or span <= silent:
+            return ""
+        return (f"blocks of {self.last_block_rows} rows cover {span:.3g} s, more than stale_timeout_s ({silent:g} s): "
+                f"the input looks silent between blocks; set stale_timeout_s above {span:.3g} s")
 
     def _shed(self, now_ns: int, n_drop: int) -> None:
         """Rows dropped at the callback queue's bound: counted; one event per episode (they become an index gap)."""
@@ -393,12 +412,13 @@ class BlockSync(InputSync):
 
     def lasting_reasons(self) -> list[str]:
         """Lasting problems of the block input (WARN reasons on the estimator status)."""
+        out = [self._span_reason()] if self._span_reason() else []
         rel = self.invariant_relative
         if math.isfinite(rel) and rel > INVARIANT_WARN:
-            return [f"controller invariant u = C_d(q)(r - y) holds only to {rel:.2g} relative on the block rows "
-                    "(rounding gives ~1e-16): check controller.numerator/denominator and the column order index, "
-                    "reference, input, output"]
-        return []
+            out.append(f"controller invariant u = C_d(q)(r - y) holds only to {rel:.2g} relative on the block rows "
+                       "(rounding gives ~1e-16): check controller.numerator/denominator and the column order index, "
+                       "reference, input, output")
+        return out
 
 
 def index_problem(index: np.ndarray) -> str:
