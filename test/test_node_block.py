@@ -159,6 +159,26 @@ def test_blocks_longer_than_the_stale_timeout_are_named_once_and_while_they_last
     assert len([ev for ev in s.events if "stale_timeout_s" in ev]) == 1
 
 
+def test_a_block_contradicting_a_held_one_is_a_restart_not_a_duplicate():
+    """Rows of a block waiting behind a hole, sent again with other values: a contradiction (the counter started a
+    new run), never dropped as duplicates; the held rows are released first (the hole a gap), then the new run after
+    a time jump. The same rows with equal values stay duplicates."""
+    s = _sync()
+    a, c = _blk(0, 10), _blk(20, 10)
+    _feed(s, [a, c], 1 * MS)                                     # b (10..19) missing: c held
+    assert s.extra_values()["block_held_samples"] == 10
+    assert _feed(s, [c], 2 * MS) is None and s.block["duplicate_samples"] == 10 and s.block["restarts"] == 0
+    c2 = _blk(20, 10, seed=7)                                     # same indices, other values
+    out = _feed(s, [c2], 3 * MS)
+    assert s.block["restarts"] == 1 and s.block["conflicting_samples"] == 10 and s.block["duplicate_samples"] == 10
+    assert s.block["gaps"] == 1 and s.block["missing_samples"] == 10          # the hole before c
+    assert len(out) == 20
+    np.testing.assert_array_equal(out.y[:10], _rows(c)[:, 3])                  # the held rows first
+    np.testing.assert_array_equal(out.y[10:], _rows(c2)[:, 3])                 # then the new run
+    assert out.t[10] - out.t[9] >= blocks.RESTART_GAP_S
+    assert any("controller restart" in ev and "10 rows reuse indices" in ev for ev in s.events)
+
+
 def test_counter_going_back_is_a_restart_with_a_time_gap():
     s = _sync()
     msgs = [_blk(10 * j, 10) for j in range(10)]                 # 0..99

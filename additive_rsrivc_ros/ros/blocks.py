@@ -21,7 +21,7 @@ by :func:`..ros.convert.block_rows`; this module checks the index and turns rows
 * **Duplicates**: rows whose index was already released (a retransmitted or overlapping block) are compared with
   the released values (the last ``DUPLICATE_MEMORY_S``, and at least the last two of the largest blocks seen): equal
   rows are dropped (``block_duplicate_samples``).
-* **Controller restart**: a block whose rows contradict released rows (same index, other values) or lie before
+* **Controller restart**: a block whose rows contradict released or held rows (same index, other values) or lie before
   the duplicate memory's span (the counter went back by more than ``DUPLICATE_MEMORY_S``) starts a new index
   run: rows held after a hole are released first, then the time jumps by at least ``RESTART_GAP_S`` so the
   estimator is re-primed; counted (``block_restarts``) and logged. Estimation continues on the new run.
@@ -259,7 +259,21 @@ class BlockSync(InputSync):
             k, vals = k[~behind], vals[~behind]
             if k.size == 0:
                 return
+        conflict = self._conflicts_with_held(k, vals)
+        if conflict:                       # same index, other values than a block waiting behind a hole: a restart
+            self._restart(k, vals, arrival_ns, now_ns, ros_now_s, out, conflict, 0)
+            return
         self._hold(k, vals, arrival_ns)
+
+    def _conflicts_with_held(self, k: np.ndarray, vals: np.ndarray) -> int:
+        """Rows whose index a held block (waiting behind a hole) has with other values."""
+        n = 0
+        for hk, hv, _ in self.held:
+            common, ia, ib = np.intersect1d(k, hk, assume_unique=True, return_indices=True)
+            if common.size:
+                a, b = vals[ia], hv[ib]
+                n += int(np.sum(~np.all((a == b) | (np.isnan(a) & np.isnan(b)), axis=1)))
+        return n
 
     def _classify_behind(self, k: np.ndarray, vals: np.ndarray) -> tuple[int, int, int, int]:
         """Rows below the next expected index: (duplicates, conflicting, late, unknown) counts.
@@ -369,7 +383,7 @@ class BlockSync(InputSync):
                  out: list, conflict: int, unknown: int) -> None:
         """The controller's counter started a new run: release what is held, then anchor the new run after a gap."""
         self._release(now_ns, ros_now_s, out, force=True)
-        why = (f"{conflict} rows reuse released indices with other values" if conflict else
+        why = (f"{conflict} rows reuse indices already received with other values" if conflict else
                f"the index went back from {self.next_k - 1} to {int(k[0])}")
         self.block["restarts"] += 1
         self.block["conflicting_samples"] += conflict
