@@ -203,3 +203,51 @@ def test_a_band_the_model_misses_is_flagged_though_few_bins_misfit():
     assert wrong.n_misfit < MISFIT_FRACTION * wrong.n_bins and wrong.misfit_run[0] >= MISFIT_RUN_BINS
     assert "in a row" in wrong.message and "not a fault" in wrong.message
     assert wrong.to_dict()["misfit_run"]["bins"] == wrong.misfit_run[0]
+
+
+def _beam_two_modes(seconds: float, seed: int):
+    """The beam's first two modes as the whole plant (true input delay 4 samples at 4096 Hz), square-wave setpoint."""
+    cfg = _beam_config(2)
+    rng = np.random.default_rng(seed)
+    t = time_vector(cfg.loop_rate_hz, seconds)
+    r = 0.1 * np.sign(np.sin(2 * np.pi * 2.0 * t) + 1e-12)
+    sim = simulate_modes(BEAM_MODES[:2], cfg.loop_rate_hz, r=r, controller=cfg.controller,
+                         input_delay=cfg.input_delay_samples, noise=white_noise(t.size, 3e-4, rng), rng=rng)
+    return cfg, t, r, sim
+
+
+@pytest.mark.parametrize(("configured", "better"), [(4, None), (2, 3), (7, 6)])
+def test_the_configured_input_delay_is_checked_against_one_sample_more_and_fewer(configured, better):
+    """Step 0: the true delay (4 samples) passes, both neighbours fit worse; a wrong one is flagged (``misfit``) with
+    the neighbour towards the truth, and the misfit is not read as unmodelled resonances."""
+    from additive_rsrivc_ros.core.adequacy import DELAY_ERROR_RATIO, check_model_order
+
+    cfg, t, r, sim = _beam_two_modes(10.0, seed=3)
+    assert cfg.input_delay_samples == 4
+    thetas = [m.theta0() for m in cfg.modes]
+    res = check_model_order(thetas, cfg.structures, sim.u, sim.y, cfg.loop_rate_hz, r=r, controller=cfg.controller,
+                            input_delay=configured)
+    d = res.delay
+    assert d is not None and d.configured == configured and d.better == better, res.to_dict()
+    if better is None:
+        assert res.state == "adequate", res.message
+        assert set(d.ratios) == {3, 5} and min(d.ratios.values()) > 1.0 / DELAY_ERROR_RATIO   # both clearly worse
+    else:
+        assert res.state == "misfit" and res.extras == []
+        assert f"input_delay_samples {better} instead of {configured}" in res.message
+        assert d.error_ratio < DELAY_ERROR_RATIO
+        assert res.to_dict()["input_delay"]["better"] == better
+
+
+def test_a_wrong_input_delay_in_the_pipeline_is_on_health_without_events_or_a_restart():
+    cfg, t, r, sim = _beam_two_modes(15.0, seed=4)
+    p = dict(load_params_file(config_dir() / "beam_healthy.yaml"))
+    p.update({key: list(v)[:2] for key, v in p.items() if key.startswith("modes.") and isinstance(v, list)})
+    p["input_delay_samples"] = 2
+    reports = _run(MonitorConfig.from_params(p), t, r, sim.u, sim.y)
+    last = reports[-1]
+    assert last.health["model_order"]["state"] == "misfit"
+    assert last.health["model_order"]["input_delay"]["better"] == 3
+    assert any("input delay" in x for x in last.health["reasons"]) and last.health_level >= Level.WARN
+    assert not any(rep.events_opened for rep in reports)
+    assert not any("restart from the data" in n for rep in reports for n in rep.notices)
