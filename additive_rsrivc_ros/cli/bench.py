@@ -95,17 +95,24 @@ print(repr(time.time()))
 """
 
 
+def _child_figure(code: str, env: dict[str, str] | None = None, silent: str = "child failed") -> float:
+    """Run ``code`` in a fresh interpreter and return the number on its last output line (its last error line, or
+    ``silent`` without one, raised when it fails or prints nothing)."""
+    res = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, timeout=600,
+                         env=dict(os.environ) if env is None else env)
+    lines = res.stdout.strip().splitlines()
+    if res.returncode != 0 or not lines:
+        raise RuntimeError(res.stderr.strip().splitlines()[-1] if res.stderr.strip() else silent)
+    return float(lines[-1])
+
+
 def start_to_first_estimate(env: dict[str, str] | None = None, runs: int = 2) -> float:
     """Seconds from spawning a fresh interpreter to its first estimate (the last of ``runs``: with the default
     environment the kernel cache is warm by then)."""
     out = float("nan")
     for _ in range(runs):
         t0 = time.time()
-        res = subprocess.run([sys.executable, "-c", _FIRST], capture_output=True, text=True, timeout=600,
-                             env=dict(os.environ) if env is None else env)
-        if res.returncode != 0:
-            raise RuntimeError(res.stderr.strip().splitlines()[-1] if res.stderr.strip() else "child failed")
-        out = float(res.stdout.strip().splitlines()[-1]) - t0
+        out = _child_figure(_FIRST, env) - t0
     return out
 
 
@@ -140,12 +147,7 @@ def first_estimate_after_init() -> float:
     estimate: the offline initialization, the check of the start and the first recursive updates (4096 Hz beam, K
     = 2, config/beam_fault.yaml, 10 ms batches). The live node publishes that estimate at the first report instant
     after it, i.e. up to one publish period later."""
-    res = subprocess.run([sys.executable, "-c", _AFTER_INIT], capture_output=True, text=True, timeout=600,
-                         env=dict(os.environ))
-    lines = res.stdout.strip().splitlines()
-    if res.returncode != 0 or not lines:
-        raise RuntimeError(res.stderr.strip().splitlines()[-1] if res.stderr.strip() else "no estimate after init")
-    return float(lines[-1])
+    return _child_figure(_AFTER_INIT, silent="no estimate after init")
 
 
 def _env_with_cache_root(root: str) -> dict[str, str]:
