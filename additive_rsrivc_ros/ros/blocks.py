@@ -197,10 +197,10 @@ class BlockSync(InputSync):
         """Blocks that cover more than ``stale_timeout_s`` make the input look silent between them: one log line when
         that begins (and again if it returns), and a lasting reason while it holds (:meth:`lasting_reasons`)."""
         self.last_block_rows = n_rows
-        too_long = self._span_reason() != ""
-        if too_long and not self._span_warned:
-            self._event(now_ns, self._span_reason())
-        self._span_warned = too_long
+        reason = self._span_reason()
+        if reason and not self._span_warned:
+            self._event(now_ns, reason)
+        self._span_warned = bool(reason)
 
     def _span_reason(self) -> str:
         span, silent = self.last_block_rows / self.rate, self.silent_ns * 1e-9
@@ -271,8 +271,7 @@ class BlockSync(InputSync):
         for hk, hv, _ in self.held:
             common, ia, ib = np.intersect1d(k, hk, assume_unique=True, return_indices=True)
             if common.size:
-                a, b = vals[ia], hv[ib]
-                n += int(np.sum(~np.all((a == b) | (np.isnan(a) & np.isnan(b)), axis=1)))
+                n += int(np.sum(~_same_rows(vals[ia], hv[ib])))
         return n
 
     def _classify_behind(self, k: np.ndarray, vals: np.ndarray) -> tuple[int, int, int, int]:
@@ -287,9 +286,7 @@ class BlockSync(InputSync):
         seen = mk[j] == k
         same = np.zeros(k.size, dtype=bool)
         if seen.any():
-            mv = self.mem_v[order[j[seen]]]
-            a = vals[seen]
-            same[seen] = np.all((mv == a) | (np.isnan(mv) & np.isnan(a)), axis=1)
+            same[seen] = _same_rows(self.mem_v[order[j[seen]]], vals[seen])
         in_gap = np.zeros(k.size, dtype=bool)
         for lo, hi in self.skipped:
             in_gap |= (k >= lo) & (k <= hi)
@@ -426,13 +423,19 @@ class BlockSync(InputSync):
 
     def lasting_reasons(self) -> list[str]:
         """Lasting problems of the block input (WARN reasons on the estimator status)."""
-        out = [self._span_reason()] if self._span_reason() else []
+        span = self._span_reason()
+        out = [span] if span else []
         rel = self.invariant_relative
         if math.isfinite(rel) and rel > INVARIANT_WARN:
             out.append(f"controller invariant u = C_d(q)(r - y) holds only to {rel:.2g} relative on the block rows "
                        "(rounding gives ~1e-16): check controller.numerator/denominator and the column order index, "
                        "reference, input, output")
         return out
+
+
+def _same_rows(a: np.ndarray, b: np.ndarray) -> np.ndarray:
+    """Per row: every value equal (NaN equal to NaN)."""
+    return np.all((a == b) | (np.isnan(a) & np.isnan(b)), axis=1)
 
 
 def index_problem(index: np.ndarray) -> str:
