@@ -176,6 +176,11 @@ class OrderCheckResult:
     def flagged(self) -> bool:
         return self.state in ("too_low", "misfit")
 
+    @property
+    def wrong_delay(self) -> bool:
+        """Step 0 found a neighbouring input delay that fits significantly better than the configured one."""
+        return self.delay is not None and self.delay.better is not None
+
     def to_dict(self) -> dict[str, Any]:
         return {"state": self.state, "message": self.message, "n_bins": self.n_bins, "n_misfit": self.n_misfit,
                 "threshold": _num(self.threshold), "window_s": [_num(v) for v in self.window_s],
@@ -458,7 +463,7 @@ def check_start(found: Any, r, u, y, rate_hz: float, *, controller: DiscreteCont
 
 def _verdict(res: OrderCheckResult, thresholds: np.ndarray) -> tuple[str, str]:
     """State and the one health line."""
-    if res.delay is not None and res.delay.better is not None:
+    if res.wrong_delay:
         d = res.delay
         return "misfit", (f"the configured input delay misfits the data: with input_delay_samples {d.better} instead "
                           f"of {d.configured} the model's output error on this window is {100 * d.error_ratio:.2g} % "

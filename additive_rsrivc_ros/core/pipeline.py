@@ -675,8 +675,7 @@ class MonitorPipeline:
             if line is not None:
                 self.notices.append(line)
             res = self.order_check.result
-            wrong_delay = res is not None and res.delay is not None and res.delay.better is not None
-            if res is not None and res.flagged and not wrong_delay and not self._order_restarted:
+            if res is not None and res.flagged and not res.wrong_delay and not self._order_restarted:
                 # (a wrong input delay is the configuration's: modes found again with it would misfit the same way)
                 self._order_restarted = True
                 try:
