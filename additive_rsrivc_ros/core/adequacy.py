@@ -97,8 +97,9 @@ DELAY_ERROR_RATIO = 0.7
 window is below this fraction of the configured delay's, and significantly so throughout the window
 (:func:`.modefind._significant_gain`: the paired test of the order scan), flags the configured delay (state
 ``misfit``). A whole sample is a large error: on 15 s of the bundled beam (K = 2 of 4, true delay 4 samples at 4096 Hz)
-the held-out output error was 1.15e-7 at 4, 6.2e-7 and 7.1e-7 at 3 and 5, 2.0e-6 at 2; a delay between two samples
-fits both about equally and flags neither."""
+the held-out output error was 1.15e-7 at 4, 6.2e-7 and 7.1e-7 at 3 and 5, 2.0e-6 at 2 (``scripts/study_input_delay.py``,
+which also runs the pipeline with the delays 0, 2, 4, 8); a delay between two samples fits both about equally and
+flags neither."""
 
 
 @dataclass
