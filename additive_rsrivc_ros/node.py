@@ -2,9 +2,9 @@
 
 Handles ``--help`` and argument errors before anything of ROS is imported (``--help`` works without ROS), then
 imports rclpy and the node, configures and activates it (``autostart``) and spins it until SIGINT/SIGTERM. The
-signals only set a flag (:func:`_request_stop`); the spin loop returns within one ``spin_once`` timeout and the node
-saves its state once. What the node subscribes, publishes and serves: :mod:`.ros.monitor_node` and the modules it
-names, ../shared/CONTRACT.md.
+signals only set a flag (:class:`.signal_stop.SignalStop`); the spin loop returns within one ``spin_once`` timeout
+and the node saves its state once. What the node subscribes, publishes and serves: :mod:`.ros.monitor_node` and the
+modules it names, ../shared/CONTRACT.md.
 
 Inputs (../shared/CONTRACT.md): Float64 topics are aligned by arrival order on a nominal sample grid,
 JointState topics by header stamp (exact: unmatched or out-of-order stamps are dropped); see
@@ -28,35 +28,23 @@ arrived; a late burst caused by the node's own stall (start-up, GC, a busy worke
 
 from __future__ import annotations
 
-import signal
 import sys
 import threading
 import time
-from typing import Any
 
 from .process_exit import console_entry
+from .signal_stop import SignalStop
 
-_STOP_REQUESTED = threading.Event()
-_SIGNAL_NAME = [""]
-
-
-def _request_stop(signum: int, frame: Any) -> None:
-    """SIGINT/SIGTERM: only set a flag; the spin loop returns within one ``spin_once`` timeout.
-
-    rclpy's own handlers end in an asynchronous ``KeyboardInterrupt``; raised inside a ``with lock:`` it can
-    leave the lock held (measured: a SIGINT during activation deadlocked the shutdown in ``Event.set``).
-    ``Event.set`` here runs in the signal handler, between bytecodes of the main thread, never inside another
-    lock operation of this module."""
-    _SIGNAL_NAME[0] = {int(signal.SIGINT): "SIGINT", int(signal.SIGTERM): "SIGTERM"}.get(signum, str(signum))
-    _STOP_REQUESTED.set()
+_STOP_REQUESTED = SignalStop()  # set by SIGINT/SIGTERM; takes no lock (see .signal_stop: Event.set can deadlock there)
 
 
 # The console script imports this module first: take over SIGINT/SIGTERM before anything slow is imported (a
 # signal during the imports would otherwise end in a KeyboardInterrupt traceback). Only for rsrivc_monitor itself.
+# rclpy's own handlers end in an asynchronous ``KeyboardInterrupt``; raised inside a ``with lock:`` it can leave the
+# lock held (measured: a SIGINT during activation deadlocked the shutdown), so rclpy is initialised without them.
 if sys.argv and sys.argv[0].rsplit("/", 1)[-1] == "rsrivc_monitor" and threading.current_thread() is \
         threading.main_thread():
-    signal.signal(signal.SIGINT, _request_stop)
-    signal.signal(signal.SIGTERM, _request_stop)
+    _STOP_REQUESTED.install()
 
 USAGE = """usage: rsrivc_monitor [-h] [--ros-args [--params-file FILE.yaml] [-p NAME:=VALUE] [-r __node:=NAME]]
 
@@ -97,8 +85,7 @@ def main(argv: list[str] | None = None) -> int:
     if code is not None:
         return code
     started_ns = time.monotonic_ns()
-    signal.signal(signal.SIGINT, _request_stop)      # first: a signal at any later moment only sets the flag
-    signal.signal(signal.SIGTERM, _request_stop)
+    _STOP_REQUESTED.install()  # first: a signal at any later moment only sets the flag
     import rclpy
     from rclpy.executors import ExternalShutdownException
     from rclpy.experimental import EventsExecutor
@@ -123,7 +110,7 @@ def main(argv: list[str] | None = None) -> int:
                 node.trigger_activate()
         if not _STOP_REQUESTED.is_set():
             spin(node, executor, started_ns, _STOP_REQUESTED)
-        print(f"rsrivc_monitor: stopping ({_SIGNAL_NAME[0] or 'shutdown'})", file=sys.stderr)
+        print(f"rsrivc_monitor: stopping ({_STOP_REQUESTED.signal_name or 'shutdown'})", file=sys.stderr)
     except (KeyboardInterrupt, ExternalShutdownException):
         pass
     except Exception as exc:  # noqa: BLE001 - parameter declaration errors etc.: one line, non-zero exit

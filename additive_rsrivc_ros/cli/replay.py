@@ -28,7 +28,6 @@ from __future__ import annotations
 
 import argparse
 import importlib
-import signal
 import sys
 import threading
 import time
@@ -41,6 +40,7 @@ from typing import Any
 import numpy as np
 
 from ..process_exit import console_entry
+from ..signal_stop import SignalStop, StopFlag
 
 PROG = "rsrivc_replay"
 
@@ -168,7 +168,7 @@ def play(
     rate: float = 1.0,
     loop: bool = False,
     loop_period_ns: int = 0,
-    stop: threading.Event | None = None,
+    stop: StopFlag | None = None,
     clock: Callable[[int], None] | None = None,
     clock_period_s: float = 0.01,
     min_sleep_s: float = 0.001,
@@ -349,14 +349,6 @@ def _parser() -> argparse.ArgumentParser:
     return ap
 
 
-def _install_stop_handlers(stop: threading.Event) -> None:
-    def handler(signum: int, _frame: Any) -> None:
-        stop.set()
-
-    signal.signal(signal.SIGINT, handler)
-    signal.signal(signal.SIGTERM, handler)
-
-
 @console_entry
 def main(argv: list[str] | None = None) -> int:
     """Console entry point; returns the exit status (0 also after Ctrl-C/SIGTERM)."""
@@ -379,8 +371,8 @@ def main(argv: list[str] | None = None) -> int:
         print(f"{PROG}: error: {exc}", file=sys.stderr)
         return 2
 
-    stop = threading.Event()
-    _install_stop_handlers(stop)
+    stop = SignalStop()
+    stop.install()
 
     import rclpy
     from rclpy.qos import DurabilityPolicy, HistoryPolicy, QoSProfile, ReliabilityPolicy

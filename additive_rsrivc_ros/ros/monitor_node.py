@@ -30,6 +30,7 @@ from std_srvs.srv import Trigger
 
 from ..config import DEFAULT_NODE_NAME, MonitorConfig, ParamError, param_table
 from ..core.pipeline import MonitorPipeline, PipelineError
+from ..signal_stop import StopFlag
 from ..warmup import is_warm, load_kernels
 from .inputs import InputsMixin, signal_names
 from .params import ParametersMixin, checked_config, split_unknown, unknown_warning
@@ -225,7 +226,7 @@ class MonitorNode(ParametersMixin, InputsMixin, StateMixin, WorkerMixin, Publish
         return response
 
 
-def spin(node: MonitorNode, executor: Executor, started_ns: int, stop: threading.Event) -> None:
+def spin(node: MonitorNode, executor: Executor, started_ns: int, stop: StopFlag) -> None:
     """``spin_once`` loop until ``stop`` is set (see the module docstring); records when the executor was idle
     (input pause checks) and when it did not run (the node's own stalls, from ``started_ns``: start-up counts as
     one)."""
