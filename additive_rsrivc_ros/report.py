@@ -54,6 +54,7 @@ class DiagnosisSeries:
     reasons: list[list[str]]
     hold: np.ndarray = field(default_factory=lambda: np.zeros(0, bool))      # (N,) health hold
     issues: list[list[str] | None] = field(default_factory=list)             # health issue kinds (None: unknown)
+    model_order: list[dict[str, str]] = field(default_factory=list)         # model-order check: state, message
 
     @property
     def K(self) -> int:
@@ -89,6 +90,8 @@ class DiagnosisSeries:
             out.hold[j] = bool(h.get("hold", False))
             iss = h.get("issues")
             out.issues.append(None if iss is None else [str(x) for x in iss])
+            mo = h.get("model_order") or {}
+            out.model_order.append({k: str(mo[k]) for k in ("state", "message") if k in mo})
         return out
 
     def records(self) -> list[Any]:
@@ -101,6 +104,8 @@ class DiagnosisSeries:
                                  "reasons": self.reasons[j] if j < len(self.reasons) else []}
             if j < len(self.issues) and self.issues[j] is not None:
                 h["issues"] = self.issues[j]
+            if j < len(self.model_order) and self.model_order[j]:
+                h["model_order"] = self.model_order[j]
             out.append(SimpleNamespace(time_s=float(self.time_s[j]), phase=self.phase[j],
                                        estimating=bool(self.estimating[j]), health=h))
         return out

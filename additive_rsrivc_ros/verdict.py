@@ -8,10 +8,15 @@ ROS-free and matplotlib-free, so the node can reuse it. :func:`assess` reads the
   reports in phase ``monitoring`` without a health hold;
 * ``blind_intervals``: where and why they did not run (``initializing``, ``settling``, ``learning``,
   ``hold``, ``no_data``, ``no_estimate``);
+* ``flagged_model_s``: seconds of ``monitored_s`` during which the model-order check flagged the model
+  (``health['model_order']['state']`` in :data:`.core.vocabulary.MODEL_ORDER_FLAGGED`: a model that misfits
+  the data, e.g. a wrong input delay or a missing mode). The check only warns (it does not hold the tests), but
+  a silence of fault tests that compare a misfitting model with its baseline is not evidence of health;
 * ``level`` (../shared/CONTRACT.md "Offline verdict"): ``NO ESTIMATE`` when no report ever carried an
   accepted model; ``FAULT`` when a structural event was opened; ``DEGRADED`` when the tests never ran, or
   were blind after the normal start-up (initialization, settling, learning the baseline, in this order,
-  undisturbed), or health held them back for a reason other than the start-up; ``OK`` otherwise.
+  undisturbed), or health held them back for a reason other than the start-up, or they ran against a flagged
+  model; ``OK`` otherwise.
 
 Time coverage: a report at ``t_j`` stands for ``[t_j, t_j + P)`` with ``P`` the median report spacing
 (the publish period); a longer silence between reports (a data gap: the pipeline reports nothing while no
@@ -27,7 +32,7 @@ from collections.abc import Iterable, Mapping, Sequence
 from dataclasses import dataclass, field
 from typing import Any
 
-from .core.vocabulary import EVENTS_HEADER, VERDICTS
+from .core.vocabulary import EVENTS_HEADER, MODEL_ORDER_FLAGGED, VERDICTS
 
 STARTUP_ISSUES = ("initializing",)       # health issue kinds of a normal start (not a disruption)
 STARTUP_REASONS = ("initializing", "starting: finding modes", "no mode guesses: found")   # their reasons
@@ -59,6 +64,7 @@ class Verdict:
     monitored_s: float
     monitoring_start_s: float | None
     blind_intervals: list[BlindInterval] = field(default_factory=list)
+    flagged_model_s: float = 0.0          # of monitored_s: the tests ran against a model the order check flagged
 
     def __post_init__(self) -> None:
         if self.level not in VERDICTS:
@@ -69,7 +75,8 @@ class Verdict:
         return {"verdict": self.level, "verdict_text": self.text, "monitored_s": round(self.monitored_s, 6),
                 "monitoring_start_s": self.monitoring_start_s, "monitored_fraction":
                 self.monitored_s / self.duration_s if self.duration_s > 0 else 0.0,
-                "blind_intervals": [b.to_dict() for b in self.blind_intervals]}
+                "blind_intervals": [b.to_dict() for b in self.blind_intervals],
+                "flagged_model_s": round(self.flagged_model_s, 6)}
 
     @property
     def line(self) -> str:
@@ -95,6 +102,13 @@ def _disruption(health: Mapping[str, Any]) -> list[str]:
     reasons = [_clean(r) for r in health.get("reasons", [])]
     reasons = [r for r in reasons if not r.startswith(STARTUP_REASONS + ADVISORY_REASONS)]
     return reasons or [", ".join(holding or ["health hold"])]
+
+
+def model_flag(health: Mapping[str, Any]) -> str:
+    """The model-order check's finding when it flags the model (see the module docstring), else ``''``."""
+    mo = health.get("model_order") or {}
+    state = str(mo.get("state", "")) if isinstance(mo, Mapping) else ""
+    return str(mo.get("message") or state) if state in MODEL_ORDER_FLAGGED else ""
 
 
 def _state(rep: Any, seen: dict[str, bool]) -> tuple[str, str]:
@@ -129,15 +143,28 @@ def _period(times: Sequence[float]) -> float:
     return d[len(d) // 2] if d else math.inf
 
 
-def coverage(reports: Sequence[Any], duration_s: float) -> tuple[float, float | None, list[BlindInterval]]:
-    """``(monitored_s, first monitoring time, blind intervals)`` over ``[0, duration_s]``."""
+@dataclass
+class Coverage:
+    """Where the structural fault tests ran over ``[0, duration_s]`` (see the module docstring)."""
+
+    monitored_s: float
+    first_monitored_s: float | None
+    blind: list[BlindInterval]
+    flagged_model_s: float = 0.0
+    flag: tuple[float, str] | None = None     # (time, finding) of the first report whose model was flagged
+
+
+def coverage(reports: Sequence[Any], duration_s: float) -> Coverage:
+    """Monitored time, first monitoring time, blind intervals and time under a flagged model over
+    ``[0, duration_s]``."""
     times = [float(r.time_s) for r in reports]
     period = _period(times)
     seen = {"estimate": False, "baseline_window": False}
     segs: list[tuple[float, float, str, str]] = []     # (start, end, kind, reason)
     if not reports:
-        return 0.0, None, ([BlindInterval(0.0, duration_s, "no_estimate", "no report: no valid data")]
-                           if duration_s > 0 else [])
+        return Coverage(0.0, None, [BlindInterval(0.0, duration_s, "no_estimate", "no report: no valid data")]
+                        if duration_s > 0 else [])
+    flagged_s, flag = 0.0, None
     if times[0] > 0:
         segs.append((0.0, times[0], "initializing", "initializing: collecting data for the first model"))
     for j, rep in enumerate(reports):
@@ -146,6 +173,9 @@ def coverage(reports: Sequence[Any], duration_s: float) -> tuple[float, float | 
         kind, reason = _state(rep, seen)
         end = min(t_next, t0 + period) if t_next - t0 > 1.5 * period else t_next
         segs.append((t0, end, kind, reason))
+        if finding := model_flag(rep.health or {}):
+            flag = flag or (t0, finding)
+            flagged_s += end - t0 if kind == "monitored" else 0.0
         if end < t_next:
             segs.append((end, t_next, "no_data", f"no samples for {t_next - end:.3g} s (data gap)"))
     monitored = sum(b - a for a, b, k, _ in segs if k == "monitored")
@@ -161,7 +191,7 @@ def coverage(reports: Sequence[Any], duration_s: float) -> tuple[float, float | 
             continue
         blind.append(BlindInterval(a, b, kind, reason))
     _mark_startup(blind, first_mon)
-    return monitored, first_mon, blind
+    return Coverage(monitored, first_mon, blind, flagged_s, flag)
 
 
 def _mark_startup(blind: list[BlindInterval], first_mon: float | None) -> None:
@@ -234,6 +264,16 @@ def _events_from_reports(reports: Iterable[Any]) -> list[dict[str, Any]]:
     return sorted(seen.values(), key=lambda d: (d["onset_time_s"], d["mode"], d["quantity"]))
 
 
+def _flag_text(cov: Coverage) -> str:
+    """'... against a model the model-order check flagged (from 15.0 s: <finding>)' or ''."""
+    if cov.flag is None:
+        return ""
+    t, finding = cov.flag
+    ran = (f"{cov.flagged_model_s:.1f} s of them against a model the model-order check flagged"
+           if cov.flagged_model_s > 0 else "the model-order check flagged the model")
+    return f"{ran} (from {t:.1f} s: {finding})"
+
+
 def assess(reports: Sequence[Any], duration_s: float,
            events: Sequence[Mapping[str, Any]] | None = None) -> Verdict:
     """The verdict of a record from its reports (see the module docstring). ``events``: the structural events
@@ -241,28 +281,37 @@ def assess(reports: Sequence[Any], duration_s: float,
     reports = list(reports)
     events = _events_from_reports(reports) if events is None else list(events)
     duration_s = max(float(duration_s), float(reports[-1].time_s) if reports else 0.0)
-    monitored, first_mon, blind = coverage(reports, duration_s)
-    cov = f"fault tests ran for {monitored:.1f} s of {duration_s:.1f} s"
+    cov = coverage(reports, duration_s)
+    monitored, first_mon, blind = cov.monitored_s, cov.first_monitored_s, cov.blind
+    ran = f"fault tests ran for {monitored:.1f} s of {duration_s:.1f} s"
     if first_mon is not None:
-        cov += f" (first from {first_mon:.1f} s)"
+        ran += f" (first from {first_mon:.1f} s)"
+    flagged = _flag_text(cov)
     disrupted = [b for b in blind if not b.startup]
     spans = _span_text(blind)
+
+    def verdict(level: str, text: str) -> Verdict:
+        return Verdict(level, text, duration_s, monitored, first_mon, blind, cov.flagged_model_s)
+
     if not any(r.estimating for r in reports):
         last = next((d for r in reversed(reports) if (d := _disruption(r.health or {}))), None)
         why = last[0] if last else (blind[-1].reason if blind else "no data")   # e.g. why no modes were found
-        return Verdict("NO ESTIMATE", f"the estimator never had an accepted model in {duration_s:.1f} s of data "
-                       f"({why}); fault tests did not run.", duration_s, 0.0, None, blind)
+        return verdict("NO ESTIMATE", f"the estimator never had an accepted model in {duration_s:.1f} s of data "
+                       f"({why}); fault tests did not run.")
     if events:
-        text = f"{_event_text(events)}; {cov}" + (f"; blind {spans}" if disrupted else "") + "."
-        return Verdict("FAULT", text, duration_s, monitored, first_mon, blind)
+        return verdict("FAULT", f"{_event_text(events)}; {ran}" + (f", {flagged}" if flagged else "")
+                       + (f"; blind {spans}" if disrupted else "") + ".")
     if monitored <= 0.0:
         end = blind[-1].reason if blind else ""
-        text = (f"fault tests never ran: no trusted baseline in {duration_s:.1f} s of data (at the end: {end})"
-                + (f"; blind {spans}" if disrupted else "") + "; structural faults could not be tested.")
-        return Verdict("DEGRADED", text, duration_s, 0.0, None, blind)
-    if disrupted:
-        text = f"{cov}; blind {spans}; no structural fault detected while they ran."
-        return Verdict("DEGRADED", text, duration_s, monitored, first_mon, blind)
-    return Verdict("OK", f"no structural fault detected in the {monitored:.1f} s the fault tests ran (from "
+        return verdict("DEGRADED", f"fault tests never ran: no trusted baseline in {duration_s:.1f} s of data (at "
+                       f"the end: {end})" + (f"; {flagged}" if flagged else "") + (f"; blind {spans}" if disrupted
+                                                                                  else "")
+                       + "; structural faults could not be tested.")
+    if disrupted or cov.flagged_model_s > 0:
+        return verdict("DEGRADED", ran + (f", {flagged}" if cov.flagged_model_s > 0 else "")
+                       + (f"; blind {spans}" if disrupted else "") + "; no structural fault detected while they ran"
+                       + ("; a misfitting model can hide a fault" if cov.flagged_model_s > 0 else "") + ".")
+    return verdict("OK", f"no structural fault detected in the {monitored:.1f} s the fault tests ran (from "
                    f"{first_mon:.1f} s to the end of the {duration_s:.1f} s record; before that the start-up: "
-                   "initialization, settling, learning the baseline).", duration_s, monitored, first_mon, blind)
+                   "initialization, settling, learning the baseline)"
+                   + (f"; earlier, {flagged}, but not while they ran" if flagged else "") + ".")

@@ -251,6 +251,11 @@ def test_a_wrong_input_delay_in_the_pipeline_is_on_health_without_events_or_a_re
     assert any("input delay" in x for x in last.health["reasons"]) and last.health_level >= Level.WARN
     assert not any(rep.events_opened for rep in reports)
     assert not any("restart from the data" in n for rep in reports for n in rep.notices)
+    # the offline verdict does not call the silent fault tests on that model healthy (verdict.assess)
+    from additive_rsrivc_ros.verdict import assess
+
+    v = assess(reports, float(t[-1]))
+    assert v.level == "DEGRADED" and "input_delay_samples 3 instead of 2" in v.text, v.line
 
 
 def test_a_refit_that_misfits_does_not_flag_an_estimate_that_fits():

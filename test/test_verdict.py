@@ -167,3 +167,56 @@ def test_restart_without_a_hold_names_its_cause() -> None:
     v = assess(reps, 20.0)
     assert v.level == "DEGRADED" and v.monitored_s == pytest.approx(6.0, abs=1e-6)
     assert "6.0–14.0 s (baseline window restarted after: residual variance jumped x587)" in v.text
+
+
+DELAY_FINDING = ("the configured input delay misfits the data: with input_delay_samples 3 instead of 2 the model's "
+                 "output error on this window is 31 % of it")
+
+
+def _flagged(state: str = "misfit") -> dict:
+    """Health while the model-order check flags the model: WARN, no hold (core.adequacy.ModelOrderWatch.apply)."""
+    return {"hold": False, "issues": [], "level": 1, "reasons": [DELAY_FINDING],
+            "model_order": {"state": state, "message": DELAY_FINDING, "stage": "run"}}
+
+
+@pytest.mark.parametrize("state", ["misfit", "too_low"])
+def test_fault_tests_that_ran_against_a_flagged_model_are_degraded_not_ok(state: str) -> None:
+    """The check only warns; but silent fault tests on a model that misfits the data (a wrong input delay missed
+    the bundled bag's real fault) are no evidence of health: DEGRADED, naming the finding and the time."""
+    reps = _startup() + _run(6, 15, "monitoring") + _run(15, 20, "monitoring", True, _flagged(state))
+    v = assess(reps, 20.0)
+    assert v.level == "DEGRADED"
+    assert v.monitored_s == pytest.approx(14.0, abs=1e-6) and v.flagged_model_s == pytest.approx(5.0, abs=1e-6)
+    assert "5.0 s of them against a model the model-order check flagged (from 15.0 s: the configured input" in v.text
+    assert "a misfitting model can hide a fault" in v.text
+    assert v.to_dict()["flagged_model_s"] == pytest.approx(5.0)
+    _partition_ok(v, 20.0)   # a flag blinds nothing: the partition is unchanged
+
+
+def test_a_flag_that_cleared_before_the_tests_ran_keeps_ok_and_is_named() -> None:
+    """Flagged at the start, re-started from the data, adequate afterwards: the tests never ran on the flagged
+    model, so OK; the text still says what happened."""
+    adequate = {**HEALTHY, "model_order": {"state": "adequate", "message": "adequate"}}
+    reps = (_run(0, 2, "initializing", False, INIT) + _run(2, 4, "settling", True, _flagged())
+            + _run(4, 6, "learning", True, adequate) + _run(6, 20, "monitoring", True, adequate))
+    v = assess(reps, 20.0)
+    assert v.level == "OK" and v.flagged_model_s == 0.0
+    assert "earlier, the model-order check flagged the model (from 2.0 s: the configured input delay" in v.text
+
+
+def test_a_fault_found_on_a_flagged_model_stays_a_fault_and_says_so() -> None:
+    reps = _startup() + _run(6, 20, "monitoring", True, _flagged())
+    ev = SimpleNamespace(mode=2, quantity="natural_frequency", direction="down", onset_time_s=12.0,
+                         alarm_time_s=12.8, clear_time_s=None, baseline=31.3, value=29.7)
+    reps[128].events_opened = [ev]
+    v = assess(reps, 20.0)
+    assert v.level == "FAULT" and "against a model the model-order check flagged" in v.text
+
+
+def test_the_series_view_of_the_reports_gives_the_same_flagged_verdict() -> None:
+    """report.DiagnosisSeries keeps what the verdict reads (one rule over the reports and over the series)."""
+    reps = _startup() + _run(6, 15, "monitoring") + _run(15, 20, "monitoring", True, _flagged())
+    direct = assess(reps, 20.0)
+    via_series = rp.assess_series([], rp.DiagnosisSeries.from_reports(reps, 1), 20.0)
+    assert (via_series.level, via_series.text, via_series.flagged_model_s) == \
+        (direct.level, direct.text, direct.flagged_model_s)

@@ -60,7 +60,7 @@ import numpy as np
 from .controller import DiscreteController
 from .frf import FRFEstimate, estimate_frf, longest_finite, model_frf_on_bins
 from .model import SubmodelStructure, theta_from_modal
-from .vocabulary import QUANTITIES, one_line
+from .vocabulary import MODEL_ORDER_FLAGGED, QUANTITIES, one_line
 
 ALPHA = 0.01
 """Probability that a model which fits (the FRF error is only noise) shows one significant misfit bin."""
@@ -175,7 +175,7 @@ class OrderCheckResult:
 
     @property
     def flagged(self) -> bool:
-        return self.state in ("too_low", "misfit")
+        return self.state in MODEL_ORDER_FLAGGED
 
     @property
     def wrong_delay(self) -> bool:

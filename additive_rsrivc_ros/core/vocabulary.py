@@ -49,6 +49,8 @@ LEVEL_NAMES: tuple[str, ...] = ("OK", "WARN", "ERROR", "STALE")
 """``diagnostic_msgs/DiagnosticStatus`` level names by value (``core.faults.Level``)."""
 VERDICTS: tuple[str, ...] = ("OK", "FAULT", "DEGRADED", "NO ESTIMATE")
 """``summary.json`` ``verdict`` values, best to worst."""
+MODEL_ORDER_FLAGGED: tuple[str, ...] = ("too_low", "misfit")
+"""``health['model_order']['state']`` values that flag the model (health WARN; the offline verdict DEGRADED)."""
 
 # ------------------------------------------------------------------------------------------------- files
 ESTIMATES_HEADER: tuple[str, ...] = ("time_s", "mode", *MODE_FIELDS, *FLAG_FIELDS)
