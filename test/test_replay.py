@@ -188,12 +188,16 @@ def test_replay_into_subscriber(tmp_path: Path, ros_env: dict, storage: str) -> 
 def test_sigterm_stops_cleanly(tmp_path: Path, ros_env: dict) -> None:
     bag = tmp_path / "bag"
     write_float_bag(bag, 1000.0, 0.5)
-    proc = subprocess.Popen([sys.executable, "-m", "additive_rsrivc_ros.cli.replay", str(bag), "--loop"],
-                            env=ros_env, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
+    proc = subprocess.Popen([sys.executable, "-X", "faulthandler", "-m", "additive_rsrivc_ros.cli.replay", str(bag),
+                             "--loop"], env=ros_env, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
     time.sleep(3.0)
     assert proc.poll() is None, "--loop must keep playing"
     proc.send_signal(signal.SIGTERM)
-    out, err = proc.communicate(timeout=15)
+    try:
+        out, err = proc.communicate(timeout=15)
+    except subprocess.TimeoutExpired:
+        proc.send_signal(signal.SIGABRT)      # faulthandler prints every thread's stack
+        pytest.fail(f"no exit 15 s after SIGTERM; stacks:\n{proc.communicate()[1][-6000:]}")
     assert proc.returncode == 0, err
     assert "Traceback" not in err and "stopped after" in err
 
