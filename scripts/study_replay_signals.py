@@ -21,24 +21,11 @@ import tempfile
 import time
 from pathlib import Path
 
+import numpy as np
+
+from additive_rsrivc_ros.bagio import write_bag
+
 REPO = Path(__file__).resolve().parents[1]
-T0_NS = 1_700_000_000_000_000_000
-
-
-def write_bag(path: Path, rate_hz: float = 1000.0, seconds: float = 0.5) -> None:
-    """Three Float64 topics, message k of topic j carrying 10 k + j."""
-    from rosbags.rosbag2 import StoragePlugin, Writer
-    from rosbags.typesys import Stores, get_typestore
-
-    ts = get_typestore(Stores.ROS2_JAZZY)
-    f64 = ts.types["std_msgs/msg/Float64"]
-    with Writer(path, version=9, storage_plugin=StoragePlugin.MCAP) as w:
-        conns = [w.add_connection(t, f64.__msgtype__, typestore=ts)
-                 for t in ("/reference", "/plant_input", "/plant_output")]
-        for k in range(int(rate_hz * seconds)):
-            for j, c in enumerate(conns):
-                w.write(c, T0_NS + int(round(k * 1e9 / rate_hz)),
-                        ts.serialize_cdr(f64(data=float(10 * k + j)), f64.__msgtype__))
 
 
 def main() -> int:
@@ -51,7 +38,8 @@ def main() -> int:
     latency: list[float] = []
     with tempfile.TemporaryDirectory() as tmp:
         bag = Path(tmp) / "bag"
-        write_bag(bag)
+        k = np.arange(500.0)                                  # 0.5 s at 1 kHz on /reference, /plant_input, ...
+        write_bag(bag, 1000.0, 10 * k + 1, 10 * k + 2, 10 * k)
         env = dict(os.environ, ROS_AUTOMATIC_DISCOVERY_RANGE="LOCALHOST", PYTHONUNBUFFERED="1")
         for i in range(args.trials):
             env["ROS_DOMAIN_ID"] = str(101 + (os.getpid() + i) % 100)
