@@ -6,6 +6,7 @@ import subprocess
 import threading
 import time
 from collections.abc import Callable
+from typing import Any
 
 import rclpy
 from diagnostic_msgs.msg import DiagnosticArray
@@ -50,6 +51,10 @@ def stop_node(proc: subprocess.Popen, sig: str = "TERM", timeout: float = 30.0) 
     return proc.returncode, out
 
 
+READ_ONLY_SERVICES = ("GetState", "GetParameters", "ListParameters", "DescribeParameters", "GetParameterTypes")
+"""Service types whose request may be sent again when its response was lost (it changes nothing)."""
+
+
 class Client:
     """Publishers for the signals, subscribers to /diagnostics and ~/modes, service/parameter calls."""
 
@@ -65,6 +70,7 @@ class Client:
         self.node.create_subscription(DiagnosticArray, "/diagnostics", self.diags.append, 100)
         self.node.create_subscription(Float64MultiArray, f"{base}/{node}/modes", self.modes.append, 100)
         self.target = f"{ns}/{node}" if ns else node
+        self._clients: dict[str, Any] = {}
         self.ex = SingleThreadedExecutor(context=self.ctx)
         self.ex.add_node(self.node)
         self.thread = threading.Thread(target=self._spin, daemon=True)
@@ -77,13 +83,18 @@ class Client:
         except Exception:  # noqa: BLE001 - context shut down while spinning
             pass
 
-    def wait_for(self, pred: Callable[[], bool], timeout: float, what: str) -> None:
+    @staticmethod
+    def _within(pred: Callable[[], bool], timeout: float) -> bool:
         t_end = time.monotonic() + timeout
         while time.monotonic() < t_end:
             if pred():
-                return
+                return True
             time.sleep(0.05)
-        raise AssertionError(f"timed out after {timeout} s waiting for {what}")
+        return False
+
+    def wait_for(self, pred: Callable[[], bool], timeout: float, what: str) -> None:
+        if not self._within(pred, timeout):
+            raise AssertionError(f"timed out after {timeout} s waiting for {what}")
 
     def wait_matched(self, timeout: float = 30.0) -> None:
         self.wait_for(lambda: all(p.get_subscription_count() > 0 for p in self.pubs.values()), timeout,
@@ -100,15 +111,24 @@ class Client:
         return None
 
     def _call(self, srv_type, name: str, req, timeout: float = 20.0):
-        cli = self.node.create_client(srv_type, name)
-        try:
-            if not cli.wait_for_service(timeout_sec=timeout):
-                raise AssertionError(f"service {name} not available")
+        """Call a service of the node; one client per service, kept for the next calls.
+
+        rmw_fastrtps drops a response when the server's response writer has not matched the client's response reader
+        within its ``max_blocking_time`` (100 ms; ros2/ros2#1253, ros2/rmw_fastrtps#704): a fresh client on a loaded
+        machine can wait forever (CI, 2026-11-27: ``get_state`` of a node just started). A kept client is matched after
+        its first answer, and a read-only request whose response was lost is sent once more."""
+        cli = self._clients.get(name)
+        if cli is None:
+            cli = self._clients[name] = self.node.create_client(srv_type, name)
+        if not cli.wait_for_service(timeout_sec=timeout):
+            raise AssertionError(f"service {name} not available")
+        attempts = 2 if srv_type.__name__ in READ_ONLY_SERVICES else 1
+        for _ in range(attempts):
             fut = cli.call_async(req)
-            self.wait_for(fut.done, timeout, f"response of {name}")
-            return fut.result()
-        finally:
-            self.node.destroy_client(cli)
+            if self._within(fut.done, timeout):
+                return fut.result()
+            cli.remove_pending_request(fut)
+        raise AssertionError(f"timed out after {timeout} s waiting for response of {name} ({attempts} request(s))")
 
     def trigger(self, name: str):
         return self._call(Trigger, f"/{self.target}/{name}", Trigger.Request())
