@@ -419,3 +419,24 @@ def test_held_out_error_of_a_record_in_motion_is_the_noise(monkeypatch):
     assert resid.size == n - split and abs(e_val / sigma ** 2 - 1.0) < 0.1, e_val / sigma ** 2
     monkeypatch.setattr(modefind, "SLOW_DECAY", np.inf)   # no pole counts as slow: the error as simulated from rest
     assert _held_out_error(*args)[1] > 100 * sigma ** 2
+
+
+def test_the_order_after_one_that_fits_its_frf_is_judged_once_its_output_error_settles(monkeypatch):
+    """The K = 4 beam (4096 Hz, 20 s, closed loop): the right model fits its FRF, so the K = 5 fits, whose fifth mode
+    has nothing to fit, stop once their output error settles (SCAN_SETTLE) and the order stays 4 with every mode
+    within 0.1 %. Without the FRF screen passing, no scan fit is cut short that way (a fit that sat flat may still
+    find a missing mode)."""
+    from additive_rsrivc_ros.cli.bench import _case_data
+    from additive_rsrivc_ros.core import modefind
+    from additive_rsrivc_ros.core.model import modal_from_theta
+
+    rate, thetas, ctrl, delay, r, u, y = _case_data("k4", 20.0)
+    truth = np.sort([modal_from_theta(th, modefind.SubmodelStructure())[0] for th in thetas])
+    res = find_modes(u, y, rate, r=r, controller=ctrl, input_delay=delay)
+    rows = {row.K: row for row in res.table}
+    assert res.K == 4 and rows[4].accepted
+    np.testing.assert_allclose(np.sort(res.modal[:, 0]), truth, rtol=1e-3)
+    assert "settled" in rows[5].message and not rows[5].accepted
+    monkeypatch.setattr(modefind, "fits_its_frf", lambda *a, **k: False)
+    slow = find_modes(u, y, rate, r=r, controller=ctrl, input_delay=delay)
+    assert slow.K == 4 and not any("settled" in row.message for row in slow.table)

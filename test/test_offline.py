@@ -236,3 +236,41 @@ def test_controller_that_does_not_stabilize_the_initial_model(cl_clean):
     bad = DiscreteController((2.0, -0.02058, 0.00454), (1.0, -1.0, 0.0))
     with pytest.raises(ClosedLoopUnstableError, match="does not stabilize the initial model"):
         identify(u, y, 1 / H, [MODE, MODE], START, r=r, controller=bad)
+
+
+def test_a_fit_with_a_mode_too_many_stops_once_its_output_error_settles():
+    """The order scan's settle rule (``settle_tol``, ``settle_floor``): the K = 3 fit of a K = 2 loop moves its third
+    mode for many iterations at a flat output error; with the rule it stops in a few, judged where it stands (its
+    output error within the rule's 0.1 % of the long fit's); at or below the floor the rule never applies, and a fit
+    that finds a real mode falls far below the floor and converges as usual."""
+    from frf_cases import CONTROLLER as C2
+    from frf_cases import DELAY as D2
+    from frf_cases import FS as F2
+    from frf_cases import MODES as M2
+
+    from additive_rsrivc_ros.sim.simulate import simulate_modes, square_wave, white_noise
+
+    rng = np.random.default_rng(5)
+    t = np.arange(int(20 * F2)) / F2
+    sim = simulate_modes(M2, F2, r=square_wave(t, 0.5, 1.0) + white_noise(t.size, 0.05, rng), controller=C2,
+                         input_delay=D2, noise=white_noise(t.size, 0.01, rng), rng=rng)
+    st = SubmodelStructure()
+    kw = dict(r=sim.r, controller=C2, input_delay=D2, tol=1e-4, max_iterations=20)
+    truth = [theta_from_modal(m.natural_frequency_hz, m.damping_ratio, m.gain) for m in M2]
+    fit2 = identify(sim.u, sim.y, F2, [st, st], truth, **kw)
+    assert fit2.converged
+    start3 = [*fit2.thetas, theta_from_modal(230.0, 0.02, 1e-3)]
+    plain = identify(sim.u, sim.y, F2, [st] * 3, start3, **kw)
+    settled = identify(sim.u, sim.y, F2, [st] * 3, start3, settle_tol=1e-3, settle_floor=0.98 * fit2.cost, **kw)
+    assert plain.iterations >= 10 and not plain.extra.get("settled")
+    assert settled.extra.get("settled") and not settled.converged and settled.iterations <= 5
+    assert "settled" in settled.message
+    assert abs(settled.cost / plain.cost - 1.0) < 3e-3
+    np.testing.assert_allclose(settled.modal[:2, 0], [m.natural_frequency_hz for m in M2], rtol=1e-3)
+    above = identify(sim.u, sim.y, F2, [st] * 3, start3, settle_tol=1e-3, settle_floor=2.0 * fit2.cost, **kw)
+    assert not above.extra.get("settled") and above.iterations == plain.iterations
+    fit1 = identify(sim.u, sim.y, F2, [st], truth[:1], **kw)
+    real = identify(sim.u, sim.y, F2, [st, st], [fit1.thetas[0], theta_from_modal(44.0, 0.03, 0.1)],
+                    settle_tol=1e-3, settle_floor=0.98 * fit1.cost, **kw)
+    assert real.converged and not real.extra.get("settled")
+    np.testing.assert_allclose(real.modal[:, 0], fit2.modal[:, 0], rtol=1e-4)

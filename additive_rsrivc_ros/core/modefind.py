@@ -33,7 +33,8 @@
    relevant submodel predicts as well (no significant gain over it), the order is redundant, and that
    reduction replaces the smaller order's model if it predicts better (a smaller order's scan fit that stopped
    early, e.g. the beam's K = 4 beside a K = 5 with a negligible 239 Hz mode). The scan's fits stop early
-   (``SCAN_TOL``, ``SCAN_MAX_ITERATIONS``); the chosen model is then refitted on the whole record. Modes whose
+   (``SCAN_TOL``, ``SCAN_MAX_ITERATIONS``; after an order that fits its FRF, a fit no better than it once its
+   output error has settled, ``SCAN_SETTLE``); the chosen model is then refitted on the whole record. Modes whose
    frequency lies outside the band where the FRF is valid are reported as not identifiable.
 """
 
@@ -44,6 +45,7 @@ from typing import Any
 
 import numpy as np
 
+from .adequacy import fits_its_frf
 from .estimator import MonitorSettings
 from .frf import FRFEstimate, estimate_frf, longest_finite, model_frf_on_bins
 from .model import TWO_PI, SubmodelStructure, guess_structure, guess_theta, modal_from_theta
@@ -60,9 +62,14 @@ ALTERNATIVES = 3  # new peaks tried for each larger order
 STOP_AFTER_MISSES = 2  # order scan stops after this many consecutive orders without a significant gain
 SCAN_TOL = 1e-4  # relative parameter change that ends an order-scan fit (the chosen order is refitted to 1e-7)
 SCAN_MAX_ITERATIONS = 20  # an order-scan fit still moving after this many iterations is judged where it stands
+SCAN_SETTLE = 1e-3  # ... and, after an order that fits its FRF, one no better than it whose output error no longer
+# falls by this fraction (offline.additive_iv; _evaluate)
 FINAL_TOL = 1e-7  # identify()'s default: the refit of the chosen order on the whole record
 FINER_FACTORS = (2, 4)  # low-band candidates also from FRFs with 2x and 4x longer segments (finer resolution)
 FRF_REFINE = True  # the order scan also tries each start refined on the FRF (refine_on_frf), before the start
+QUICK_FRF_FTOL = 1e-4  # refine_on_frf of the starts of an order after one that fits its FRF: stop when a step lowers
+# the weighted misfit by less than this fraction (the added mode has nothing to fit; it wandered for hundreds of
+# evaluations at a flat misfit)
 DEGENERATE_BAND_BINS = 0.02  # a start refined on the FRF to a mode narrower than this many bins is dropped
 FINER_BAND_BINS = 20  # ... below this many bins of the default resolution, where a peak has too few bins
 
@@ -546,7 +553,8 @@ class _FrfObjective:
         return out
 
 
-def refine_on_frf(start: list[Candidate], frf: FRFEstimate, input_delay: int) -> tuple[list[Candidate], float] | None:
+def refine_on_frf(start: list[Candidate], frf: FRFEstimate, input_delay: int,
+                  ftol: float = 1e-8) -> tuple[list[Candidate], float] | None:
     """The start refined on the FRF and its weighted misfit: the additive continuous-time model ``sum_i b0_i /
     (1 + 2 zeta_i s/omega_i + (s/omega_i)^2)`` (a rigid body ``b0/s^l``) fitted to ``G`` by weighted nonlinear least
     squares (Levenberg-Marquardt, :class:`_FrfObjective`). A peak-read or a smaller model's mode is biased where the
@@ -555,7 +563,7 @@ def refine_on_frf(start: list[Candidate], frf: FRFEstimate, input_delay: int) ->
     misfit, leaves a mode outside ``(0, Nyquist)`` or one with a half-power band ``2 zeta f`` below
     :data:`DEGENERATE_BAND_BINS` of a bin (a degenerate fit of one bin's noise: a 3.9 Hz "mode" with zeta 2.5e-6
     then let a third mode in at a 2.0 % gain; half a bin of the finest FRF was too strict: a real 6.1 Hz mode with
-    zeta 0.005 was lost)."""
+    zeta 0.005 was lost). ``ftol``: the least-squares stop on the relative fall of the misfit per step."""
     from scipy.optimize import least_squares
 
     obj = _FrfObjective(start, frf, input_delay)
@@ -563,7 +571,8 @@ def refine_on_frf(start: list[Candidate], frf: FRFEstimate, input_delay: int) ->
         return None
     x0 = obj.x0(start)
     try:
-        sol = least_squares(obj.residual, x0, jac=obj.jacobian, method="lm", max_nfev=20 * (obj.n_par + 1))
+        sol = least_squares(obj.residual, x0, jac=obj.jacobian, method="lm", max_nfev=20 * (obj.n_par + 1),
+                            ftol=ftol)
     except (ValueError, np.linalg.LinAlgError):
         return None
     cost = 2.0 * float(sol.cost)
@@ -573,10 +582,11 @@ def refine_on_frf(start: list[Candidate], frf: FRFEstimate, input_delay: int) ->
     return None if out is None else (out, cost)
 
 
-def _with_frf_refined(starts: list[list[Candidate]], frf: FRFEstimate, input_delay: int) -> list[list[Candidate]]:
+def _with_frf_refined(starts: list[list[Candidate]], frf: FRFEstimate, input_delay: int,
+                      ftol: float = 1e-8) -> list[list[Candidate]]:
     """The starts of one order refined on the FRF (:func:`refine_on_frf`, where it succeeds), then as read: the
     refined ones first, as they more often lead the time-domain fit to the modes."""
-    refined = [ref[0] for ref in (refine_on_frf(st, frf, input_delay) for st in starts) if ref is not None]
+    refined = [ref[0] for ref in (refine_on_frf(st, frf, input_delay, ftol) for st in starts) if ref is not None]
     return refined + starts
 
 
@@ -588,7 +598,7 @@ def _same_start(a: list[Candidate], b: list[Candidate]) -> bool:
 
 
 def _fit(u, y, rate_hz, r, controller, input_delay, start: list[Candidate], max_iterations: int,
-         tol: float = FINAL_TOL):
+         tol: float = FINAL_TOL, settle_tol: float | None = None, settle_floor: float = 0.0):
     """Offline additive (CL)SRIVC from the candidates. In closed loop, a start the controller does not stabilize
     even after :func:`_stabilized` is first refined by the open-loop additive SRIVC (u -> y; biased by the feedback
     but needs no stable closed loop), whose result then starts the CLSRIVC."""
@@ -600,14 +610,15 @@ def _fit(u, y, rate_hz, r, controller, input_delay, start: list[Candidate], max_
     thetas = [c.theta() for c in start]
     try:
         return identify(u, y, rate_hz, structures, thetas, r=r, controller=controller, input_delay=input_delay,
-                        max_iterations=max_iterations, tol=tol)
+                        max_iterations=max_iterations, tol=tol, settle_tol=settle_tol,
+                        settle_floor=settle_floor)
     except ClosedLoopUnstableError:
         if controller is None:
             raise
     pre = identify(u, y, rate_hz, structures, thetas, input_delay=input_delay, max_iterations=max_iterations,
-                   method="additive-srivc", tol=tol)
+                   method="additive-srivc", tol=tol, settle_tol=settle_tol, settle_floor=settle_floor)
     return identify(u, y, rate_hz, structures, pre.thetas, r=r, controller=controller, input_delay=input_delay,
-                    max_iterations=max_iterations, tol=tol)
+                    max_iterations=max_iterations, tol=tol, settle_tol=settle_tol, settle_floor=settle_floor)
 
 
 def _usable(res: Any, rate_hz: float) -> bool:
@@ -619,11 +630,20 @@ def _usable(res: Any, rate_hz: float) -> bool:
 
 
 def _evaluate(K: int, start: list[Candidate], u, y, rate_hz, r, controller, input_delay, split: int,
-              max_iterations: int) -> tuple[OrderRow, Any]:
-    """Fit one start on ``[:split]`` and measure its output error on both parts (a failure is a row, not a crash)."""
+              max_iterations: int, to_beat: Any = None, margin: float = DEFAULT_MARGIN) -> tuple[OrderRow, Any]:
+    """Fit one start on ``[:split]`` and measure its output error on both parts (a failure is a row, not a crash).
+    ``to_beat``: the smaller order's fit, when it fits its FRF (:func:`.adequacy.fits_its_frf`); while this fit's
+    output error on ``[:split]`` is not ``margin`` below that fit's, it ends once its output error has settled
+    (``SCAN_SETTLE``: one mode too many, the usual case of the order after the right one, stops in a few iterations
+    instead of running to the limit). Not when the smaller model misfits the FRF: a fit whose output error sat flat
+    for 3 iterations while a meaningless mode of the smaller fit (1949 Hz, zeta 106) moved to the missing 8.5 Hz
+    mode then fell 1400-fold (``validate_autostart.py`` plant 8)."""
+    settle, floor = None, 0.0
+    if to_beat is not None and not to_beat.extra.get("reduced") and np.isfinite(to_beat.cost):
+        settle, floor = SCAN_SETTLE, (1.0 - margin) * float(to_beat.cost)
     try:
         res = _fit(u[:split], y[:split], rate_hz, None if r is None else r[:split], controller, input_delay,
-                   start, min(max_iterations, SCAN_MAX_ITERATIONS), SCAN_TOL)
+                   start, min(max_iterations, SCAN_MAX_ITERATIONS), SCAN_TOL, settle, floor)
     except Exception as exc:  # noqa: BLE001 - a failed order is a row of the table, not a crash
         return OrderRow(K, np.inf, np.inf, message=f"{type(exc).__name__}: {exc}"), None
     if not _usable(res, rate_hz):
@@ -650,7 +670,8 @@ def _reduced(res: Any, j: int) -> Any:
                    covariances=[res.covariances[i] for i in keep], covariance=pick(res.covariance), P=pick(res.P),
                    p_blocks=[res.p_blocks[i] for i in keep], modal=np.asarray(res.modal)[keep],
                    modal_std=np.asarray(res.modal_std)[keep], converged=False,
-                   message=f"the K = {len(keep) + 1} fit without its submodel {j + 1}")
+                   message=f"the K = {len(keep) + 1} fit without its submodel {j + 1}",
+                   extra={**res.extra, "reduced": True})   # cost: still the K + 1 fit's
 
 
 def _least_relevant(res: Any, u, y, rate_hz: float, r, controller, input_delay: int,
@@ -748,11 +769,16 @@ def order_table(u, y, rate_hz: float, r, controller, input_delay: int, candidate
         if not starts:
             table.append(OrderRow(K, np.inf, np.inf, message="fewer candidates than K"))
             continue
+        # the model to beat already fits the FRF: the added mode has nothing to fit but noise, so its starts' FRF
+        # refinement and its fits stop once their misfit no longer falls (QUICK_FRF_FTOL, SCAN_SETTLE)
+        quick = best_fit is not None and frf is not None and fits_its_frf(frf, best_fit.thetas, best_fit.structures,
+                                                                          input_delay)
         if frf is not None and FRF_REFINE:
-            starts = _with_frf_refined(starts, frf, input_delay)
+            starts = _with_frf_refined(starts, frf, input_delay, QUICK_FRF_FTOL if quick else 1e-8)
         row, res = None, None
         for st in starts:
-            cand_row, cand_res = _evaluate(K, st, u, y, rate_hz, r, controller, input_delay, split, max_iterations)
+            cand_row, cand_res = _evaluate(K, st, u, y, rate_hz, r, controller, input_delay, split, max_iterations,
+                                           best_fit if quick else None, margin)
             if row is None or cand_row.validation_error < row.validation_error:
                 row, res = cand_row, cand_res
             if chosen is not None and _beats(row, chosen, margin):

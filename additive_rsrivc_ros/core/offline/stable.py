@@ -395,24 +395,44 @@ def _finalize(method: str, data: OfflineData, structures, thetas, closed_loop: b
 
 
 def additive_iv(data: OfflineData, structures, thetas0, *, closed_loop: bool, method: str, max_iterations: int = 50,
-                tol: float = 1e-7, projection: bool = True) -> IdentificationResult:
+                tol: float = 1e-7, projection: bool = True, settle_tol: float | None = None,
+                settle_floor: float = 0.0) -> IdentificationResult:
     """Additive SRIVC / CLSRIVC: iterate 001 eq. 29 (K = 1: SRIVC/CLSRIVC of 001 eq. 30).
 
     Open loop ``zeta`` = 001 eq. 10 (gradient of the output error), closed loop 001 eq. 20 with
     ``z = S_uo(q) r``; integrators per 001 Remark 6 (eqs. 31-32). Stops when the scaled relative change
     of beta is below ``tol``; a failure (singular normal matrix, no stabilized iterate, iteration limit)
     returns the last admissible iterate with ``converged=False`` and a message.
+
+    ``settle_tol`` (the order scan's short fits, :mod:`..modefind`): also stop once the output error of the
+    iterates (001 eq. 23 summed, the cost the scan judges a model by) has not fallen by more than ``settle_tol``
+    of its best for :data:`SETTLE_ITERATIONS` iterations; the best iterate is returned, not converged, with
+    ``extra["settled"]``. A submodel the data do not inform (one mode too many) moves its parameters for dozens of
+    iterations without changing the output error; the parameter test alone keeps iterating it. Only an output error
+    at or above ``settle_floor`` settles: a fit below it (the order scan: better than the model it must beat) may be
+    on its way to a much better optimum and is iterated as usual.
     """
     thetas = [np.asarray(t, float).copy() for t in thetas0]
     scale = np.abs(np.concatenate(thetas))
     scale = np.where(scale > 0, scale, 1.0)
     projections, cond, message, converged, it = 0, np.nan, "", False, 0
     change, at_limit = np.inf, np.inf
+    best_cost, best_thetas, flat, settled = np.inf, thetas, 0, False
     if projection:   # the filters are built from the initial guess too (000 §4.7)
         thetas, projections = _project(thetas, structures)
     for it in range(1, max_iterations + 1):
         try:
             step = _build(data, thetas, structures, closed_loop)
+            if settle_tol is not None:
+                cost = float(step.eps @ step.eps) / max(step.eps.size, 1)
+                flat = 0 if cost < (1.0 - settle_tol) * best_cost else flat + 1
+                if cost < best_cost:
+                    best_cost, best_thetas = cost, thetas
+                if flat >= SETTLE_ITERATIONS and best_cost >= settle_floor:
+                    thetas, settled, it = best_thetas, True, it - 1
+                    message = (f"output error settled (within {settle_tol:.0e} of its best for {SETTLE_ITERATIONS} "
+                               f"iterations; last relative parameter change {change:.3g}): judged where it stands")
+                    break
             new, cond = _iv_update(step, structures)
         except np.linalg.LinAlgError as exc:
             message = f"iteration {it}: {exc}"
@@ -443,7 +463,19 @@ def additive_iv(data: OfflineData, structures, thetas0, *, closed_loop: bool, me
         message += "; submodels re-labelled to follow the initial guesses' order"
     res = _finalize(method, data, structures, thetas, closed_loop, it, converged, cond, projections, message)
     res.extra["change_at_limit"] = float(at_limit)   # the last step's relative change when out of iterations
+    if settled:
+        res.extra["settled"] = True
     return res
+
+
+SETTLE_ITERATIONS = 3  # additive_iv(settle_tol=...): iterations without a gain in output error that end a fit
+
+
+def fit_usable(res: IdentificationResult) -> bool:
+    """A fit to keep and test: finite, and converged, or its output error settled (``settle_tol``), or out of
+    iterations while its last step moved the parameters by less than :data:`NEARLY_CONVERGED`."""
+    return _finite(res.thetas) and (res.converged or bool(res.extra.get("settled"))
+                                    or res.extra.get("change_at_limit", np.inf) < NEARLY_CONVERGED)
 
 
 def _cost(data: OfflineData, xhat_sum: np.ndarray, thetas=None, structures=None) -> float:
@@ -775,7 +807,7 @@ def _refit_if_started_in_motion(res: IdentificationResult, data: OfflineData, st
     that only ran out of iterations while its last step moved the parameters by less than ``NEARLY_CONVERGED`` is
     a model like any other and is tested (refitting it from the guess doubled the cost of the order scan's short
     fits)."""
-    ok = _finite(res.thetas) and (res.converged or res.extra.get("change_at_limit", np.inf) < NEARLY_CONVERGED)
+    ok = fit_usable(res)
     base = res.thetas if ok else thetas0
     rate = 1.0 / data.h
     skip = warmup_samples(base, structures, rate, data.n)
@@ -796,7 +828,7 @@ def _refit_if_started_in_motion(res: IdentificationResult, data: OfflineData, st
     data.free_response, data.skip = True, 0
     for start in ([base, thetas0] if base is not thetas0 else [thetas0]) if FREE_RESPONSE_REFIT else []:
         new = refit([np.asarray(t, float).copy() for t in start])
-        usable = _finite(new.thetas) and (new.converged or new.extra.get("change_at_limit", np.inf) < NEARLY_CONVERGED)
+        usable = fit_usable(new)
         if usable or test is None:   # a first fit that failed gets one refit, as it had with the warm-up alone
             new.message += f"; {why}: refitted with the free response of the model's modes projected out"
             if test is not None:
@@ -825,7 +857,8 @@ def _refit_if_started_in_motion(res: IdentificationResult, data: OfflineData, st
 
 def identify(u, y, rate_hz: float, structures, thetas0, *, r=None, controller: DiscreteController | None = None,
              input_delay: int = 0, method: str = "auto", max_iterations: int = 50, tol: float = 1e-7,
-             projection: bool = True, warmup_s: float | None = None) -> IdentificationResult:
+             projection: bool = True, warmup_s: float | None = None,
+             settle_tol: float | None = None, settle_floor: float = 0.0) -> IdentificationResult:
     """Identify the additive continuous-time model ``sum_i B_i/(p^l_i A_i)`` from sampled data.
 
     ``u`` is the plant input (held between samples, reaching the plant ``input_delay`` samples late),
@@ -836,7 +869,9 @@ def identify(u, y, rate_hz: float, structures, thetas0, *, r=None, controller: D
     the filters (:func:`warmup_samples`; 0 uses every sample). Default ``None``: every sample, unless the
     fit's output error starts with the plant's free response (:func:`initial_transient_test`, the record starts
     in motion); then it is refitted with that free response projected out (:func:`_refit_if_started_in_motion`).
-    The unstable-plant methods (``*-uns``, ``*-monic``) use every sample by default.
+    The unstable-plant methods (``*-uns``, ``*-monic``) use every sample by default. ``settle_tol``,
+    ``settle_floor``: the additive methods also stop when the output error has settled above the floor
+    (:func:`additive_iv`; for quick fits that are judged by their output error, e.g. the order scan).
     """
     if method not in METHODS:
         raise ValueError(f"unknown method {method!r}; choose one of {', '.join(METHODS)}")
@@ -867,7 +902,8 @@ def identify(u, y, rate_hz: float, structures, thetas0, *, r=None, controller: D
 
     def run(start: list[np.ndarray]) -> IdentificationResult:
         if method in ("additive-clsrivc", "additive-srivc"):
-            return additive_iv(data, structures, start, closed_loop=needs_cl, method=method, **kw)
+            return additive_iv(data, structures, start, closed_loop=needs_cl, method=method, settle_tol=settle_tol,
+                               settle_floor=settle_floor, **kw)
         if method in ("srivc", "clsrivc"):
             return unfactored_iv(data, structures, start, closed_loop=needs_cl, method=method, **kw)
         if method == "bcd-srivc":
