@@ -110,27 +110,3 @@ def test_bad_input_is_a_clear_error():
         estimate_frf(np.zeros(20), np.zeros(20), FS)
     with pytest.raises(ValueError, match="finite"):
         estimate_frf(np.full(1000, np.nan), np.zeros(1000), FS)
-
-
-def test_model_frf_per_block_equals_the_whole_state_space_with_its_delay_line():
-    """``discrete_model_frf`` sums the submodels' blocks (a mode's 2 x 2 in closed form) times ``z^-d``; the same FRF
-    from the whole ZOH state space with the delay as shift states (``plant.discrete_plant``), one solve per bin:
-    a rigid body (chains of 1-3 integrators, 1/p^l A), modes, delays 0 and 3."""
-    from additive_rsrivc_ros.core.model import SubmodelStructure as S
-    from additive_rsrivc_ros.core.model import theta_from_modal
-    from additive_rsrivc_ros.core.plant import discrete_plant
-
-    f = np.linspace(0.05, 499.0, 3000)
-    cases = [([np.array([2.0])], [S(n=0, integrators=2)]),
-             ([np.array([1.0])], [S(n=0, integrators=1)]),
-             ([np.array([3.0]), theta_from_modal(8.0, 0.05, 1.0), theta_from_modal(25.0, 0.02, 0.2)],
-              [S(n=0, integrators=2), S(), S()]),
-             ([np.array([3.0]), theta_from_modal(8.0, 0.05, 1.0)], [S(n=0, integrators=3), S()]),
-             ([np.array([0.01, 1e-4, 2.0])], [S(integrators=1)])]
-    for thetas, structures in cases:
-        for delay in (0, 3):
-            phi, gam, c = discrete_plant(thetas, structures, 1000.0, delay)
-            zs = np.exp(2j * np.pi * f / 1000.0)
-            whole = np.array([c @ np.linalg.solve(z * np.eye(phi.shape[0]) - phi, gam) for z in zs])
-            blocks = discrete_model_frf(thetas, structures, 1000.0, f, delay)
-            np.testing.assert_allclose(blocks, whole, rtol=1e-8)

@@ -253,22 +253,14 @@ def _resolution_error(G: np.ndarray, valid: np.ndarray, reach: int = 2) -> np.nd
 def discrete_model_frf(thetas: Sequence[np.ndarray], structures: Sequence[SubmodelStructure], rate_hz: float,
                        freqs_hz: np.ndarray, input_delay: int = 0) -> np.ndarray:
     """``G_d(e^{j w h})`` of the exact ZOH discretization of the additive model with the input delay (the quantity
-    :func:`estimate_frf` estimates): ``z^-d sum_i C_i (zI - Phi_i)^-1 Gamma_i`` over the submodels' blocks, a
-    2 x 2 block (a mode) in closed form (one batched solve of the whole model with its delay states was 12 x 12 per
-    bin for the beam and took 11 ms of every check)."""
-    from .plant import discrete_plant_blocks
+    :func:`estimate_frf` estimates)."""
+    from .plant import discrete_plant
 
+    phi, gam, c = discrete_plant(list(thetas), list(structures), rate_hz, input_delay)
     zs = np.exp(2j * np.pi * np.asarray(freqs_hz, dtype=float) / rate_hz)
-    out = np.zeros(zs.size, dtype=complex)
-    for phi, gam, c in discrete_plant_blocks(list(thetas), list(structures), rate_hz):
-        n = phi.shape[0]
-        if n == 2:   # c (zI - Phi)^-1 gam with the adjugate of the 2 x 2 matrix
-            a, b, cc, d = zs - phi[0, 0], -phi[0, 1], -phi[1, 0], zs - phi[1, 1]
-            out += (c[0] * (d * gam[0] - b * gam[1]) + c[1] * (a * gam[1] - cc * gam[0])) / (a * d - b * cc)
-        elif n:
-            x = np.linalg.solve(zs[:, None, None] * np.eye(n) - phi, np.broadcast_to(gam, (zs.size, n))[..., None])
-            out += x[..., 0] @ c
-    return out * zs ** (-int(input_delay)) if input_delay else out
+    eye = np.eye(phi.shape[0])
+    x = np.linalg.solve(zs[:, None, None] * eye - phi, np.broadcast_to(gam, (zs.size, gam.size))[..., None])
+    return x[..., 0] @ c                            # c (zI - Phi)^-1 Gamma at every z in one batched solve
 
 
 def model_frf_on_bins(frf: FRFEstimate, thetas: Sequence[np.ndarray], structures: Sequence[SubmodelStructure],

@@ -226,11 +226,12 @@ def open_loop_output(thetas: Sequence[np.ndarray], structures: Sequence[Submodel
 # ----------------------------------------------------------------------------------------------------------------
 # Closed-loop analysis
 # ----------------------------------------------------------------------------------------------------------------
-def discrete_plant_blocks(thetas: Sequence[np.ndarray], structures: Sequence[SubmodelStructure],
-                          rate_hz: float) -> list[tuple[np.ndarray, np.ndarray, np.ndarray]]:
-    """Exact ZOH state-space ``(Phi_i, Gamma_i, C_i)`` of each submodel ``B_i/(p^l A_i)`` (000 eq. 10), no delay."""
+def discrete_plant(thetas: Sequence[np.ndarray], structures: Sequence[SubmodelStructure], rate_hz: float,
+                   input_delay: int = 0) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Exact ZOH state-space ``(Phi, Gamma, C)`` of the frozen plant ``sum_i B_i/(p^l A_i)`` with the delay
+    as extra shift states (000 eq. 10): ``x_{k+1} = Phi x_k + Gamma u_k``, ``y_k = C x_k``."""
     h = 1.0 / rate_hz
-    blocks = []
+    blocks_phi, blocks_gam, blocks_c = [], [], []
     for th, s in zip(thetas, structures, strict=True):
         th = np.asarray(th, float)
         kind = _KIND_CHAIN if s.n == 0 else (_KIND_SECOND if s.integrators == 0 else _KIND_GENERAL)
@@ -238,21 +239,15 @@ def discrete_plant_blocks(thetas: Sequence[np.ndarray], structures: Sequence[Sub
         phi, gam = np.zeros((5, 5)), np.zeros(5)
         a1, a2, b0 = (0.0, 0.0, th[0]) if s.n == 0 else (th[0], th[1], th[2])
         _mode_zoh(kind, s.integrators, a1, a2, b0, h, phi, gam)
+        blocks_phi.append(phi[:ns, :ns])
+        blocks_gam.append(gam[:ns])
         c = np.zeros(ns)
         c[0] = 1.0
-        blocks.append((phi[:ns, :ns], gam[:ns], c))
-    return blocks
-
-
-def discrete_plant(thetas: Sequence[np.ndarray], structures: Sequence[SubmodelStructure], rate_hz: float,
-                   input_delay: int = 0) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-    """Exact ZOH state-space ``(Phi, Gamma, C)`` of the frozen plant ``sum_i B_i/(p^l A_i)`` with the delay
-    as extra shift states (000 eq. 10): ``x_{k+1} = Phi x_k + Gamma u_k``, ``y_k = C x_k``."""
+        blocks_c.append(c)
     from scipy.linalg import block_diag
-    blocks = discrete_plant_blocks(thetas, structures, rate_hz)
-    phi = block_diag(*[b[0] for b in blocks])
-    gam = np.concatenate([b[1] for b in blocks])
-    c = np.concatenate([b[2] for b in blocks])
+    phi = block_diag(*blocks_phi)
+    gam = np.concatenate(blocks_gam)
+    c = np.concatenate(blocks_c)
     nx = phi.shape[0]
     if input_delay:
         d = input_delay
