@@ -43,7 +43,7 @@ class SignalStop:
         self._set = True
         try:
             os.write(self._write_fd, b"\0")
-        except (BlockingIOError, OSError):  # the pipe is full (already woken) or closed at exit
+        except OSError:  # the pipe is full (BlockingIOError: already woken) or closed at exit
             pass
 
     def is_set(self) -> bool:

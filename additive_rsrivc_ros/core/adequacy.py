@@ -442,12 +442,13 @@ def check_model_order(thetas: Sequence[np.ndarray], structures: Sequence[Submode
     return out
 
 
-def fits_its_frf(frf: FRFEstimate, thetas, structures, input_delay: int = 0) -> bool:
-    """The screen of a model against the FRF of its own window (milliseconds): at most :data:`START_SCREEN_FRACTION`
-    of the valid bins (at least :data:`MIN_MISFIT_BINS`) misfit significantly, fewer than :data:`MISFIT_RUN_BINS` of
-    them in a row. Used by :func:`check_start` and by the order scan (:mod:`.modefind`: one mode more than a model
-    that passes has nothing to fit but noise)."""
-    z, usable, thr = misfit(frf, model_frf_on_bins(frf, thetas, structures, input_delay))
+def fits_its_frf(frf: FRFEstimate, G_model: np.ndarray) -> bool:
+    """The screen of a model (``G_model``: its FRF on the bins, :func:`.frf.model_frf_on_bins`) against the FRF of its
+    own window (milliseconds): at most :data:`START_SCREEN_FRACTION` of the valid bins (at least
+    :data:`MIN_MISFIT_BINS`) misfit significantly, fewer than :data:`MISFIT_RUN_BINS` of them in a row. Used by
+    :func:`check_start` and by the order scan (:mod:`.modefind`: one mode more than a model that passes has nothing
+    to fit but noise)."""
+    z, usable, thr = misfit(frf, G_model)
     n_bins, n_mis = int(usable.sum()), int(np.sum(z > thr))
     return n_mis < max(MIN_MISFIT_BINS, START_SCREEN_FRACTION * n_bins) and \
         longest_misfit_run(frf, z, usable, thr)[0] < MISFIT_RUN_BINS
@@ -462,7 +463,7 @@ def check_start(found: Any, r, u, y, rate_hz: float, *, controller: DiscreteCont
     check (:func:`check_model_order`), which tells a wrong start (``misfit``,
     ``too_low``) from modes left out that do not matter. So a start that misfits its own data is flagged from the
     first estimate, not after the regular check's window (4 memory lengths later)."""
-    if fits_its_frf(found.frf, found.thetas, found.structures, input_delay):
+    if fits_its_frf(found.frf, model_frf_on_bins(found.frf, found.thetas, found.structures, input_delay)):
         return None
     return check_model_order(found.thetas, found.structures, u, y, rate_hz, r=r, controller=controller,
                              input_delay=input_delay, min_change=min_change, relevance=relevance,

@@ -50,7 +50,7 @@ from .adequacy import fits_its_frf
 from .estimator import MonitorSettings
 from .frf import FRFEstimate, estimate_frf, longest_finite, model_frf_on_bins
 from .model import TWO_PI, SubmodelStructure, guess_structure, guess_theta, modal_from_theta
-from .offline.stable import NEARLY_CONVERGED
+from .offline.stable import fit_usable
 
 MIN_PROMINENCE_DECADES = 0.1  # 2 dB
 DEFAULT_MARGIN = 0.02
@@ -435,15 +435,15 @@ def _fitted_candidates(fit: Any) -> list[Candidate]:
 
 
 def _residual_start(best_fit: Any, frf: FRFEstimate, K: int, input_delay: int,
-                    frequency_range_hz: tuple[float, float] | None) -> list[Candidate] | None:
+                    frequency_range_hz: tuple[float, float] | None, G_model: np.ndarray) -> list[Candidate] | None:
     """Start for order K = K_fit + 1 from where the best smaller model misfits: the resonance of the residual FRF
     ``G - G_model`` (same validity, noise and prominence tests as the peaks), not within 15 % of a fitted mode,
     that carries the most output power. A well-damped mode beside a stronger one shows no peak of its own in ``G``
-    but does in the residual, once the stronger one is modelled (step 2 of ``core/adequacy.py``, used to build)."""
+    but does in the residual, once the stronger one is modelled (step 2 of ``core/adequacy.py``, used to build).
+    ``G_model``: that model's FRF on the bins (:func:`.frf.model_frf_on_bins`)."""
     fitted = _fitted_candidates(best_fit)
     if K - len(fitted) != 1:
         return None
-    G_model = model_frf_on_bins(frf, best_fit.thetas, best_fit.structures, input_delay)
     new = [c for c in find_candidates(replace(frf, G=frf.G - G_model), input_delay, frequency_range_hz)
            if c.natural_frequency_hz > 0.0 and all(abs(c.natural_frequency_hz / m.natural_frequency_hz - 1.0) > 0.15
                                                    for m in fitted if m.natural_frequency_hz > 0.0)]
@@ -764,8 +764,11 @@ def order_table(u, y, rate_hz: float, r, controller, input_delay: int, candidate
         starts = ([_start(candidates, K)] if best_fit is None else
                   [_nested_start(best_fit, candidates, K, skip) for skip in range(ALTERNATIVES)])
         starts = [st for st in starts if st is not None]
-        if best_fit is not None and frf is not None:
-            extra = _residual_start(best_fit, frf, K, input_delay, frequency_range_hz)
+        # the smaller model's FRF on the bins: its residual gives a start, and whether it fits decides `quick`
+        G_best = model_frf_on_bins(frf, best_fit.thetas, best_fit.structures, input_delay) \
+            if best_fit is not None and frf is not None else None
+        if G_best is not None:
+            extra = _residual_start(best_fit, frf, K, input_delay, frequency_range_hz, G_best)
             if extra is not None and not any(_same_start(extra, st) for st in starts):
                 starts.append(extra)
         if frf is not None and controller is not None:
@@ -777,8 +780,7 @@ def order_table(u, y, rate_hz: float, r, controller, input_delay: int, candidate
             continue
         # the model to beat already fits the FRF: the added mode has nothing to fit but noise, so its starts' FRF
         # refinement and its fits stop once their misfit no longer falls (QUICK_FRF_FTOL, SCAN_SETTLE)
-        quick = best_fit is not None and frf is not None and fits_its_frf(frf, best_fit.thetas, best_fit.structures,
-                                                                          input_delay)
+        quick = G_best is not None and fits_its_frf(frf, G_best)
         if frf is not None and FRF_REFINE:
             starts = _with_frf_refined(starts, frf, input_delay, QUICK_FRF_FTOL if quick else 1e-8)
         row, res = None, None
@@ -860,7 +862,7 @@ def find_modes(u, y, rate_hz: float, *, r=None, controller=None, input_delay: in
     message = f"K = {chosen.K} by held-out output error (margin {margin:.0%})"
     try:
         full = _fit(u, y, rate_hz, r, controller, input_delay, start, max_iterations, refit_tol)
-        if _usable(full, rate_hz) and (full.converged or full.extra.get("change_at_limit", np.inf) < NEARLY_CONVERGED):
+        if _usable(full, rate_hz) and fit_usable(full):
             res = full
         else:
             message += "; refit on the whole record unstable or not converged: kept the fit on the first part"

@@ -394,6 +394,9 @@ def _finalize(method: str, data: OfflineData, structures, thetas, closed_loop: b
         cost=rss / N, modal=modal, modal_std=mstd, projections=projections, message=message, n_samples=N)
 
 
+SETTLE_ITERATIONS = 3  # additive_iv(settle_tol=...): iterations without a gain in output error that end a fit
+
+
 def additive_iv(data: OfflineData, structures, thetas0, *, closed_loop: bool, method: str, max_iterations: int = 50,
                 tol: float = 1e-7, projection: bool = True, settle_tol: float | None = None,
                 settle_floor: float = 0.0) -> IdentificationResult:
@@ -467,8 +470,6 @@ def additive_iv(data: OfflineData, structures, thetas0, *, closed_loop: bool, me
         res.extra["settled"] = True
     return res
 
-
-SETTLE_ITERATIONS = 3  # additive_iv(settle_tol=...): iterations without a gain in output error that end a fit
 
 
 def fit_usable(res: IdentificationResult) -> bool:
