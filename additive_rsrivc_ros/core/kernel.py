@@ -478,18 +478,26 @@ def run_block(  # noqa: C901 - one compiled per-sample loop (test/test_code_shap
                             phh[1] = 1.0
                             ph[2] = 0.0
                             phh[2] = 0.0
-                        # IV-RLS from theta_bar(t_{k-1}), P_bar(t_{k-1}) (Algorithm 2 lines 7-9)
+                        # IV-RLS from theta_bar(t_{k-1}), P_bar(t_{k-1}) (Algorithm 2 lines 7-9). Loops over the
+                        # parameters run to the constant NT and stop at nt: the compiler unrolls them (same operations,
+                        # same order)
                         capped = False
-                        for a in range(nt):
+                        for a in range(NT):
+                            if a >= nt:
+                                break
                             if P[i, a, a] > p_cap * p0diag[i, a]:
                                 capped = True
                         lam_eff = 1.0 if capped else lam_i
                         den = lam_eff
                         eps = yf
-                        for a in range(nt):
+                        for a in range(NT):
+                            if a >= nt:
+                                break
                             acc = 0.0
                             acc2 = 0.0
-                            for c in range(nt):
+                            for c in range(NT):
+                                if c >= nt:
+                                    break
                                 acc += P[i, a, c] * phh[c]
                                 acc2 += ph[c] * P[i, c, a]
                             Pph[a] = acc
@@ -498,8 +506,12 @@ def run_block(  # noqa: C901 - one compiled per-sample loop (test/test_code_shap
                             eps -= ph[a] * theta[i, a]
                         den_abs = lam_eff
                         if not den >= lam_eff:   # phi^T P phi^ < 0: terms cancel, compare with their magnitude
-                            for a in range(nt):
-                                for c in range(nt):
+                            for a in range(NT):
+                                if a >= nt:
+                                    break
+                                for c in range(NT):
+                                    if c >= nt:
+                                        break
                                     den_abs += abs(ph[a] * P[i, a, c] * phh[c])
                         if not iv_denominator_ok(den, den_abs, lam_eff):
                             rej[i] += 1
@@ -507,7 +519,9 @@ def run_block(  # noqa: C901 - one compiled per-sample loop (test/test_code_shap
                             continue
                         good = math.isfinite(eps)
                         if good:
-                            for a in range(nt):
+                            for a in range(NT):
+                                if a >= nt:
+                                    break
                                 gain[a] = Pph[a] / den
                                 thn[a] = theta[i, a] + gain[a] * eps
                                 if not math.isfinite(thn[a]):
@@ -515,7 +529,9 @@ def run_block(  # noqa: C901 - one compiled per-sample loop (test/test_code_shap
                                 if max_step > 0.0 and (kind[i] == 0 or a == 0) and \
                                         abs(thn[a] - theta[i, a]) > max_step * abs(theta[i, a]):
                                     good = False
-                                for c in range(nt):
+                                for c in range(NT):
+                                    if c >= nt:
+                                        break
                                     Pn[a, c] = (P[i, a, c] - gain[a] * phP[c]) / lam_eff
                                     if not math.isfinite(Pn[a, c]):
                                         good = False
@@ -550,12 +566,16 @@ def run_block(  # noqa: C901 - one compiled per-sample loop (test/test_code_shap
                         if capped:
                             ist[I_CAPPED] += 1
                         lz[i] = lam_eff
-                        for a in range(nt):
+                        for a in range(NT):
+                            if a >= nt:
+                                break
                             zl[i, a] = phh[a]
                             th_it[i, a] = thn[a]
                             if kind[i] != 0 or a == 2:
                                 tf_it[i, a] = thn[a]
-                            for c in range(nt):
+                            for c in range(NT):
+                                if c >= nt:
+                                    break
                                 P_it[i, a, c] = Pn[a, c]
                         # filters of this mode follow the new filter model (re-run from the t_{k-1} states)
                         if kind[i] == 0:
