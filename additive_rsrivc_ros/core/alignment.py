@@ -591,7 +591,7 @@ def _cusum_scan(u, r, y, n_have, j0, n, a0, b0, d, nc, hyp, cur, G, rho, k0, swi
             sig = max(sig, np.exp(log_scale))
         c_cur = np.log1p((e_cur / sig) ** 2)
         best = abs(e_cur)
-        sep = np.inf
+        e_sep = np.inf     # smallest |e| of the hypotheses whose data differ from the current pairing
         hit = -1
         g_hit = switch
         for s in range(S):
@@ -602,11 +602,18 @@ def _cusum_scan(u, r, y, n_have, j0, n, a0, b0, d, nc, hyp, cur, G, rho, k0, swi
                 continue
             if abs(e) < best:
                 best = abs(e)
-            c = np.log1p((e / sig) ** 2)
-            if abs(e - e_cur) > 1e-15 * scale:
-                sep = min(sep, c - c_cur)
+            if abs(e - e_cur) > 1e-15 * scale and abs(e) < e_sep:
+                e_sep = abs(e)
             dist = abs(hyp[s, 0]) + abs(hyp[s, 1])
-            g = G[s] + c_cur - c - drift * (1.0 + dist)
+            lead = G[s] + c_cur
+            if lead - drift * (1.0 + dist) <= 0.0:
+                # c = log1p(.) >= 0, so g = lead - c - drift (1 + dist) <= 0 as well (rounding is monotone): the
+                # statistic restarts without its logarithm (most hypotheses at most samples)
+                G[s] = 0.0
+                rho[s] = k0 + i + 1
+                continue
+            c = np.log1p((e / sig) ** 2)
+            g = lead - c - drift * (1.0 + dist)
             if g <= 0.0:
                 G[s] = 0.0
                 rho[s] = k0 + i + 1
@@ -615,6 +622,8 @@ def _cusum_scan(u, r, y, n_have, j0, n, a0, b0, d, nc, hyp, cur, G, rho, k0, swi
                 if g > g_hit:
                     g_hit = g
                     hit = s
+        # separation: min over the differing hypotheses of c - c_cur, i.e. at their smallest |e| (c grows with |e|)
+        sep = np.log1p((e_sep / sig) ** 2) - c_cur if e_sep < np.inf else np.inf
         flags[i] = sep <= drift
         if best > 0.0:
             lb = np.log(best)
