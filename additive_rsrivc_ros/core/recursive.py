@@ -100,12 +100,12 @@ def covariance_problem(cov: np.ndarray, rel_tol: float = 1e-9) -> str:
     """``""`` for a usable covariance block, else ``"non-finite"`` or ``"indefinite"`` (an eigenvalue below
     ``-rel_tol`` times the largest magnitude; ``sqrt(max(var, 0))`` would turn it into a silent std of 0)."""
     c = np.asarray(cov, dtype=float)
-    if not np.all(np.isfinite(c)):
+    if not np.isfinite(c).all():
         return "non-finite"
     if c.size == 0:
         return ""
-    ev = np.linalg.eigvalsh(0.5 * (c + c.T))
-    if ev[0] < -rel_tol * max(float(np.max(np.abs(ev))), 1e-300):
+    ev = np.linalg.eigvalsh(0.5 * (c + c.T))       # ascending: the largest magnitude is at one end
+    if ev[0] < -rel_tol * max(abs(float(ev[0])), abs(float(ev[-1])), 1e-300):
         return "indefinite"
     return ""
 
@@ -536,7 +536,8 @@ class RecursiveAdditiveSRIVC:
             m, sd = modal_from_theta(th, s), modal_std(th, cov, s)
             with np.errstate(divide="ignore", invalid="ignore"):
                 rel = np.abs(sd / m)
-            out[i] = float(np.nanmax([rel[0] if s.n == 2 else 0.0, rel[2]]))
+            known = [v for v in (float(rel[0]) if s.n == 2 else 0.0, float(rel[2])) if not math.isnan(v)]
+            out[i] = max(known) if known else math.nan     # np.nanmax of the two, without its overhead
         return out
 
     def closed_loop_max_pole(self) -> float:
