@@ -566,16 +566,12 @@ def run_block(  # noqa: C901 - one compiled per-sample loop (test/test_code_shap
                         if capped:
                             ist[I_CAPPED] += 1
                         lz[i] = lam_eff
-                        for a in range(NT):
-                            if a >= nt:
-                                break
+                        for a in range(nt):
                             zl[i, a] = phh[a]
                             th_it[i, a] = thn[a]
                             if kind[i] != 0 or a == 2:
                                 tf_it[i, a] = thn[a]
-                            for c in range(NT):
-                                if c >= nt:
-                                    break
+                            for c in range(nt):
                                 P_it[i, a, c] = Pn[a, c]
                         # filters of this mode follow the new filter model (re-run from the t_{k-1} states)
                         if kind[i] == 0:
