@@ -7,7 +7,8 @@ ROS-free and matplotlib-free, so the node can reuse it. :func:`assess` reads the
 * ``monitored_s``: seconds during which the fault tests ran against a trusted baseline, i.e. covered by
   reports in phase ``monitoring`` without a health hold;
 * ``blind_intervals``: where and why they did not run (``initializing``, ``settling``, ``learning``,
-  ``hold``, ``no_data``, ``no_estimate``);
+  ``hold``, ``no_data``, ``no_estimate``), or ran against an ``untrusted`` baseline (health
+  ``baseline_trusted`` false: learned over less than half its window, or the estimate moved within it);
 * ``flagged_model_s``: seconds of ``monitored_s`` during which the model-order check flagged the model
   (``health['model_order']['state']`` in :data:`.core.vocabulary.MODEL_ORDER_FLAGGED`: a model that misfits
   the data, e.g. a wrong input delay or a missing mode). The check only warns (it does not hold the tests), but
@@ -135,6 +136,10 @@ def _state(rep: Any, seen: dict[str, bool]) -> tuple[str, str]:
     seen["baseline_window"] = True
     if health.get("hold"):
         return "hold", f"health hold: {why or '; '.join(_clean(r) for r in health.get('reasons', [])[:2])}"
+    if health.get("baseline_trusted") is False:
+        # the tests run (an event still counts) but their silence is no evidence: the baseline was learned over
+        # too little of its window, or the estimate moved within it (core/faults.py)
+        return "untrusted", f"baseline untrusted: {_clean(str(health.get('baseline_note') or 'partial window'))}"
     return "monitored", ""
 
 

@@ -220,3 +220,22 @@ def test_the_series_view_of_the_reports_gives_the_same_flagged_verdict() -> None
     via_series = rp.assess_series([], rp.DiagnosisSeries.from_reports(reps, 1), 20.0)
     assert (via_series.level, via_series.text, via_series.flagged_model_s) == \
         (direct.level, direct.text, direct.flagged_model_s)
+
+
+def test_monitoring_against_an_untrusted_baseline_is_not_ok() -> None:
+    """CONTRACT: ``monitored_s`` counts the tests against a trusted baseline only. A baseline learned over too little
+    of its window, or one the estimate moved within, gives DEGRADED with the baseline's note, never OK; an event
+    raised against it still makes the record FAULT."""
+    note = "the estimate moved during the 12.2 s baseline window (mode 2 natural_frequency -3.3 % from its first " \
+           "half to its second); baseline untrusted"
+    untrusted = {**HEALTHY, "baseline_trusted": False, "baseline_note": note, "reasons": [note], "level": 1}
+    trusted = {**HEALTHY, "baseline_trusted": True, "baseline_note": ""}
+    v = assess(_startup() + _run(6, 20, "monitoring", True, untrusted), 20.0)
+    assert v.level == "DEGRADED" and v.monitored_s == 0.0
+    assert v.blind_intervals[-1].kind == "untrusted" and "mode 2 natural_frequency -3.3 %" in v.text
+    _partition_ok(v, 20.0)
+    v = assess(_startup() + _run(6, 20, "monitoring", True, trusted), 20.0)
+    assert v.level == "OK" and v.monitored_s == pytest.approx(14.0, abs=1e-6)
+    ev = [{"mode": 2, "quantity": "natural_frequency", "direction": "down", "onset_time_s": 12.0,
+           "alarm_time_s": 13.0, "clear_time_s": None, "baseline": 33.0, "value": 31.4}]
+    assert assess(_startup() + _run(6, 20, "monitoring", True, untrusted), 20.0, ev).level == "FAULT"

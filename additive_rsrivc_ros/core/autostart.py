@@ -11,7 +11,9 @@ A window without usable excitation (constant reference or input, no resonance in
 fits) or with less than :data:`MIN_CONTIGUOUS_S` of contiguous valid samples is a failed attempt: one line says why,
 and the search starts again on new data. A window that was excited but showed no mode (too short to resolve a low or
 lightly excited mode, or a mode outside the band the window excites) makes the next window twice as long, up to
-:data:`MAX_GROWTH` x (where such a mode is accepted, flagged in the message); the others are retried at once
+:data:`MAX_GROWTH` x (where such a mode is accepted, flagged in the message), unless the window held invalid
+samples: its failure may be theirs (an FRF with gaps resolves fewer peaks), so the next window keeps the length and
+only a clean window that fails grows it. The others are retried at once
 for the first :data:`FAST_RETRIES` failures, then after waiting ``window x 2^(failures - FAST_RETRIES)`` of data, at
 most :data:`MAX_WAIT_S` (bounded cost on a loop left idle for hours; a start at most ``MAX_WAIT_S`` + one window after
 the excitation begins). Nothing is estimated meanwhile; the estimator's offline initialization always uses the first
@@ -168,7 +170,10 @@ class ModeSearch:
             return new, "no mode guesses: " + self.found.describe()
         self.failures += 1
         wait = 0.0
-        if excited and self.growth < MAX_GROWTH:
+        invalid = _invalid_count(r if closed else None, u, y)
+        if excited and invalid and self.growth < MAX_GROWTH:
+            problem += f" ({invalid} invalid samples in the window: the next one keeps its length)"
+        if excited and not invalid and self.growth < MAX_GROWTH:
             self.growth *= 2
         elif self.failures > FAST_RETRIES:
             wait = min(MAX_WAIT_S, self.window / self.rate * 2.0 ** (self.failures - FAST_RETRIES))
@@ -196,9 +201,18 @@ def _longest_run(ok: np.ndarray) -> int:
     return int(np.max(edges[1::2] - edges[::2])) if edges.size else 0
 
 
+def _valid(r: np.ndarray | None, u: np.ndarray, y: np.ndarray) -> np.ndarray:
+    """Samples with finite input, output (and reference in closed loop): the pipeline's invalid ones are NaN here."""
+    return np.isfinite(u) & np.isfinite(y) & (np.isfinite(r) if r is not None else True)
+
+
+def _invalid_count(r: np.ndarray | None, u: np.ndarray, y: np.ndarray) -> int:
+    return int(np.count_nonzero(~_valid(r, u, y)))
+
+
 def _window_problem(r: np.ndarray | None, u: np.ndarray, y: np.ndarray, rate: float) -> str | None:
     """Why the window cannot show modes before any fit: too little contiguous valid data, or no excitation."""
-    ok = np.isfinite(u) & np.isfinite(y) & (np.isfinite(r) if r is not None else True)
+    ok = _valid(r, u, y)
     need = min(u.size, int(round(MIN_CONTIGUOUS_S * rate)))
     longest = _longest_run(ok)
     if longest < need:

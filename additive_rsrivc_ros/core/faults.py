@@ -154,7 +154,8 @@ class Baseline:
     t_end: float = math.nan
     n_eff: np.ndarray | None = None
     learned_s: float = math.nan   # seconds of healthy estimates in the window (breaks excluded)
-    trusted: bool = True          # False: learned over less than half a window (cut by a data problem or a change)
+    trusted: bool = True          # False: learned over less than half a window (cut by a data problem or a change),
+    #                               or its first and last thirds differ (a change spread over the window)
     note: str = ""                # why the window was cut short (empty for a complete window)
 
     def to_dict(self) -> dict[str, Any]:
@@ -204,21 +205,53 @@ class BaselineLearner:
         self.sum = np.zeros((self.n_modes, 3))
         self.sumsq = np.zeros((self.n_modes, 3))
         self.sum_var = np.zeros((self.n_modes, 3))
+        # the same sums over the window's first and last thirds (``add(..., window_s)``), compared at its end
+        self.thirds = np.zeros((2, 3, self.n_modes, 3))   # [first, last] x [sum, sum of squares, sum of variances]
+        self.n_thirds = [0, 0]
+        self.t_thirds = [0.0, math.nan]   # elapsed time of the first third's last, the last third's first estimate
 
     def pause(self) -> None:
         """A data problem: the time until the next :meth:`add` is not part of the window."""
         self.paused = True
 
-    def add(self, t: float, modal: np.ndarray) -> None:
+    def add(self, t: float, modal: np.ndarray, window_s: float = math.inf) -> None:
+        """One estimate; within the first or the last third of a ``window_s`` window it also counts there."""
         x, s = modal[:, :3], modal[:, 3:6]
         if self.n > 0 and not self.paused:
             self.elapsed_s += max(t - self.t_last, 0.0)
         self.paused = False
         self.n += 1
+        var = np.where(np.isfinite(s), s * s, 0.0)   # a NaN std (flagged block): the empirical spread
         self.sum += x
         self.sumsq += x * x
-        self.sum_var += np.where(np.isfinite(s), s * s, 0.0)   # a NaN std (flagged block): the empirical spread
+        self.sum_var += var
+        part = 0 if self.elapsed_s < window_s / 3.0 else (1 if self.elapsed_s >= 2.0 * window_s / 3.0 - 1e-9 else -1)
+        if part >= 0:
+            if part == 0:
+                self.t_thirds[0] = self.elapsed_s
+            elif self.n_thirds[1] == 0:
+                self.t_thirds[1] = self.elapsed_s
+            self.n_thirds[part] += 1
+            self.thirds[part] += (x, x * x, var)
         self.t_last = t
+
+    def outer_thirds(self, memory_s: np.ndarray) -> tuple[Baseline, Baseline] | None:
+        """The window's first and last thirds as two :class:`Baseline` (mean, spread and S2 std each), or None while
+        either holds fewer than two estimates. Thirds, not halves: a change spread over the whole window inflates
+        each part's spread by a third of it, not half, so it stands out of the parts' fluctuation."""
+        if min(self.n_thirds) < 2:
+            return None
+        parts = []
+        for k, dur in ((0, self.t_thirds[0]), (1, self.elapsed_s - self.t_thirds[1])):
+            n = self.n_thirds[k]
+            sx, sxx, sv = self.thirds[k]
+            mean = sx / n
+            emp_var = np.maximum(sxx / n - mean * mean, 0.0) * (n / (n - 1))
+            spread = np.sqrt(np.maximum(emp_var, sv / n))
+            n_eff = np.clip(dur / (2.0 * np.asarray(memory_s, float)), 1.0, float(n))
+            parts.append(Baseline(mean, spread / np.sqrt(n_eff)[:, None], spread, "learned", n_eff=n_eff,
+                                  learned_s=float(dur)))
+        return parts[0], parts[1]
 
     def finish(self, memory_s: np.ndarray, duration_s: float) -> Baseline:
         """Mean, fluctuation ``s_x = max(reported, empirical)`` and ``s_b = s_x / sqrt(n_eff)`` (S2)."""
@@ -234,7 +267,8 @@ class BaselineLearner:
     def to_dict(self) -> dict[str, Any]:
         return {"t_start": self.t_start, "t_last": self.t_last, "n": self.n, "sum": self.sum.tolist(),
                 "sumsq": self.sumsq.tolist(), "sum_var": self.sum_var.tolist(), "elapsed_s": self.elapsed_s,
-                "paused": self.paused}
+                "paused": self.paused, "thirds": self.thirds.tolist(), "n_thirds": list(self.n_thirds),
+                "t_thirds": list(self.t_thirds)}
 
     def load(self, d: Mapping[str, Any]) -> None:
         self.t_start, self.t_last, self.n = float(d["t_start"]), float(d["t_last"]), int(d["n"])
@@ -242,6 +276,10 @@ class BaselineLearner:
         self.paused = bool(d.get("paused", False))
         self.sum, self.sumsq = np.asarray(d["sum"], float), np.asarray(d["sumsq"], float)
         self.sum_var = np.asarray(d["sum_var"], float)
+        # a state saved before the thirds were kept: none (no comparison of the thirds for this window)
+        self.thirds = np.asarray(d["thirds"], float) if "thirds" in d else np.zeros((2, 3) + self.sum.shape)
+        self.n_thirds = [int(v) for v in d.get("n_thirds", (0, 0))]
+        self.t_thirds = [float(v) for v in d.get("t_thirds", (0.0, math.nan))]
 
 
 def cusum_threshold(k: float, arl0: float) -> float:
@@ -729,9 +767,16 @@ class FaultMonitor:
             if change is not None:
                 self._keep_partial(t, t, f"the estimate moved during the window ({change})", out)
                 return True
-            self.learner.add(t, modal)
+            self.learner.add(t, modal, window_s=self.baseline_window_s)
             if self.learner.elapsed_s >= self.baseline_window_s - 1e-9:
                 self.baseline = self.learner.finish(self.memory_s, self.learner.elapsed_s)
+                moved = self._thirds_change()
+                if moved is not None:
+                    # a change spread over the window (a slow fault, a still converging estimate) passes the check
+                    # of each estimate against the partial, whose spread grows with it: never a trusted baseline
+                    self.baseline.trusted = False
+                    self.baseline.note = (f"the estimate moved during the {self.learner.elapsed_s:.1f} s baseline "
+                                          f"window ({moved} from its first third to its last); baseline untrusted")
                 self.break_t = math.nan
                 self._start_monitoring(t, t, out)
             return True
@@ -753,6 +798,28 @@ class FaultMonitor:
             dev = modal[:, :3] - part.value
             rel = dev / np.abs(part.value)
             hit = (np.abs(rel) >= rho) & (np.abs(dev) >= 3.0 * sigma)
+        best, text = -1.0, None
+        for i in range(self.K):
+            for q in range(3):
+                if self.applicable(i, q) and bool(hit[i, q]) and abs(rel[i, q]) > best:
+                    best, text = abs(rel[i, q]), f"mode {i + 1} {QUANTITIES[q]} {100.0 * rel[i, q]:+.1f} %"
+        return text
+
+    def _thirds_change(self) -> str | None:
+        """A relevant and significant difference between the means of the window's first and last thirds (S3
+        relevance ``rho`` with the larger third's spread, ``z >= 3`` with each third's S2 std), as ``"mode i quantity
+        +x.x %"``."""
+        thirds = self.learner.outer_thirds(self.memory_s)
+        if thirds is None:
+            return None
+        first, second = thirds
+        s = self.settings
+        with np.errstate(divide="ignore", invalid="ignore"):
+            rho = np.maximum(np.asarray(s.min_change)[None, :], s.relevance_spread_factor *
+                             np.fmax(first.spread, second.spread) / np.abs(first.value))
+            dev = second.value - first.value
+            rel = dev / np.abs(first.value)
+            hit = (np.abs(rel) >= rho) & (np.abs(dev) >= 3.0 * np.sqrt(first.std ** 2 + second.std ** 2))
         best, text = -1.0, None
         for i in range(self.K):
             for q in range(3):
