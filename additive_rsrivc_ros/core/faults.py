@@ -185,6 +185,18 @@ class Baseline:
         return cls(value, std, std.copy(), "given")
 
 
+def _baseline_from_sums(n: int, sx: np.ndarray, sxx: np.ndarray, sv: np.ndarray, duration_s: float,
+                        memory_s: np.ndarray, t_start: float = math.nan, t_end: float = math.nan) -> Baseline:
+    """Mean, fluctuation ``s_x = max(reported, empirical)`` and ``s_b = s_x / sqrt(n_eff)`` (S2) of ``n`` estimates
+    from their sums, sums of squares and sums of reported variances over ``duration_s``."""
+    mean = sx / n
+    emp_var = np.maximum(sxx / n - mean * mean, 0.0) * (n / max(n - 1, 1))
+    spread = np.sqrt(np.maximum(emp_var, sv / n))
+    n_eff = np.clip(duration_s / (2.0 * np.asarray(memory_s, float)), 1.0, float(n))
+    return Baseline(mean, spread / np.sqrt(n_eff)[:, None], spread, "learned", t_start, t_end, n_eff,
+                    float(duration_s))
+
+
 class BaselineLearner:
     """Accumulates the estimate over a healthy window and returns a :class:`Baseline` (S1, S2).
 
@@ -241,28 +253,16 @@ class BaselineLearner:
         each part's spread by a third of it, not half, so it stands out of the parts' fluctuation."""
         if min(self.n_thirds) < 2:
             return None
-        parts = []
-        for k, dur in ((0, self.t_thirds[0]), (1, self.elapsed_s - self.t_thirds[1])):
-            n = self.n_thirds[k]
-            sx, sxx, sv = self.thirds[k]
-            mean = sx / n
-            emp_var = np.maximum(sxx / n - mean * mean, 0.0) * (n / (n - 1))
-            spread = np.sqrt(np.maximum(emp_var, sv / n))
-            n_eff = np.clip(dur / (2.0 * np.asarray(memory_s, float)), 1.0, float(n))
-            parts.append(Baseline(mean, spread / np.sqrt(n_eff)[:, None], spread, "learned", n_eff=n_eff,
-                                  learned_s=float(dur)))
-        return parts[0], parts[1]
+        first, last = (_baseline_from_sums(self.n_thirds[k], *self.thirds[k], dur, memory_s)
+                       for k, dur in ((0, self.t_thirds[0]), (1, self.elapsed_s - self.t_thirds[1])))
+        return first, last
 
     def finish(self, memory_s: np.ndarray, duration_s: float) -> Baseline:
         """Mean, fluctuation ``s_x = max(reported, empirical)`` and ``s_b = s_x / sqrt(n_eff)`` (S2)."""
         if self.n == 0:
             raise RuntimeError("baseline window holds no estimates")
-        mean = self.sum / self.n
-        emp_var = np.maximum(self.sumsq / self.n - mean * mean, 0.0) * (self.n / max(self.n - 1, 1))
-        spread = np.sqrt(np.maximum(emp_var, self.sum_var / self.n))
-        n_eff = np.clip(duration_s / (2.0 * np.asarray(memory_s, float)), 1.0, float(self.n))
-        std = spread / np.sqrt(n_eff)[:, None]
-        return Baseline(mean, std, spread, "learned", self.t_start, self.t_last, n_eff, float(duration_s))
+        return _baseline_from_sums(self.n, self.sum, self.sumsq, self.sum_var, duration_s, memory_s, self.t_start,
+                                   self.t_last)
 
     def to_dict(self) -> dict[str, Any]:
         return {"t_start": self.t_start, "t_last": self.t_last, "n": self.n, "sum": self.sum.tolist(),
