@@ -8,7 +8,8 @@ must come out ``adequate``, also with long misfit runs around an unmodelled reso
 ``adequacy.MISFIT_RUN_BINS`` only flags a run that no real extra mode explains). Each healthy scenario (the fault
 sizes set to 0) runs through ``MonitorPipeline`` with its own params file, fed in one-second batches as the node
 would; prints the check's window, state, longest misfit run and its band, the reports flagged on health by the
-check, the structural events (0 expected everywhere) and, column ``delay``, the output error of the better of the
+check, the structural events (0 expected everywhere), column ``base`` the baseline at the end (``T`` trusted, ``U``
+untrusted: 0 expected on these healthy plants) and, column ``delay``, the output error of the better of the
 two neighbouring input delays over the configured (true) one's (step 0 flags below ``adequacy.DELAY_ERROR_RATIO``).
 
     python scripts/study_live_order_check.py [--seeds 3] [--random 20]
@@ -82,7 +83,13 @@ def _through_pipeline(cfg, t, r, u, y) -> dict:
     return {"window": None if res is None else res.window_s, "state": "none" if res is None else res.state,
             "delay_ratio": min(ratios.values()) if ratios else np.nan,
             "run": None if res is None else res.misfit_run, "flagged_reports": flagged,
-            "events": sum(len(rp.events_opened) for rp in reports)}
+            "events": sum(len(rp.events_opened) for rp in reports), "baseline": _baseline_state(pipe)}
+
+
+def _baseline_state(pipe) -> str:
+    """``-`` no baseline yet, ``T`` trusted, ``U`` untrusted (cut short, or its thirds differ: ``core/faults.py``)."""
+    base = None if pipe.faults is None else pipe.faults.baseline
+    return "-" if base is None else ("T" if base.trusted else "U")
 
 
 def main(argv: list[str] | None = None) -> int:
@@ -91,7 +98,7 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--random", type=int, default=0, metavar="N", help="also N random closed-loop plants")
     args = ap.parse_args(argv)
     print(f"{'scenario':<28} {'seed':>4} {'window [s]':>14} {'state':>10} {'run':>4} {'run band [Hz]':>16} "
-          f"{'flagged':>7} {'events':>6} {'delay':>6}")
+          f"{'flagged':>7} {'events':>6} {'delay':>6} {'base':>4}")
     total = {"checks": 0, "flagged": 0, "events": 0, "longest": 0, "delay": np.inf}
     jobs = [(seed, lambda n=name, o=over, sec=seconds, sd=seed: (n, run_case(n, o, sec, sd)))
             for name, over, seconds in CASES for seed in range(args.seeds)]
@@ -102,16 +109,19 @@ def main(argv: list[str] | None = None) -> int:
         win = row["window"] or (np.nan, np.nan)
         print(f"{name:<28} {seed:>4} {win[0]:6.1f}-{win[1]:6.1f} {row['state']:>10} {run[0]:>4} "
               f"{run[1]:7.2f}-{run[2]:7.2f} {row['flagged_reports']:>7} {row['events']:>6} "
-              f"{row['delay_ratio']:6.2f}", flush=True)
+              f"{row['delay_ratio']:6.2f} {row['baseline']:>4}", flush=True)
         total["checks"] += row["state"] != "none"
         total["flagged"] += row["state"] in ("misfit", "too_low")
         total["events"] += row["events"]
         total["longest"] = max(total["longest"], int(run[0]))
         total["delay"] = min(total["delay"], row["delay_ratio"])
+        total["untrusted"] = total.get("untrusted", 0) + (row["baseline"] == "U")
+        total["baselines"] = total.get("baselines", 0) + (row["baseline"] != "-")
     print(f"\n{total['checks']} live checks on healthy plants: {total['flagged']} flagged, {total['events']} "
           f"structural events; longest misfit run {total['longest']} bins (flagged from adequacy.MISFIT_RUN_BINS only "
           "when no real extra mode explains it); the output error with a neighbouring delay was at least "
-          f"{total['delay']:.2f} of the configured (true) delay's (flagged below adequacy.DELAY_ERROR_RATIO)")
+          f"{total['delay']:.2f} of the configured (true) delay's (flagged below adequacy.DELAY_ERROR_RATIO); "
+          f"{total.get('untrusted', 0)} of {total.get('baselines', 0)} baselines learned untrusted (column base)")
     return 0
 
 
