@@ -6,7 +6,9 @@ damages the recorded stream (one lost output sample, 40 NaNs, a 2 s pause, one y
 window) or 22 s (monitoring) and prints the events, the held ("blind") time after the problem, the baseline of
 mode 2 and the phase sequence. Figures, not assertions (those are in test/test_data_problems.py).
 
-Usage: ``python scripts/study_data_problems.py [CASE ...]`` with CASE in none, lost1, nan40, pause2, huge.
+Usage: ``python scripts/study_data_problems.py [--autostart] [CASE ...]`` with CASE in none, lost1, nan40, pause2,
+huge. ``--autostart``: no mode guesses (``config/beam_plant.yaml``), the damage at 2 s inside the automatic start's
+first window; prints the window the modes were found on, the baseline's trust and the offline verdict.
 """
 
 from __future__ import annotations
@@ -58,12 +60,38 @@ def run(cfg, sig, kind: str, t_at: float) -> None:
           f"{last.baseline[1, 0]:.3f} Hz (trusted {last.health['baseline_trusted']}); phases {phases}")
 
 
+def run_autostart(cfg, sig, kind: str, t_at: float) -> None:
+    """No mode guesses (``config/beam_plant.yaml``): the damage lands in the automatic start's first window. Prints
+    the window the modes were found on, the baseline's trust and note, and the offline verdict."""
+    from additive_rsrivc_ros.verdict import assess
+
+    t, r, u, y = damaged(sig, kind, t_at, cfg.loop_rate_hz)
+    pipe = MonitorPipeline(cfg)
+    n = int(cfg.loop_rate_hz / 10)
+    reps = []
+    for a in range(0, t.size, n):
+        reps += pipe.push(t[a:a + n], r[a:a + n], u[a:a + n], y[a:a + n])
+    reps += pipe.flush()
+    events = [{"mode": e.mode, "quantity": e.quantity, "direction": e.direction, "onset_time_s": e.onset_time_s,
+               "alarm_time_s": e.alarm_time_s, "clear_time_s": e.clear_time_s, "baseline": e.baseline,
+               "value": e.value} for x in reps for e in x.events_opened]
+    found = pipe.search.found if pipe.search is not None else None
+    win = "none" if found is None else f"{found.window_s[0]:.1f}-{found.window_s[1]:.1f} s"
+    last = reps[-1].health
+    verdict = assess(reps, float(t[-1]) + 1.0 / cfg.loop_rate_hz, events)
+    print(f"{kind:6s} @ {t_at:4.1f} s: modes found on {win}; baseline trusted {last['baseline_trusted']} "
+          f"({last['baseline_note'] or 'complete window'}); {verdict.line}")
+
+
 def main() -> None:
-    cfg = load_config(REPO / "config" / "beam_fault.yaml")
+    args = sys.argv[1:]
+    autostart = "--autostart" in args
+    kinds = [a for a in args if a != "--autostart"] or ["none", "lost1", "nan40", "pause2", "huge"]
+    cfg = load_config(REPO / "config" / ("beam_plant.yaml" if autostart else "beam_fault.yaml"))
     sig = read_signals(REPO / "bags" / "beam_fault", cfg)
-    for kind in sys.argv[1:] or ["none", "lost1", "nan40", "pause2", "huge"]:
-        for t_at in ((0.0,) if kind == "none" else (12.2, 22.0)):
-            run(cfg, sig, kind, t_at)
+    for kind in kinds:
+        for t_at in ((0.0,) if kind == "none" else (2.0,) if autostart else (12.2, 22.0)):
+            (run_autostart if autostart else run)(cfg, sig, kind, t_at)
             sys.stdout.flush()
 
 
