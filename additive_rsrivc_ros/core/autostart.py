@@ -170,10 +170,11 @@ class ModeSearch:
             return new, "no mode guesses: " + self.found.describe()
         self.failures += 1
         wait = 0.0
-        invalid = _invalid_count(r if closed else None, u, y)
-        if excited and invalid and self.growth < MAX_GROWTH:
+        may_grow = excited and self.growth < MAX_GROWTH
+        invalid = int(np.count_nonzero(~_valid(r if closed else None, u, y))) if may_grow else 0
+        if invalid:
             problem += f" ({invalid} invalid samples in the window: the next one keeps its length)"
-        if excited and not invalid and self.growth < MAX_GROWTH:
+        if may_grow and not invalid:
             self.growth *= 2
         elif self.failures > FAST_RETRIES:
             wait = min(MAX_WAIT_S, self.window / self.rate * 2.0 ** (self.failures - FAST_RETRIES))
@@ -204,10 +205,6 @@ def _longest_run(ok: np.ndarray) -> int:
 def _valid(r: np.ndarray | None, u: np.ndarray, y: np.ndarray) -> np.ndarray:
     """Samples with finite input, output (and reference in closed loop): the pipeline's invalid ones are NaN here."""
     return np.isfinite(u) & np.isfinite(y) & (np.isfinite(r) if r is not None else True)
-
-
-def _invalid_count(r: np.ndarray | None, u: np.ndarray, y: np.ndarray) -> int:
-    return int(np.count_nonzero(~_valid(r, u, y)))
 
 
 def _window_problem(r: np.ndarray | None, u: np.ndarray, y: np.ndarray, rate: float) -> str | None:

@@ -789,14 +789,19 @@ class FaultMonitor:
         if self.learner.n < 2:
             return None
         part = self.learner.finish(self.memory_s, self.learner.elapsed_s)
+        sx = np.fmax(modal[:, 3:6], part.spread)
+        return self._largest_change(modal[:, :3], part.value, np.sqrt(sx * sx + part.std ** 2), part.spread)
+
+    def _largest_change(self, value: np.ndarray, ref: np.ndarray, sigma: np.ndarray,
+                        spread: np.ndarray) -> str | None:
+        """The largest relevant (S3 ``rho`` with the fluctuation ``spread``) and significant (``|dev| >= 3 sigma``)
+        relative change of ``value`` from ``ref`` (K, 3) over the applicable quantities, as ``"mode i quantity
+        +x.x %"``; None if there is none."""
         s = self.settings
         with np.errstate(divide="ignore", invalid="ignore"):
-            rho = np.maximum(np.asarray(s.min_change)[None, :],
-                             s.relevance_spread_factor * part.spread / np.abs(part.value))
-            sx = np.fmax(modal[:, 3:6], part.spread)
-            sigma = np.sqrt(sx * sx + part.std ** 2)
-            dev = modal[:, :3] - part.value
-            rel = dev / np.abs(part.value)
+            rho = np.maximum(np.asarray(s.min_change)[None, :], s.relevance_spread_factor * spread / np.abs(ref))
+            dev = value - ref
+            rel = dev / np.abs(ref)
             hit = (np.abs(rel) >= rho) & (np.abs(dev) >= 3.0 * sigma)
         best, text = -1.0, None
         for i in range(self.K):
@@ -812,20 +817,9 @@ class FaultMonitor:
         thirds = self.learner.outer_thirds(self.memory_s)
         if thirds is None:
             return None
-        first, second = thirds
-        s = self.settings
-        with np.errstate(divide="ignore", invalid="ignore"):
-            rho = np.maximum(np.asarray(s.min_change)[None, :], s.relevance_spread_factor *
-                             np.fmax(first.spread, second.spread) / np.abs(first.value))
-            dev = second.value - first.value
-            rel = dev / np.abs(first.value)
-            hit = (np.abs(rel) >= rho) & (np.abs(dev) >= 3.0 * np.sqrt(first.std ** 2 + second.std ** 2))
-        best, text = -1.0, None
-        for i in range(self.K):
-            for q in range(3):
-                if self.applicable(i, q) and bool(hit[i, q]) and abs(rel[i, q]) > best:
-                    best, text = abs(rel[i, q]), f"mode {i + 1} {QUANTITIES[q]} {100.0 * rel[i, q]:+.1f} %"
-        return text
+        first, last = thirds
+        return self._largest_change(last.value, first.value, np.sqrt(first.std ** 2 + last.std ** 2),
+                                    np.fmax(first.spread, last.spread))
 
     def _resume_window(self, t: float, modal: np.ndarray, out: FaultUpdate) -> bool:
         """The estimate re-settled after a data problem cut the baseline window: continue learning if it still
