@@ -40,13 +40,19 @@ def damaged(sig, kind: str, t_at: float, rate: float):
     return t[keep], r[keep], u[keep], y[keep]
 
 
-def run(cfg, sig, kind: str, t_at: float) -> None:
-    t, r, u, y = damaged(sig, kind, t_at, cfg.loop_rate_hz)
+def _through_pipeline(cfg, t, r, u, y) -> tuple[MonitorPipeline, list]:
+    """The samples through a fresh pipeline in 0.1 s batches; the pipeline and its reports."""
     pipe = MonitorPipeline(cfg)
     n = int(cfg.loop_rate_hz / 10)
     reps = []
     for a in range(0, t.size, n):
         reps += pipe.push(t[a:a + n], r[a:a + n], u[a:a + n], y[a:a + n])
+    return pipe, reps
+
+
+def run(cfg, sig, kind: str, t_at: float) -> None:
+    t, r, u, y = damaged(sig, kind, t_at, cfg.loop_rate_hz)
+    _, reps = _through_pipeline(cfg, t, r, u, y)
     ev = [(e.mode, e.quantity, e.direction, round(e.onset_time_s, 2), round(e.alarm_time_s, 2))
           for x in reps for e in x.events_opened]
     held = [x.time_s for x in reps if x.time_s >= t_at and x.health["hold"]] if kind != "none" else []
@@ -66,11 +72,7 @@ def run_autostart(cfg, sig, kind: str, t_at: float) -> None:
     from additive_rsrivc_ros.verdict import assess
 
     t, r, u, y = damaged(sig, kind, t_at, cfg.loop_rate_hz)
-    pipe = MonitorPipeline(cfg)
-    n = int(cfg.loop_rate_hz / 10)
-    reps = []
-    for a in range(0, t.size, n):
-        reps += pipe.push(t[a:a + n], r[a:a + n], u[a:a + n], y[a:a + n])
+    pipe, reps = _through_pipeline(cfg, t, r, u, y)
     reps += pipe.flush()
     events = [{"mode": e.mode, "quantity": e.quantity, "direction": e.direction, "onset_time_s": e.onset_time_s,
                "alarm_time_s": e.alarm_time_s, "clear_time_s": e.clear_time_s, "baseline": e.baseline,
