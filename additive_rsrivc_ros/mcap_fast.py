@@ -16,7 +16,8 @@ from __future__ import annotations
 from pathlib import Path
 
 import numpy as np
-from numba import njit
+
+from .core.compiled import kernel
 
 OP_CHANNEL = 0x04
 OP_MESSAGE = 0x05
@@ -26,12 +27,12 @@ class FastPathUnsupported(Exception):
     """The file has a structure the bulk reader does not handle; use the generic reader."""
 
 
-@njit(cache=True)
+@kernel
 def _u16(b: np.ndarray, p: int) -> int:
     return int(b[p]) | (int(b[p + 1]) << 8)
 
 
-@njit(cache=True)
+@kernel
 def _u64(b: np.ndarray, p: int) -> int:
     v = 0
     for i in range(8):
@@ -39,7 +40,7 @@ def _u64(b: np.ndarray, p: int) -> int:
     return v
 
 
-@njit(cache=True)
+@kernel
 def scan_records(buf: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray, np.ndarray, int]:
     """One pass over MCAP records ``opcode u8 | length u64 | content``.
 

@@ -4,8 +4,10 @@ node pays compilation on its first run.
 It exercises the code paths the node and the offline tools take, on short simulated records written as real
 bags: closed loop (the beam), a rigid-body mode (integrators), open loop, and an automatic start without guesses;
 each is simulated (sim.simulate), written (rosbag2/MCAP), read back (bagio, mcap_fast) and diagnosed
-(pipeline: alignment, recursion, filters, ZOH, faults). ``--check`` then lists kernels that were never compiled.
-The setup (``scripts/bootstrap.sh``) runs it; after ``colcon build`` run ``ros2 run additive_rsrivc_ros
+(pipeline: alignment, recursion, filters, ZOH, faults). Then every signature those runs met is compiled ahead of
+time into one C extension in the same directory (:mod:`.core.compiled`): a process that loads it never imports
+numba (about 1 s less per process). ``--check`` then lists kernels that were never compiled and says whether the
+extension loads. The setup (``scripts/bootstrap.sh``) runs it; after ``colcon build`` run ``ros2 run additive_rsrivc_ros
 rsrivc_warmup`` once (otherwise the first node start compiles, about 20-40 s).
 """
 
@@ -35,8 +37,9 @@ MARKER = ".warm"
 def load_kernels() -> float:
     """Load the compiled kernels into this process now; return the seconds it took.
 
-    A process's first numba call initializes numba's target context (about 1-2 s, holding the GIL); each further
-    kernel's first call then loads it from the cache in milliseconds. The node does this while configuring, before
+    With the ahead-of-time extension this is a millisecond. Under the JIT a process's first numba call initializes
+    numba's target context (about 1-2 s, holding the GIL); each further kernel's first call then loads it from the
+    cache in milliseconds. The node does this while configuring, before
     it subscribes: paid in the middle of a 4 kHz stream it stalls the executor and the input pauses. Without a warm
     cache this compiles (tens of seconds), once.
     """
@@ -46,7 +49,7 @@ def load_kernels() -> float:
 
     t0 = time.monotonic()
     phi, gam = np.zeros((2, 2)), np.zeros(2)
-    zoh.second_order_zoh(0.01, 1e-4, 1e-3, phi, gam)    # the first call starts numba (the rest load in ms each)
+    zoh.second_order_zoh(0.01, 1e-4, 1e-3, phi, gam)    # loads the extension, or starts numba (the rest load in ms)
     return time.monotonic() - t0
 
 
@@ -96,8 +99,12 @@ def _run_case(work: Path, scenario: str, params: str, after_s: float) -> None:
 
 
 def warm(verbose: bool = True) -> float:
-    """Run :data:`CASES`; mark the cache directory warm; return the seconds it took."""
+    """Run :data:`CASES` under numba's JIT, build the ahead-of-time extension from the signatures they met
+    (:mod:`.core.compiled`), mark the cache directory warm; return the seconds it took."""
+    from .core import compiled
+
     t0 = time.monotonic()
+    compiled.ensure_jit()                              # the JIT cache and the signatures to export
     with tempfile.TemporaryDirectory(prefix="rsrivc-warmup-") as tmp:
         for scenario, params, after_s in CASES:
             t = time.monotonic()
@@ -106,8 +113,23 @@ def warm(verbose: bool = True) -> float:
                 print(f"rsrivc_warmup: {scenario} / {params}: {time.monotonic() - t:.1f} s", file=sys.stderr)
     directory = numba_cache.configure()
     if directory:
+        _build_extension(Path(directory), verbose)
         (Path(directory) / MARKER).write_text(f"{time.time():.0f}\n", encoding="utf-8")
     return time.monotonic() - t0
+
+
+def _build_extension(directory: Path, verbose: bool) -> None:
+    """Compile the kernels ahead of time; on failure (no C compiler, say) the JIT cache serves, one line says why."""
+    from .core import compiled
+
+    try:
+        count, seconds = compiled.build(directory, kernel_dispatchers())
+    except Exception as exc:                           # noqa: BLE001 - any toolchain failure leaves the JIT serving
+        print(f"rsrivc_warmup: no ahead-of-time kernels ({type(exc).__name__}: {str(exc)[:200]}); "
+              "the JIT cache serves", file=sys.stderr)
+        return
+    if verbose:
+        print(f"rsrivc_warmup: {count} kernel signatures compiled ahead of time ({seconds:.0f} s)", file=sys.stderr)
 
 
 def _compiled(dispatcher: object) -> bool:
@@ -135,33 +157,46 @@ def is_warm() -> bool:
 def main(argv: list[str] | None = None) -> int:
     ap = argparse.ArgumentParser(prog="rsrivc_warmup", description=__doc__.split("\n\n")[0])
     ap.add_argument("--if-needed", action="store_true", help="do nothing when this source's cache is warm")
-    ap.add_argument("--check", action="store_true", help="afterwards, list kernels that were never compiled")
+    ap.add_argument("--check", action="store_true",
+                    help="afterwards, list kernels never compiled and say if the ahead-of-time extension is missing")
     ap.add_argument("--quiet", action="store_true")
     args = ap.parse_args(argv)
     import os
 
     where = os.environ.get("NUMBA_CACHE_DIR", "numba's default (next to the sources)")
-    if args.if_needed and is_warm() and not args.check:
+    warm_already = args.if_needed and is_warm()
+    if warm_already and not args.check:
         return 0                                       # silent: the setup calls this on every run
-    if not args.quiet:
-        print(f"rsrivc_warmup: compiling the numba kernels once into {where} (about a minute)", file=sys.stderr)
-    try:
-        seconds = warm(verbose=not args.quiet)
-    except (RuntimeError, OSError, ValueError) as exc:
-        print(f"rsrivc_warmup: error: {exc}", file=sys.stderr)
-        return 1
-    except KeyboardInterrupt:
-        print("rsrivc_warmup: interrupted (the kernels compiled so far stay cached)", file=sys.stderr)
-        return 130
-    if not args.quiet:
-        print(f"rsrivc_warmup: kernels compiled and cached in {where} ({seconds:.1f} s)", file=sys.stderr)
-    if args.check:
-        cold = [name for name, d in kernel_dispatchers().items() if not _compiled(d)]
-        for name in cold:
-            print(f"rsrivc_warmup: never compiled: {name}", file=sys.stderr)
-        return 1 if cold else 0
-    return 0
+    if not warm_already:
+        if not args.quiet:
+            print(f"rsrivc_warmup: compiling the numba kernels once into {where} (about two minutes)",
+                  file=sys.stderr)
+        try:
+            seconds = warm(verbose=not args.quiet)
+        except (RuntimeError, OSError, ValueError) as exc:
+            print(f"rsrivc_warmup: error: {exc}", file=sys.stderr)
+            return 1
+        except KeyboardInterrupt:
+            print("rsrivc_warmup: interrupted (the kernels compiled so far stay cached)", file=sys.stderr)
+            return 130
+        if not args.quiet:
+            print(f"rsrivc_warmup: kernels compiled and cached in {where} ({seconds:.1f} s)", file=sys.stderr)
+    return _check() if args.check else 0
 
+
+def _check() -> int:
+    """Print every kernel never compiled into the JIT cache and whether the ahead-of-time extension loads for
+    these sources; 1 if anything is missing."""
+    from .core import compiled
+
+    missing = compiled._load_extension() is None
+    if missing:
+        print("rsrivc_warmup: no ahead-of-time extension for these sources and this CPU", file=sys.stderr)
+    compiled.ensure_jit()
+    cold = [name for name, d in kernel_dispatchers().items() if not _compiled(d)]
+    for name in cold:
+        print(f"rsrivc_warmup: never compiled: {name}", file=sys.stderr)
+    return 1 if cold or missing else 0
 
 if __name__ == "__main__":
     sys.exit(main())

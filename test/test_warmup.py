@@ -6,6 +6,7 @@ import sys
 from pathlib import Path
 
 from additive_rsrivc_ros import numba_cache
+from additive_rsrivc_ros.core import compiled
 
 REPO = Path(__file__).resolve().parents[1]
 
@@ -63,14 +64,44 @@ print("EXIT", code, "MISSED", missed, "HITS", hits)
 """
 
 
-def test_after_warmup_a_fresh_diagnosis_compiles_nothing(tmp_path):
-    env = {k: v for k, v in os.environ.items() if k not in ("NUMBA_CACHE_DIR", numba_cache.AUTO_MARKER)}
+AHEAD = """
+import sys
+from additive_rsrivc_ros.cli import diagnose
+from additive_rsrivc_ros.core import compiled
+code = diagnose.main(sys.argv[1:])
+print("EXIT", code, "EXTENSION", compiled.extension_loaded(), "NUMBA", "numba" in sys.modules)
+"""
+
+
+def _warm_env() -> dict:
+    env = {k: v for k, v in os.environ.items()
+           if k not in ("NUMBA_CACHE_DIR", numba_cache.AUTO_MARKER, compiled.MODE_ENV, "NUMBA_DISABLE_JIT")}
     warm = subprocess.run([sys.executable, "-m", "additive_rsrivc_ros.warmup", "--if-needed", "--check", "--quiet"],
                           env=env, capture_output=True, text=True, cwd=REPO, timeout=900)
     assert warm.returncode == 0, warm.stderr                   # --check: every kernel was compiled by the warm-up
-    run = subprocess.run([sys.executable, "-c", MISSES, str(REPO / "bags" / "beam_fault"), "--params-file",
-                          str(REPO / "config" / "beam_fault.yaml"), "--out", str(tmp_path / "out"), "--quiet",
+    return env
+
+
+def _diagnose(script: str, env: dict, out: Path) -> str:
+    run = subprocess.run([sys.executable, "-c", script, str(REPO / "bags" / "beam_fault"), "--params-file",
+                          str(REPO / "config" / "beam_fault.yaml"), "--out", str(out), "--quiet",
                           "--no-report", "--no-progress"], env=env, capture_output=True, text=True, cwd=REPO,
                          timeout=600)
-    assert "EXIT 0 MISSED {} HITS" in run.stdout, run.stdout + run.stderr
-    assert int(run.stdout.split("HITS")[1]) > 0                # the kernels were loaded from the cache
+    return run.stdout + run.stderr
+
+
+def test_after_warmup_a_fresh_diagnosis_compiles_nothing(tmp_path):
+    env = _warm_env()
+    got = _diagnose(MISSES, {**env, compiled.MODE_ENV: "jit"}, tmp_path / "out")     # the JIT's cache
+    assert "EXIT 0 MISSED {} HITS" in got, got
+    assert int(got.split("HITS")[1].split()[0]) > 0            # the kernels were loaded from the cache
+
+
+def test_after_warmup_a_fresh_diagnosis_runs_ahead_of_time_without_numba_and_equals_the_jit(tmp_path):
+    """The extension serves every kernel the diagnosis calls (numba is never imported) with the JIT's results."""
+    env = _warm_env()
+    got = _diagnose(AHEAD, env, tmp_path / "aot")
+    assert "EXIT 0 EXTENSION True NUMBA False" in got, got
+    assert "EXIT 0" in _diagnose(AHEAD, {**env, compiled.MODE_ENV: "jit"}, tmp_path / "jit")
+    for name in ("estimates.csv", "events.csv"):
+        assert (tmp_path / "aot" / name).read_text() == (tmp_path / "jit" / name).read_text(), name

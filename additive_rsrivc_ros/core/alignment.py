@@ -35,8 +35,8 @@ from dataclasses import dataclass, field
 from typing import NamedTuple
 
 import numpy as np
-from numba import njit
 
+from .compiled import kernel
 from .controller import DiscreteController
 
 _EPS = np.finfo(float).eps
@@ -535,7 +535,7 @@ class InvariantAligner:
         self._segments = [(self._base, act[1], act[2])] + [sg for sg in self._segments if sg[0] > self._base]
 
 
-@njit(cache=True)
+@kernel
 def _fir_terms(x, n_have, lo, hi, c):  # pragma: no cover - compiled
     """``sum_i c_i x[k - i]`` and ``sum_i |c_i x[k - i]|`` for buffer positions ``lo <= k < hi`` (NaN where the
     window leaves the data): each stream's part of the invariant, computed once per position, not per
@@ -556,7 +556,7 @@ def _fir_terms(x, n_have, lo, hi, c):  # pragma: no cover - compiled
     return val, mag
 
 
-@njit(cache=True)
+@kernel
 def _cusum_scan(u, r, y, n_have, j0, n, a0, b0, d, nc, hyp, cur, G, rho, k0, switch, drift, rounding, alpha,
                 state, flags):  # pragma: no cover - compiled
     """Per-sample CUSUM of every offset hypothesis against the current one (module docstring).

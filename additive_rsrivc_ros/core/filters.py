@@ -14,7 +14,7 @@ the estimates; ZOH does not. No high-order transfer-function polynomial is ever 
 * the total model of the closed loop (001 eq. 20, ``S_uo = C_d / (1 + C_d G_d)``, NOTES erratum 3) is the
   block-diagonal (parallel) sum of the submodels, never one polynomial.
 
-Long signals run through numba-compiled loops (``@njit(cache=True)``): 240k samples of a 4-state
+Long signals run through numba-compiled loops (``@kernel``, :mod:`.compiled`): 240k samples of a 4-state
 filter take about 4 ms (about 1 ms for the 2-state filter of one mode).
 """
 
@@ -26,8 +26,8 @@ import numpy as np
 import scipy.linalg
 import scipy.sparse
 import scipy.sparse.linalg
-from numba import njit
 
+from .compiled import kernel
 from .controller import DiscreteController
 from .model import SubmodelStructure, split_theta
 from .zoh import zoh_matrices
@@ -73,7 +73,7 @@ class DiscreteSS:
 # compiled loops
 
 
-@njit(cache=True)
+@kernel
 def _run_outputs_2(phi: np.ndarray, gamma: np.ndarray, c: np.ndarray, d: np.ndarray, v: np.ndarray,
                    out: np.ndarray) -> None:
     """:func:`run_outputs` for two states (every resonant mode's filter) with the state in registers."""
@@ -88,7 +88,7 @@ def _run_outputs_2(phi: np.ndarray, gamma: np.ndarray, c: np.ndarray, d: np.ndar
         x0, x1 = p00 * x0 + p01 * x1 + g0 * vk, p10 * x0 + p11 * x1 + g1 * vk
 
 
-@njit(cache=True)
+@kernel
 def _run_outputs_4(phi: np.ndarray, gamma: np.ndarray, c: np.ndarray, d: np.ndarray, v: np.ndarray,
                    out: np.ndarray) -> None:
     """:func:`run_outputs` for four states (one mode's instrument cascade ``B/A`` then ``1/A``) in registers."""
@@ -111,7 +111,7 @@ def _run_outputs_4(phi: np.ndarray, gamma: np.ndarray, c: np.ndarray, d: np.ndar
                           p30 * x0 + p31 * x1 + p32 * x2 + p33 * x3 + g3 * vk)
 
 
-@njit(cache=True)
+@kernel
 def run_outputs(phi: np.ndarray, gamma: np.ndarray, c: np.ndarray, d: np.ndarray, v: np.ndarray,
                 out: np.ndarray) -> None:
     """``out[k] = c x_k + d v_k`` with ``x_{k+1} = phi x_k + gamma v_k``, ``x_0 = 0`` (one pass, no temporaries)."""
@@ -140,7 +140,7 @@ def run_outputs(phi: np.ndarray, gamma: np.ndarray, c: np.ndarray, d: np.ndarray
         x, xn = xn, x
 
 
-@njit(cache=True)
+@kernel
 def _closed_loop_loop(phi, gamma, cp, dp, delay, cnum, cden, r):  # pragma: no cover - compiled
     """Noise-free closed loop ``u = C_d (r - G_d q^-d u)`` (DF-II transposed controller, 001 eq. 6)."""
     n = phi.shape[0]

@@ -1,6 +1,7 @@
 """Compiled per-sample kernel of the recursive additive SRIVC / CLSRIVC estimator (000 Algorithm 2).
 
-One source of truth: :func:`run_block` is plain Python decorated with numba ``@njit(cache=True)``; with
+One source of truth: :func:`run_block` is plain Python compiled by numba (``@kernel``, :mod:`.compiled`: ahead of time
+after ``rsrivc_warmup``, else ``njit(cache=True)``); with
 ``NUMBA_DISABLE_JIT=1`` the very same code runs interpreted (tested to match to 1e-10). All state lives
 in flat float64/int64 arrays (see :class:`KernelState` in ``core/recursive.py``), so snapshot/restore is a
 copy of arrays and continuation is bit-identical.
@@ -78,8 +79,8 @@ from __future__ import annotations
 import math
 
 import numpy as np
-from numba import njit
 
+from .compiled import kernel
 from .zoh import integrator_chain_zoh, second_order_zoh
 
 # bank indices
@@ -111,7 +112,7 @@ C_H, C_LAMSIG, C_MAXSTEP, C_PCAP = range(4)
 N_CFGF = 4
 
 
-@njit(cache=True)
+@kernel
 def project_second_order(a1: float, a2: float) -> tuple[float, float, bool]:
     """Reflect right-half-plane roots of ``A(p) = 1 + a1 p + a2 p^2`` into the LHP (000 §4.7).
 
@@ -128,7 +129,7 @@ def project_second_order(a1: float, a2: float) -> tuple[float, float, bool]:
     return a1, a2, False
 
 
-@njit(cache=True)
+@kernel
 def discretize_mode(kind: int, a1: float, a2: float, h: float, phi: np.ndarray, gam: np.ndarray) -> None:
     """``Phi, Gamma`` of ``1/A(p)`` (kind 0, closed form) or of ``1/p^kind`` (rigid body, 000 §4.6)."""
     if kind == 0:
@@ -139,7 +140,7 @@ def discretize_mode(kind: int, a1: float, a2: float, h: float, phi: np.ndarray, 
         integrator_chain_zoh(kind, h, phi[:kind, :kind], gam[:kind])
 
 
-@njit(cache=True)
+@kernel
 def iv_denominator_ok(den: float, den_abs: float, lam: float) -> bool:
     """IV-RLS denominator ``den = lam + phi^T P phi^`` usable (000 eq. 31 / B.5): ``den >= DEN_FLOOR lam`` (ordinary
     RLS has ``den >= lam``; a smaller one multiplies the step by ``lam/den``) and ``den >= DEN_ROUNDOFF den_abs``
@@ -147,14 +148,14 @@ def iv_denominator_ok(den: float, den_abs: float, lam: float) -> bool:
     return math.isfinite(den) and math.isfinite(den_abs) and den >= DEN_FLOOR * lam and den >= DEN_ROUNDOFF * den_abs
 
 
-@njit(cache=True)
+@kernel
 def _finite_zoh(phi: np.ndarray, gam: np.ndarray) -> bool:
     """All entries of a mode's ``Phi`` (2x2) and ``Gamma`` (2,) are finite."""
     return (math.isfinite(phi[0, 0]) and math.isfinite(phi[0, 1]) and math.isfinite(phi[1, 0])
             and math.isfinite(phi[1, 1]) and math.isfinite(gam[0]) and math.isfinite(gam[1]))
 
 
-@njit(cache=True)
+@kernel
 def _ensure_finite_zoh(i: int, kind: np.ndarray, theta: np.ndarray, thf: np.ndarray, h: float, phi: np.ndarray,
                        gam: np.ndarray) -> bool:
     """Cached ``Phi_i, Gamma_i`` finite; if not, re-discretized from the filter model, else from the estimate (which
@@ -172,7 +173,7 @@ def _ensure_finite_zoh(i: int, kind: np.ndarray, theta: np.ndarray, thf: np.ndar
     return False
 
 
-@njit(cache=True)
+@kernel
 def _propagate_mode(i: int, phi: np.ndarray, gam: np.ndarray, xs: np.ndarray, T: np.ndarray,
                     vy: float, vu: float, vz: float, vx: float) -> None:
     """``T[i, b] = Phi_i xs[i, b] + Gamma_i v_b`` for the four banks (t_{k-1} -> t_k)."""
@@ -197,7 +198,7 @@ def _propagate_mode(i: int, phi: np.ndarray, gam: np.ndarray, xs: np.ndarray, T:
         T[i, b, 1] = p10 * s0 + p11 * s1 + g1 * v
 
 
-@njit(cache=True)
+@kernel
 def _sandwich_step(S: np.ndarray, i: int, full: bool, l2: float, z0: float, z1: float, z2: float) -> None:
     """``S_i = lam^2 S_i + zeta zeta^T`` (symmetric; ``full``: 3 parameters, else the rigid body's ``b0`` only)."""
     s00 = l2 * S[i, 0, 0] + z0 * z0
@@ -223,7 +224,7 @@ def n_kernel_params(kind: int) -> int:
     return NT if kind == 0 else 1 + int(kind)
 
 
-@njit(cache=True)
+@kernel
 def restart_free_response(kind: np.ndarray, theta: np.ndarray, thf: np.ndarray, P: np.ndarray, S: np.ndarray,
                           p0diag: np.ndarray) -> None:
     """The filters start from rest: a rigid body's initial state is unknown again (``c = 0``, ``P(0) = P0_FREE``
@@ -244,7 +245,7 @@ def restart_free_response(kind: np.ndarray, theta: np.ndarray, thf: np.ndarray, 
             P[i, a, a] = P0_FREE
 
 
-@njit(cache=True)
+@kernel
 def free_response_step(i: int, lam: float, e: float, theta: np.ndarray, P: np.ndarray) -> None:
     """RLS of the rigid body's free response alone on the output error ``e = y - sum_i x_i`` (regressor ``[1, 0]``),
     for a sample without an IV update; ``1/p``: ``c1`` and its P stay 0."""
@@ -264,7 +265,7 @@ def free_response_step(i: int, lam: float, e: float, theta: np.ndarray, P: np.nd
     P[i, 2, 2] = (p11 - g1 * p01) / lam
 
 
-@njit(cache=True)
+@kernel
 def fold_free_response(i: int, h: float, theta: np.ndarray, thf: np.ndarray, xs: np.ndarray, P: np.ndarray,
                        S: np.ndarray) -> None:
     """End of a sample: the estimated free response ``c0 + c1 t`` joins the rigid body's input filter state as
@@ -286,7 +287,7 @@ def fold_free_response(i: int, h: float, theta: np.ndarray, thf: np.ndarray, xs:
         S[i, a, 2] -= h * S[i, a, 1]
 
 
-@njit(cache=True)
+@kernel
 def run_block(  # noqa: C901 - one compiled per-sample loop (test/test_code_shape.py)
               r: np.ndarray, u: np.ndarray, y: np.ndarray, valid: np.ndarray, allow_update: bool,
               kind: np.ndarray, lam: np.ndarray, muf: np.ndarray, cnum: np.ndarray, cden: np.ndarray,

@@ -21,8 +21,8 @@ import math
 from collections.abc import Sequence
 
 import numpy as np
-from numba import njit
 
+from .compiled import kernel
 from .controller import DiscreteController
 from .model import TWO_PI, SubmodelStructure
 from .zoh import integrator_chain_zoh, second_order_zoh
@@ -33,7 +33,7 @@ _KIND_SECOND, _KIND_CHAIN, _KIND_GENERAL = 0, 1, 2
 # ----------------------------------------------------------------------------------------------------------------
 # Compiled per-sample kernel
 # ----------------------------------------------------------------------------------------------------------------
-@njit(cache=True)
+@kernel
 def _expm_small(m: np.ndarray) -> np.ndarray:
     """Matrix exponential of a small matrix: scaling and squaring with an 18-term Taylor series (error ~ ulp)."""
     n = m.shape[0]
@@ -57,7 +57,7 @@ def _expm_small(m: np.ndarray) -> np.ndarray:
     return result
 
 
-@njit(cache=True)
+@kernel
 def _mode_zoh(kind: int, l: int, a1: float, a2: float, b0: float, h: float, phi: np.ndarray,
               gamma: np.ndarray) -> None:
     """Exact ZOH of one mode in output coordinates ``[x, x', ...]``, input ``u`` (the gain is in ``gamma``)."""
@@ -89,7 +89,7 @@ def _mode_zoh(kind: int, l: int, a1: float, a2: float, b0: float, h: float, phi:
             gamma[i] = e[i, ns]
 
 
-@njit(cache=True)
+@kernel
 def simulate_kernel(theta: np.ndarray, kinds: np.ndarray, ls: np.ndarray, h: float, closed: bool,
                      r: np.ndarray, u_ext: np.ndarray, v: np.ndarray, delay: int, num: np.ndarray,
                      den: np.ndarray, add: np.ndarray, stuck: np.ndarray, stuck_val: np.ndarray,

@@ -29,7 +29,8 @@ from __future__ import annotations
 import math
 
 import numpy as np
-from numba import njit
+
+from .compiled import kernel
 
 _INV_FACT = np.array([1.0 / math.factorial(k) for k in range(40)])   # 1/k! (compile-time constants in numba)
 _INV_INT = np.array([1.0 / k if k else 0.0 for k in range(40)])
@@ -37,7 +38,7 @@ SERIES_RADIUS = 1.0  # |pole| h below which Phi, Gamma come from the divided-dif
 POLE_FORM_X = 0.5   # overdamped: q h from which the real-pole form replaces cosh/sinh (no e^{+q h} anywhere)
 
 
-@njit(cache=True)
+@kernel
 def _c_s_1mc(q2: float, h: float) -> tuple[float, float, float]:
     """``c = cosh(q h)``, ``S = sinh(q h)/q`` and ``1 - c`` for real or imaginary ``q`` (q2 = q^2)."""
     x2 = q2 * h * h
@@ -55,7 +56,7 @@ def _c_s_1mc(q2: float, h: float) -> tuple[float, float, float]:
     return math.cos(wd * h), math.sin(wd * h) / wd, 2.0 * half * half
 
 
-@njit(cache=True)
+@kernel
 def _general_zoh(a1: float, a2: float, h: float, phi: np.ndarray, gamma: np.ndarray) -> None:
     """``e^{s h}[c I + S (M - s I)]`` for any coefficients with ``a2 != 0`` (used outside the admissible set)."""
     s = -0.5 * a1 / a2
@@ -72,7 +73,7 @@ def _general_zoh(a1: float, a2: float, h: float, phi: np.ndarray, gamma: np.ndar
     gamma[1] = e * sv / a2
 
 
-@njit(cache=True)
+@kernel
 def _discriminant(a1: float, a2: float) -> float:
     """``a1^2 - 4 a2`` with the rounding error of ``a1^2`` added back (Dekker's exact product).
 
@@ -89,7 +90,7 @@ def _discriminant(a1: float, a2: float) -> float:
     return (p - 4.0 * a2) + err
 
 
-@njit(cache=True)
+@kernel
 def _series_zoh(e1: float, e2: float, rho: float, h: float, a2: float, phi: np.ndarray, gamma: np.ndarray) -> None:
     """All poles small (``|lambda| h <= SERIES_RADIUS``): divided differences of ``exp`` as power series.
 
@@ -123,7 +124,7 @@ def _series_zoh(e1: float, e2: float, rho: float, h: float, a2: float, phi: np.n
     gamma[1] = g2
 
 
-@njit(cache=True)
+@kernel
 def _oscillatory_zoh(x2: float, sigma: float, disc: float, h: float, a2: float, phi: np.ndarray,
                      gamma: np.ndarray) -> None:
     """Underdamped (``x2 = q^2 h^2 < 0``) or overdamped with small ``q h``: ``e^{s h}[c I + S (M - s I)]``.
@@ -165,7 +166,7 @@ def _oscillatory_zoh(x2: float, sigma: float, disc: float, h: float, a2: float, 
     gamma[1] = g2
 
 
-@njit(cache=True)
+@kernel
 def _real_pole_zoh(a1: float, a2: float, disc: float, h: float, phi: np.ndarray, gamma: np.ndarray) -> None:
     """Overdamped, ``q h >= POLE_FORM_X``: real poles ``lambda_1 = -2/(a1 + sD)`` (slow) and
     ``lambda_2 = -(a1 + sD)/(2 a2)`` (fast), ``sD = sqrt(a1^2 - 4 a2)``; only ``e^{lambda h} <= 1`` appear.
@@ -196,7 +197,7 @@ def _real_pole_zoh(a1: float, a2: float, disc: float, h: float, phi: np.ndarray,
     gamma[1] = g2
 
 
-@njit(cache=True)
+@kernel
 def second_order_zoh(a1: float, a2: float, h: float, phi: np.ndarray, gamma: np.ndarray) -> None:
     """Fill ``phi`` (2x2) and ``gamma`` (2,) with the exact ZOH of ``a2 w'' + a1 w' + w = v``.
 
@@ -230,7 +231,7 @@ def second_order_zoh(a1: float, a2: float, h: float, phi: np.ndarray, gamma: np.
         _real_pole_zoh(a1, a2, disc, h, phi, gamma)
 
 
-@njit(cache=True)
+@kernel
 def integrator_chain_zoh(l: int, h: float, phi: np.ndarray, gamma: np.ndarray) -> None:
     """Exact ZOH of ``1/p^l`` in coordinates ``[w, w', ..., w^(l-1)]``: ``Phi_ij = h^(j-i)/(j-i)!``."""
     for i in range(l):

@@ -11,6 +11,7 @@ import numpy as np
 from numba import njit
 from scipy import signal
 
+from ..core.compiled import ensure_jit
 from ..core.model import SubmodelStructure, total_transfer_function
 from ..core.zoh import integrator_chain_zoh, second_order_zoh
 from .plants import CL52_THETAS, PAPER_PID, PAPER_PID_DEN, PAPER_PID_NUM
@@ -171,6 +172,7 @@ def simulate_modal(theta, rate_hz, n, *, r=None, u=None, controller=None, delay=
     noise = noise_std * rng.standard_normal(n)
     r = np.zeros(n) if r is None else np.asarray(r, dtype=float)
     u_ext = np.zeros(n) if u is None else np.asarray(u, dtype=float)
+    ensure_jit()       # _sim calls the package's ZOH kernels, which then must be numba dispatchers
     return _sim(traj, kinds, 1.0 / rate_hz, int(delay), closed, np.asarray(cnum, float), np.asarray(cden, float),
                 r, u_ext, noise)
 
