@@ -15,7 +15,8 @@ def test_bench_json_keys():
     assert out["start_to_first_estimate_s"] > 0 and out["first_estimate_after_init_s"] > 0
     assert out["cold_start"]["warm_cache_s"] > 0 and out["cold_start"]["empty_cache_s"] > 0
     dg = out["diagnose_4096hz_k2"]
-    assert dg["process_s"] >= dg["total_s"] > 0 and dg["seconds_of_data"] == 6
+    assert dg["process_s"] >= dg["total_s"] > 0 and dg["seconds_of_data"] == 6 and dg["process_jit_s"] > 0
+    assert out["kernels"] in ("ahead_of_time", "jit")
     st = out["autostart_4096hz_k4"]
     assert st["seconds_of_data"] == 10 and st["start_s"] > 0 and st["modes_true"] == 4
     assert 1 <= st["modes_found"] <= 6   # a start was made (10 s need not show all four modes)

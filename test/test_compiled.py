@@ -130,7 +130,7 @@ def _axpy(a, x, y):
 
 def test_build_writes_an_extension_and_a_manifest_that_load(tmp_path, monkeypatch):
     """A small build (one kernel met with two signatures, one of them not exportable) into an empty directory loads,
-    serves exactly its export with the JIT's result; a rebuild replaces the extension file."""
+    serves exactly its export with the JIT's result; a rebuild writes a new file and removes those older than 10 min."""
     from numba import njit
 
     disp = njit(cache=False)(_axpy)
@@ -149,4 +149,10 @@ def test_build_writes_an_extension_and_a_manifest_that_load(tmp_path, monkeypatc
     assert np.array_equal(y2, y) and np.array_equal(y, 1.0 + 2.0 * x)
     compiled.build(tmp_path, {"test.axpy": disp})
     files = sorted(p.name for p in tmp_path.glob(compiled.EXTENSION + "-*"))
-    assert len(files) == 1 and files[0] != first
+    assert len(files) == 2 and first in files           # the first is younger than 10 min: kept
+    now = json.loads((tmp_path / compiled.MANIFEST).read_text())["file"]
+    assert now != first and now in files
+    os.utime(tmp_path / first, (0, 0))                  # an old extension: removed by the next build
+    compiled.build(tmp_path, {"test.axpy": disp})
+    files = sorted(p.name for p in tmp_path.glob(compiled.EXTENSION + "-*"))
+    assert first not in files and now in files and len(files) == 2

@@ -229,7 +229,8 @@ def kernel(py_func: Callable) -> Any:
         return njit(cache=True)(py_func)
     module, exports = loaded
     variants = [(getattr(module, export), specs)
-                for export, specs in exports.get(f"{py_func.__module__}.{py_func.__name__}", [])]
+                for export, specs in exports.get(f"{py_func.__module__}.{py_func.__name__}", [])
+                if hasattr(module, export)]
     k = Kernel(py_func, variants)
     _REGISTRY.append(k)
     return k
@@ -296,7 +297,14 @@ def build(directory: Path, dispatchers: dict[str, Any]) -> tuple[int, float]:
     tmp_manifest = directory / f".{MANIFEST}.{os.getpid()}"
     tmp_manifest.write_text(json.dumps(manifest, indent=1), encoding="utf-8")
     os.replace(tmp_manifest, directory / MANIFEST)
+    try:                                               # a concurrent build may have written the manifest since
+        keep = {target, json.loads((directory / MANIFEST).read_text(encoding="utf-8")).get("file")}
+    except (OSError, ValueError):
+        keep = {target}
     for old in directory.glob(f"{EXTENSION}-*"):
-        if old.name != target:
-            old.unlink(missing_ok=True)                # a process that loaded it keeps its mapping
+        try:
+            if old.name not in keep and time.time() - old.stat().st_mtime > 600.0:   # not a concurrent build's
+                old.unlink()                           # a process that loaded it keeps its mapping
+        except OSError:
+            pass
     return sum(len(v) for v in exports.values()), time.monotonic() - t0
