@@ -9,9 +9,11 @@ source, so a changed kernel anywhere means a fresh directory, never a stale load
     ``/numba-<package version>-<source hash>/``
 
 It is user-writable, so read-only installs (``colcon build``, ``pip install``) cache too; when no candidate is
-writable the system temporary directory is used. A ``NUMBA_CACHE_DIR`` set by the user is respected as is
-(then invalidation is the user's). :func:`configure` runs once, from the package's ``__init__``, before any
-kernel module is imported; ``rsrivc_warmup`` (``python -m additive_rsrivc_ros.warmup``) fills the cache.
+writable the system temporary directory is used. The same directory holds the kernels compiled ahead of time
+(``core/compiled.py``), checked against the sources again when loaded. A ``NUMBA_CACHE_DIR`` set by the user is
+respected as is (then invalidation of the JIT cache is the user's). :func:`configure` runs once, from the
+package's ``__init__``, before any kernel module is imported; ``rsrivc_warmup`` (``python -m
+additive_rsrivc_ros.warmup``) fills the cache.
 """
 
 from __future__ import annotations

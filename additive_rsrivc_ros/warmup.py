@@ -126,7 +126,7 @@ def _build_extension(directory: Path, verbose: bool) -> None:
         count, seconds = compiled.build(directory, kernel_dispatchers())
     except Exception as exc:                           # noqa: BLE001 - any toolchain failure leaves the JIT serving
         print(f"rsrivc_warmup: no ahead-of-time kernels ({type(exc).__name__}: {str(exc)[:200]}); "
-              "the JIT cache serves", file=sys.stderr)
+              "the JIT cache serves; with a C compiler, run rsrivc_warmup again", file=sys.stderr)
         return
     if verbose:
         print(f"rsrivc_warmup: {count} kernel signatures compiled ahead of time ({seconds:.0f} s)", file=sys.stderr)
