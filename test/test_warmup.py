@@ -105,3 +105,19 @@ def test_after_warmup_a_fresh_diagnosis_runs_ahead_of_time_without_numba_and_equ
     assert "EXIT 0" in _diagnose(AHEAD, {**env, compiled.MODE_ENV: "jit"}, tmp_path / "jit")
     for name in ("estimates.csv", "events.csv"):
         assert (tmp_path / "aot" / name).read_text() == (tmp_path / "jit" / name).read_text(), name
+
+
+def test_a_failed_ahead_of_time_build_leaves_the_jit_serving_with_one_line(tmp_path, monkeypatch, capsys):
+    """No C compiler (or any toolchain failure): the warm-up says so in one line and goes on; nothing is loaded."""
+    from additive_rsrivc_ros import warmup
+
+    def no_compiler(directory, dispatchers):
+        raise OSError("error: command 'gcc' failed: No such file or directory")
+
+    monkeypatch.setattr(compiled, "build", no_compiler)
+    monkeypatch.setattr(warmup, "kernel_dispatchers", dict)
+    warmup._build_extension(tmp_path, verbose=True)
+    err = capsys.readouterr().err.strip().splitlines()
+    assert len(err) == 1 and "no ahead-of-time kernels (OSError" in err[0] and "JIT cache serves" in err[0]
+    monkeypatch.setenv("NUMBA_CACHE_DIR", str(tmp_path))
+    assert compiled._load_extension() is None
