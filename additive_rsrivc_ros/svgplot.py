@@ -590,10 +590,17 @@ def _line(xa: float, ya: float, xb: float, yb: float, attrs: str) -> str:
     return f'<line x1="{_f(xa)}" y1="{_f(ya)}" x2="{_f(xb)}" y2="{_f(yb)}" {attrs}/>'
 
 
+#: matplotlib's one-letter colours (not SVG colours: a browser ignores ``stroke="k"`` and draws nothing)
+_LETTERS = {"b": "#0000ff", "g": "#008000", "r": "#ff0000", "c": "#00bfbf", "m": "#bf00bf", "y": "#bfbf00",
+            "k": "#000000", "w": "#ffffff"}
+
+
 def _color(c: str | None) -> str:
-    """matplotlib grey strings ("0.85") as hex; everything else as is."""
+    """matplotlib one-letter colours and grey strings ("0.85") as hex; everything else as is."""
     if c is None:
         return "none"
+    if c in _LETTERS:
+        return _LETTERS[c]
     try:
         g = float(c)
     except ValueError:

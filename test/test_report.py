@@ -197,6 +197,11 @@ def test_write_report_self_contained(tmp_path: Path) -> None:
     assert svg.tag == "{http://www.w3.org/2000/svg}svg"
     ids = re.findall(r' id="([^"]+)"', text)
     assert ids and len(ids) == len(set(ids)), "the page's figures share element ids"
+    # every paint is an SVG colour: a browser ignores an invalid one (matplotlib's "k" drew no baseline line)
+    paints = set(re.findall(r' (?:stroke|fill)="([^"]*)"', text))
+    bad = {p for p in paints if not re.fullmatch(r"#[0-9a-f]{3}|#[0-9a-f]{6}|none|url\(#[\w-]+\)|black|white", p)}
+    assert not bad, f"not SVG colours: {sorted(bad)}"
+    assert 'stroke="#000000" stroke-width="1.39" stroke-dasharray' in (tmp_path / "modes.svg").read_text()  # baseline
     rows = rp.summary_rows(inp)
     r = next(x for x in rows if x["mode"] == 2 and x["quantity"] == "natural_frequency")
     assert r["change_pct"] == pytest.approx(-5.0) and r["fault"].startswith("DOWN since 3.00")
