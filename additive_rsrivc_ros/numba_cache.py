@@ -28,7 +28,8 @@ from pathlib import Path
 #: ``NUMBA_CACHE_DIR`` (recomputed for their own sources) from one the user set.
 AUTO_MARKER = "RSRIVC_NUMBA_CACHE_AUTO"
 _PACKAGE = Path(__file__).resolve().parent
-#: the modules that define or call numba kernels (their source decides the cache directory).
+#: the modules that define or call numba kernels (their source decides the cache directory; ``core/compiled.py``
+#: checks the same files against its manifest).
 KERNEL_SOURCES = ("core/*.py", "mcap_fast.py")
 
 

@@ -39,9 +39,8 @@ def load_kernels() -> float:
 
     With the ahead-of-time extension this is a millisecond. Under the JIT a process's first numba call initializes
     numba's target context (about 1-2 s, holding the GIL); each further kernel's first call then loads it from the
-    cache in milliseconds. The node does this while configuring, before
-    it subscribes: paid in the middle of a 4 kHz stream it stalls the executor and the input pauses. Without a warm
-    cache this compiles (tens of seconds), once.
+    cache in milliseconds. The node does this while configuring, before it subscribes: paid in the middle of a 4 kHz
+    stream it stalls the executor and the input pauses. Without a warm cache this compiles (tens of seconds), once.
     """
     import numpy as np
 
@@ -197,6 +196,7 @@ def _check() -> int:
     for name in cold:
         print(f"rsrivc_warmup: never compiled: {name}", file=sys.stderr)
     return 1 if cold or missing else 0
+
 
 if __name__ == "__main__":
     sys.exit(main())

@@ -3,9 +3,10 @@
 Every kernel is declared with :func:`kernel` (instead of ``numba.njit(cache=True)``). ``rsrivc_warmup`` runs
 the tools' code paths under the JIT and then compiles every signature they met into one C extension
 (``numba.pycc``, :func:`build`) in the source-keyed cache directory (``NUMBA_CACHE_DIR``, see
-``numba_cache``), next to a manifest of the exports and of the SHA-256 of each kernel module it was built from.
+``numba_cache``), next to a manifest of the exports, of the SHA-256 of each kernel module it was built from and of
+the CPU it was built for.
 
-A process whose sources match the manifest loads the extension in about a millisecond and never imports
+A process whose sources and CPU match the manifest loads the extension in about a millisecond and never imports
 numba: that import, its type registries and the cached kernels' loading cost about 1 s per process (node
 start, ``rsrivc_diagnose``, every fleet worker). Each call is checked against the exported signature
 (dtype, dimensions, layout, writability, alignment; compiled code trusts its arguments, and a wrong layout
@@ -60,7 +61,8 @@ def jit_forced() -> bool:
 
 
 def _source_digests() -> dict[str, str]:
-    """SHA-256 of every module that defines or calls a kernel, by path relative to the package."""
+    """SHA-256 of every module that defines or calls a kernel, by path relative to the package (the files of
+    ``numba_cache.KERNEL_SOURCES``, which core must not import)."""
     out = {}
     for pattern in ("core/*.py", "mcap_fast.py"):
         for path in sorted(_PACKAGE_DIR.glob(pattern)):
