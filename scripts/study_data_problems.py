@@ -74,13 +74,10 @@ def run_autostart(cfg, sig, kind: str, t_at: float) -> None:
     t, r, u, y = damaged(sig, kind, t_at, cfg.loop_rate_hz)
     pipe, reps = _through_pipeline(cfg, t, r, u, y)
     reps += pipe.flush()
-    events = [{"mode": e.mode, "quantity": e.quantity, "direction": e.direction, "onset_time_s": e.onset_time_s,
-               "alarm_time_s": e.alarm_time_s, "clear_time_s": e.clear_time_s, "baseline": e.baseline,
-               "value": e.value} for x in reps for e in x.events_opened]
     found = pipe.search.found if pipe.search is not None else None
     win = "none" if found is None else f"{found.window_s[0]:.1f}-{found.window_s[1]:.1f} s"
     last = reps[-1].health
-    verdict = assess(reps, float(t[-1]) + 1.0 / cfg.loop_rate_hz, events)
+    verdict = assess(reps, float(t[-1]) + 1.0 / cfg.loop_rate_hz)   # the events from the reports, as the tools do
     print(f"{kind:6s} @ {t_at:4.1f} s: modes found on {win}; baseline trusted {last['baseline_trusted']} "
           f"({last['baseline_note'] or 'complete window'}); {verdict.line}")
 

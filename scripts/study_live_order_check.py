@@ -99,7 +99,7 @@ def main(argv: list[str] | None = None) -> int:
     args = ap.parse_args(argv)
     print(f"{'scenario':<28} {'seed':>4} {'window [s]':>14} {'state':>10} {'run':>4} {'run band [Hz]':>16} "
           f"{'flagged':>7} {'events':>6} {'delay':>6} {'base':>4}")
-    total = {"checks": 0, "flagged": 0, "events": 0, "longest": 0, "delay": np.inf}
+    total = {"checks": 0, "flagged": 0, "events": 0, "longest": 0, "delay": np.inf, "untrusted": 0, "baselines": 0}
     jobs = [(seed, lambda n=name, o=over, sec=seconds, sd=seed: (n, run_case(n, o, sec, sd)))
             for name, over, seconds in CASES for seed in range(args.seeds)]
     jobs += [(500 + i, lambda sd=500 + i: run_random(sd)) for i in range(args.random)]
@@ -115,13 +115,13 @@ def main(argv: list[str] | None = None) -> int:
         total["events"] += row["events"]
         total["longest"] = max(total["longest"], int(run[0]))
         total["delay"] = min(total["delay"], row["delay_ratio"])
-        total["untrusted"] = total.get("untrusted", 0) + (row["baseline"] == "U")
-        total["baselines"] = total.get("baselines", 0) + (row["baseline"] != "-")
+        total["untrusted"] += row["baseline"] == "U"
+        total["baselines"] += row["baseline"] != "-"
     print(f"\n{total['checks']} live checks on healthy plants: {total['flagged']} flagged, {total['events']} "
           f"structural events; longest misfit run {total['longest']} bins (flagged from adequacy.MISFIT_RUN_BINS only "
           "when no real extra mode explains it); the output error with a neighbouring delay was at least "
           f"{total['delay']:.2f} of the configured (true) delay's (flagged below adequacy.DELAY_ERROR_RATIO); "
-          f"{total.get('untrusted', 0)} of {total.get('baselines', 0)} baselines learned untrusted (column base)")
+          f"{total['untrusted']} of {total['baselines']} baselines learned untrusted (column base)")
     return 0
 
 

@@ -197,15 +197,15 @@ class Kernel:
     def jit(self) -> Any:
         """numba's dispatcher of this kernel (switches every kernel of the process to the JIT, once)."""
         if self.dispatcher is None:
-            _switch_to_jit()
+            ensure_jit()
         return self.dispatcher
 
 
-def _switch_to_jit() -> None:
-    """Give every kernel its numba dispatcher and put the dispatchers where kernels call each other.
-
-    Compiled numba code resolves a callee through its module's globals, which must then hold dispatchers.
-    """
+def ensure_jit() -> None:
+    """Switch this process to numba's JIT: give every kernel its numba dispatcher and put the dispatchers where
+    kernels call each other (compiled numba code resolves a callee through its module's globals). Called on the
+    first call the extension does not serve, and by numba code outside the package that calls its kernels
+    (``sim.independent``, a validation-only simulator)."""
     with _LOCK:
         if _state["jit"]:
             return
@@ -236,12 +236,6 @@ def kernel(py_func: Callable) -> Any:
     k = Kernel(py_func, variants)
     _REGISTRY.append(k)
     return k
-
-
-def ensure_jit() -> None:
-    """Switch this process to numba's JIT: for numba code outside the package that calls its kernels
-    (``sim.independent``, a validation-only simulator), which needs their dispatchers."""
-    _switch_to_jit()
 
 
 def _arg_spec(t: Any) -> ArgSpec:
