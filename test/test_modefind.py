@@ -365,9 +365,12 @@ def test_a_split_mode_on_a_short_window_is_not_a_gain(monkeypatch):
     allowed 20 iterations: K = 2, the true modes, with the paired test and with the margin alone. Where the fits
     left only a warm-up out of a record in motion (before the free response was projected out), a K = 3 fit with a
     weak second mode beside the 5 Hz one predicted the held-out data 10 % better than the two-mode fit, past the
-    2 % margin but not throughout them: the paired test kept it out, the margin alone did not."""
+    2 % margin but not throughout them: the paired test kept it out, the margin alone did not. That K = 3 fit does
+    not converge (its last step changes the parameters by 150 %), so where it stops depends on the rounding of the
+    machine's BLAS: on a Xeon of 2026-11 it stopped 2 % worse than K = 2 instead of 10 % better, and the negative
+    control (K = 3 with both protections off) is not asserted here. The paired test itself is checked on residuals
+    with known statistics (:func:`test_an_order_gain_must_hold_throughout_the_held_out_data`)."""
     from additive_rsrivc_ros.core import modefind
-    from additive_rsrivc_ros.core.offline import stable
 
     rng = np.random.default_rng(7)
     t = np.arange(int(18.0 * FS)) / FS
@@ -384,8 +387,6 @@ def test_a_split_mode_on_a_short_window_is_not_a_gain(monkeypatch):
     _check_modes(search(), MODES)
     monkeypatch.setattr(modefind, "GAIN_T", -np.inf)
     _check_modes(search(), MODES)
-    monkeypatch.setattr(stable, "FREE_RESPONSE_REFIT", False)
-    assert search().K == 3
 
 
 def test_held_out_error_of_a_record_in_motion_is_the_noise(monkeypatch):

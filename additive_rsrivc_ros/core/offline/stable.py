@@ -27,6 +27,7 @@ from typing import Any
 import numpy as np
 
 from ..controller import DiscreteController
+from ..distributions import f_quantile
 from ..filters import (
     ClosedLoopUnstableError,
     closed_loop_radius,
@@ -752,8 +753,7 @@ def initial_transient_test(eps: np.ndarray, thetas, structures, h: float, window
     n_indep = (n - window) // window
     starts = np.linspace(window, n - window, min(16, max(n_indep, 1) * 4)).astype(int)
     null = np.mean([energy(eps[s0: s0 + window]) for s0 in starts])
-    from scipy.special import fdtri  # F(d, d n_indep) quantile (scipy.stats costs a second to import)
-    threshold = float(fdtri(d, d * n_indep, 1.0 - false_alarm))
+    threshold = f_quantile(float(d), float(d * n_indep), 1.0 - false_alarm)   # F(d, d n_indep)
     stat = energy(eps[:window]) / null if null > 0 else np.inf
     return TransientTest(float(stat), threshold, window, bool(stat > threshold))
 
