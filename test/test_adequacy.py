@@ -289,3 +289,32 @@ def test_a_refit_that_misfits_does_not_flag_an_estimate_that_fits():
     bad = OrderCheckResult("adequate", "", n_bins=1600, n_misfit=59, threshold=12.0, misfit_run=(19, 26.0, 35.0),
                            n_misfit_estimate=20, misfit_run_estimate=15)
     assert _verdict(bad, np.array([0.005, 0.05, 0.025]))[0] == "misfit"
+
+
+def test_the_initial_model_is_screened_on_its_own_window():
+    """``check_initial_model`` (every initialization from guesses or after a divergence): the true model of the
+    4-mode plant above on a 5 s window of its data passes the screen (None, no check run); with its 95 Hz mode left
+    out it is flagged (``misfit``); NaN outputs are left out (the longest finite stretch is judged); a window whose
+    longest finite stretch is under 2 s is not judged (None, never a flag from too little data)."""
+    from additive_rsrivc_ros.core.adequacy import check_initial_model
+    from additive_rsrivc_ros.core.controller import DiscreteController
+    from additive_rsrivc_ros.sim.simulate import PlantMode
+
+    modes = [PlantMode(6.7694, 0.04721, 0.6821), PlantMode(29.901, 0.09390, 0.4242),
+             PlantMode(41.402, 0.05211, 0.6648), PlantMode(95.315, 0.006486, 0.5665)]
+    rate, delay = 1000.0, 2
+    ctrl = DiscreteController((0.007048548526041672, -0.007018695704172541), (1.0, -1.0))
+    sim = _square_wave_loop(modes, rate, delay, ctrl, 14)
+    thetas = [np.array([2 * m.damping_ratio / (2 * np.pi * m.natural_frequency_hz),
+                        1 / (2 * np.pi * m.natural_frequency_hz) ** 2, m.gain]) for m in modes]
+    structures = [m.structure for m in modes]
+    w = slice(int(10 * rate), int(15 * rate))
+    r, u, y = sim.r[w], sim.u[w], sim.y[w].copy()
+    kw = dict(controller=ctrl, input_delay=delay)
+    assert check_initial_model(thetas, structures, r, u, y, rate, **kw) is None
+    wrong = check_initial_model(thetas[:3], structures[:3], r, u, y, rate, **kw)
+    assert wrong is not None and wrong.flagged and wrong.state == "misfit", wrong
+    y[: int(1.5 * rate)] = np.nan                                  # 3.5 s finite: still judged, on them
+    assert check_initial_model(thetas[:3], structures[:3], r, u, y, rate, **kw).flagged
+    y[int(1.5 * rate): int(3.2 * rate): 200] = np.nan              # no finite stretch of 2 s left
+    assert check_initial_model(thetas[:3], structures[:3], r, u, y, rate, **kw) is None

@@ -233,13 +233,17 @@ def test_guesses_that_lead_to_a_wrong_optimum_are_flagged_and_restarted():
     refit that fits, or with the refit misfitting too and no unmodelled resonance to explain it (which of the two
     depends on where the refit from the split mode lands) --, the K = 2 modes are found again on the window (the
     configured K: the user's structure), and the estimator starts over from them: at the end the estimates are the
-    truth's, no structural event."""
+    truth's, no structural event. Which check finds it depends on the machine's rounding (the split mode is a
+    saddle the recursion may leave by diverging): the check of the initial model on its own window at 5 s (a Xeon of
+    2026-11: before it, the estimate diverged five times and a re-initialization reported an overdamped 4 Hz "mode"
+    as healthy for 9 s), or the regular model-order check later."""
     t, r, u, y = _sim(11, 60.0)
     cfg = _cfg(**{"modes.natural_frequency_hz": [5.0, 5.5], "modes.damping_ratio": [0.1, 0.1],
                   "modes.gain": [1.0, 1.0], "modes.memory_s": [5.0, 5.0]})
     pipe, reports = _run(cfg, t, r, u, y)
     notices = [n for rep in reports for n in rep.notices]
-    k = next(i for i, n in enumerate(notices) if n.startswith("model-order check on"))
+    k = next(i for i, n in enumerate(notices)
+             if n.startswith(("model-order check on", "model check of the initial model on")))
     assert "misfits the data" in notices[k] and "wrong optimum" in notices[k]
     assert notices[k + 1].startswith("restarted from the data") and "the 2 mode(s) found" in notices[k + 1]
     assert not any(rep.events_opened for rep in reports)

@@ -53,7 +53,7 @@ from .autostart import FoundModes, ModeSearch
 from .estimator import EstimatorHealth, MonitorSettings, RecursiveEstimator
 from .faults import FaultEvent, FaultMonitor, FaultSettings, HealthMonitor, Level
 from .joint_check import JointChecker, applicable_mask
-from .vocabulary import BASELINE_FIELDS, FLAG_FIELDS, MODE_FIELDS, QUANTITIES, plain
+from .vocabulary import BASELINE_FIELDS, FLAG_FIELDS, MODE_FIELDS, QUANTITIES, one_line, plain
 
 STATE_VERSION = 1
 FLOAT64_TYPE = "std_msgs/msg/Float64"
@@ -288,6 +288,7 @@ class MonitorPipeline:
         self.initialized = False
         self._data_start_tried = False        # guesses replaced by modes from the data (once per run)
         self._order_restarted = False         # a restart after the model-order check (once per run)
+        self._start_checked = False           # the automatic start was checked on its window: skip its first init
         self.stuck = False
         self._init_buf: list[tuple[np.ndarray, ...]] = []
         self._init_n = 0
@@ -685,7 +686,8 @@ class MonitorPipeline:
                                         f"{str(exc).splitlines()[0][:120] if str(exc) else ''}); the model stays "
                                         "flagged")
 
-    def _restart_from_data(self, r: np.ndarray, u: np.ndarray, y: np.ndarray, t_end: float, res: Any) -> None:
+    def _restart_from_data(self, r: np.ndarray, u: np.ndarray, y: np.ndarray, t_end: float, res: Any,
+                           stage: str = "model-order check") -> None:
         """The model-order check found the model wrong for the data (issue 12 item 4: ``misfit`` or ``too_low``; a
         wrong optimum can look like either): the modes are found again on the check's window (:mod:`.modefind`; K
         automatic when the run found its modes itself, else the configured K and integrators) and adopted only if
@@ -739,8 +741,11 @@ class MonitorPipeline:
         self.no_model = None
         self.health.clear_reference(self._modal())
         check.window_s, check.frf = (a, b), None
-        self.order_check.result = check
-        line = (f"restarted from the data after the model-order check ({res.message}): the {self.K} mode(s) found "
+        if stage == "model-order check":
+            self.order_check.result = check
+        else:                     # the initialization window: the regular check still runs on the data that follow
+            self.order_check.start_result = None
+        line = (f"restarted from the data after the {stage} ({res.message}): the {self.K} mode(s) found "
                 f"on {where} ({modes}) fit it; fault monitoring starts over")
         self.health.note("restart_from_data", t_rel, line)
         self.notices.append(line)
@@ -775,6 +780,7 @@ class MonitorPipeline:
         found, closed = search.evidence, bool(self.cfg.closed_loop)
         if found is None or search.found is None:
             return
+        self._start_checked = True
         r, u, y = (np.concatenate([getattr(b, k) for b in blocks]) for k in ("r", "u", "y"))
         y = np.where(np.concatenate([b.valid for b in blocks]), y, np.nan)
         try:
@@ -829,6 +835,47 @@ class MonitorPipeline:
         modal = self._modal()
         if self.health.reference_modal is None and np.all(np.isfinite(modal[:, :3])):
             self.health.clear_reference(modal)
+        self._check_initial_model(r, u, y, t_end)
+
+    def _check_initial_model(self, r: np.ndarray, u: np.ndarray, y: np.ndarray, t_end: float) -> None:
+        """Every initialization's model against the FRF of its own window (:func:`.adequacy.check_initial_model`, the
+        automatic start's check): a model that misfits the data it was fitted on -- guesses that led the offline fit
+        to a wrong optimum, a re-initialization after a divergence that lands on one -- is flagged on health from its
+        first estimate, instead of being reported healthy until the regular check's window is full (which repeated
+        divergences may never let happen), and the modes are found again on the window (once per run, as after the
+        regular check). The automatic start's first initialization was checked on its search window already."""
+        from .adequacy import check_initial_model
+
+        if self._start_checked:
+            self._start_checked = False
+            return
+        self.order_check.start_result = None
+        if not self.order_check.enabled:
+            return
+        closed = bool(self.cfg.closed_loop)
+        try:
+            res = check_initial_model(self.est.thetas, list(self.cfg.structures), r if closed else None, u, y,
+                                      self.rate, controller=self.cfg.controller if closed else None,
+                                      input_delay=self.cfg.input_delay_samples, min_change=self.settings.min_change,
+                                      relevance=self.order_check.relevance,
+                                      max_iterations=self.cfg.estimator.init_max_iterations)
+        except Exception as exc:  # noqa: BLE001 - a failed check is a line, never a crash
+            self.notices.append(f"check of the initial model failed ({type(exc).__name__}: {one_line(exc)})")
+            return
+        if res is None or not res.flagged:
+            return
+        t_rel = self._rel(t_end)
+        res.window_s, res.frf = (max(t_rel - u.size / self.rate, 0.0), t_rel), None
+        self.order_check.start_result = res
+        a, b = res.window_s
+        self.notices.append(f"model check of the initial model on t={a:.1f}–{b:.1f} s: {res.message}")
+        if not res.wrong_delay and not self._order_restarted:
+            self._order_restarted = True
+            try:
+                self._restart_from_data(r, u, y, t_end, res, stage="check of the initial model")
+            except Exception as exc:  # noqa: BLE001 - a failed restart is a line, never a crash
+                self.notices.append(f"restart from the data failed ({type(exc).__name__}: {one_line(exc)}); the "
+                                    "model stays flagged")
 
     def _fit_initial(self, r: np.ndarray, u: np.ndarray, y: np.ndarray) -> tuple[str, str] | None:
         """Initialize the estimator on the window; ``None``, or ``("failed" | "invalid", why)``."""

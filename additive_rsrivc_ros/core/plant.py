@@ -244,8 +244,12 @@ def discrete_plant(thetas: Sequence[np.ndarray], structures: Sequence[SubmodelSt
         c = np.zeros(ns)
         c[0] = 1.0
         blocks_c.append(c)
-    from scipy.linalg import block_diag
-    phi = block_diag(*blocks_phi)
+    nx = sum(b.shape[0] for b in blocks_phi)
+    phi = np.zeros((nx, nx))                      # block diagonal (scipy.linalg.block_diag costs 0.2 s to import)
+    i = 0
+    for b in blocks_phi:
+        phi[i:i + b.shape[0], i:i + b.shape[0]] = b
+        i += b.shape[0]
     gam = np.concatenate(blocks_gam)
     c = np.concatenate(blocks_c)
     nx = phi.shape[0]
