@@ -288,7 +288,7 @@ class MonitorPipeline:
         self.initialized = False
         self._data_start_tried = False        # guesses replaced by modes from the data (once per run)
         self._order_restarted = False         # a restart after the model-order check (once per run)
-        self._start_checked = False           # the automatic start was checked on its window: skip its first init
+        self._start_checked = False           # the automatic start was checked on its window: not again at its init
         self.stuck = False
         self._init_buf: list[tuple[np.ndarray, ...]] = []
         self._init_n = 0
@@ -816,6 +816,7 @@ class MonitorPipeline:
         with a health note; a model from the data that fails too leaves the pipeline
         without a model (nothing published) and it initializes again on new data."""
         t_rel = self._rel(t_end)
+        start_checked, self._start_checked = self._start_checked, False    # for this initialization only
         failure = self._fit_initial(r, u, y)
         if failure is not None and self.search is None and not self._data_start_tried:
             self._data_start_tried = True
@@ -835,7 +836,8 @@ class MonitorPipeline:
         modal = self._modal()
         if self.health.reference_modal is None and np.all(np.isfinite(modal[:, :3])):
             self.health.clear_reference(modal)
-        self._check_initial_model(r, u, y, t_end)
+        if not start_checked:      # the automatic start's model was checked on its search window already
+            self._check_initial_model(r, u, y, t_end)
 
     def _check_initial_model(self, r: np.ndarray, u: np.ndarray, y: np.ndarray, t_end: float) -> None:
         """Every initialization's model against the FRF of its own window (:func:`.adequacy.check_initial_model`, the
@@ -843,12 +845,9 @@ class MonitorPipeline:
         to a wrong optimum, a re-initialization after a divergence that lands on one -- is flagged on health from its
         first estimate, instead of being reported healthy until the regular check's window is full (which repeated
         divergences may never let happen), and the modes are found again on the window (once per run, as after the
-        regular check). The automatic start's first initialization was checked on its search window already."""
+        regular check)."""
         from .adequacy import check_initial_model
 
-        if self._start_checked:
-            self._start_checked = False
-            return
         self.order_check.start_result = None
         if not self.order_check.enabled:
             return
