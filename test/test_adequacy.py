@@ -142,15 +142,9 @@ def _square_wave_loop(modes, rate: float, delay: int, ctrl, seed: int):
                           noise=white_noise(t.size, 0.01 * float(np.std(clean.y)), rng), rng=rng)
 
 
-def test_a_model_that_misfits_the_data_without_a_named_cause_is_flagged():
-    """A closed-loop plant of the ``validate_autostart`` generator's kind (4 modes, 1 kHz loop, PI, square wave): the
-    true model misfits no more bins than chance allows (Bonferroni, 1 %: at most a few), so ``adequate``. With its
-    lightly damped 95 Hz mode (zeta 0.0065) left out, the other three cannot cover it and about half the bins, from
-    9 Hz up, misfit, but no residual peak stands clear of the modelled modes to be tried as an extra one (measured
-    with 3 noise seeds: 158-179 of 360-370 bins): before, that was ``adequate`` ("N of M FRF bins misfit, no
-    unmodelled resonance found there"); now ``misfit``, flagged for health. (Leaving out any other mode, the refit
-    finds the true modes but 29.9 Hz and the check names it: ``too_low``.)"""
-    from additive_rsrivc_ros.core.adequacy import MISFIT_FRACTION, check_model_order
+def _four_mode_loop():
+    """A closed-loop plant of the ``validate_autostart`` generator's kind (4 modes, 1 kHz loop, PI, square wave):
+    ``(rate, delay, controller, simulation, true thetas, structures)``."""
     from additive_rsrivc_ros.core.controller import DiscreteController
     from additive_rsrivc_ros.sim.simulate import PlantMode
 
@@ -161,7 +155,19 @@ def test_a_model_that_misfits_the_data_without_a_named_cause_is_flagged():
     sim = _square_wave_loop(modes, rate, delay, ctrl, 14)
     thetas = [np.array([2 * m.damping_ratio / (2 * np.pi * m.natural_frequency_hz),
                         1 / (2 * np.pi * m.natural_frequency_hz) ** 2, m.gain]) for m in modes]
-    structures = [m.structure for m in modes]
+    return rate, delay, ctrl, sim, thetas, [m.structure for m in modes]
+
+
+def test_a_model_that_misfits_the_data_without_a_named_cause_is_flagged():
+    """A closed-loop plant of the ``validate_autostart`` generator's kind (4 modes, 1 kHz loop, PI, square wave): the
+    true model misfits no more bins than chance allows (Bonferroni, 1 %: at most a few), so ``adequate``. With its
+    lightly damped 95 Hz mode (zeta 0.0065) left out, the other three cannot cover it and about half the bins, from
+    9 Hz up, misfit, but no residual peak stands clear of the modelled modes to be tried as an extra one (measured
+    with 3 noise seeds: 158-179 of 360-370 bins): before, that was ``adequate`` ("N of M FRF bins misfit, no
+    unmodelled resonance found there"); now ``misfit``, flagged for health. (Leaving out any other mode, the refit
+    finds the true modes but 29.9 Hz and the check names it: ``too_low``.)"""
+    from additive_rsrivc_ros.core.adequacy import MISFIT_FRACTION, check_model_order
+    rate, delay, ctrl, sim, thetas, structures = _four_mode_loop()
     kw = dict(r=sim.r, controller=ctrl, input_delay=delay)
     right = check_model_order(thetas, structures, sim.u, sim.y, rate, **kw)
     assert right.state == "adequate" and right.n_misfit <= 5 and not right.flagged, right.to_dict()
@@ -297,17 +303,7 @@ def test_the_initial_model_is_screened_on_its_own_window():
     out it is flagged (``misfit``); NaN outputs are left out (the longest finite stretch is judged); a window whose
     longest finite stretch is under 2 s is not judged (None, never a flag from too little data)."""
     from additive_rsrivc_ros.core.adequacy import check_initial_model
-    from additive_rsrivc_ros.core.controller import DiscreteController
-    from additive_rsrivc_ros.sim.simulate import PlantMode
-
-    modes = [PlantMode(6.7694, 0.04721, 0.6821), PlantMode(29.901, 0.09390, 0.4242),
-             PlantMode(41.402, 0.05211, 0.6648), PlantMode(95.315, 0.006486, 0.5665)]
-    rate, delay = 1000.0, 2
-    ctrl = DiscreteController((0.007048548526041672, -0.007018695704172541), (1.0, -1.0))
-    sim = _square_wave_loop(modes, rate, delay, ctrl, 14)
-    thetas = [np.array([2 * m.damping_ratio / (2 * np.pi * m.natural_frequency_hz),
-                        1 / (2 * np.pi * m.natural_frequency_hz) ** 2, m.gain]) for m in modes]
-    structures = [m.structure for m in modes]
+    rate, delay, ctrl, sim, thetas, structures = _four_mode_loop()
     w = slice(int(10 * rate), int(15 * rate))
     r, u, y = sim.r[w], sim.u[w], sim.y[w].copy()
     kw = dict(controller=ctrl, input_delay=delay)

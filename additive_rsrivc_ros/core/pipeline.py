@@ -715,10 +715,7 @@ class MonitorPipeline:
                                 "modes.integrators; not used, the model stays flagged")
             return
         check = check_model_order(found.thetas, found.structures, u, y, self.rate, r=r if closed else None,
-                                  controller=self.cfg.controller if closed else None,
-                                  input_delay=self.cfg.input_delay_samples, min_change=self.settings.min_change,
-                                  relevance=self.order_check.relevance,
-                                  max_iterations=self.cfg.estimator.init_max_iterations)
+                                  **self._check_keywords())
         modes = _modes_text(found.modal)
         if check.flagged or check.state == "skipped":
             self.notices.append(f"restart from the data on {where}: the {found.K} mode(s) found there ({modes}) "
@@ -784,20 +781,26 @@ class MonitorPipeline:
         r, u, y = (np.concatenate([getattr(b, k) for b in blocks]) for k in ("r", "u", "y"))
         y = np.where(np.concatenate([b.valid for b in blocks]), y, np.nan)
         try:
-            res = check_start(found, r if closed else None, u, y, self.rate,
-                              controller=self.cfg.controller if closed else None,
-                              input_delay=self.cfg.input_delay_samples, min_change=self.settings.min_change,
-                              relevance=self.order_check.relevance,
-                              max_iterations=self.cfg.estimator.init_max_iterations)
+            res = check_start(found, r if closed else None, u, y, self.rate, **self._check_keywords())
         except Exception as exc:  # noqa: BLE001 - a failed check is a line, never a crash
             self.notices.append(f"check of the automatic start failed ({type(exc).__name__})")
             return
-        if res is None or not res.flagged:
-            return
-        res.window_s, res.frf = search.found.window_s, None
+        if res is not None and res.flagged:
+            self._flag_start(res, search.found.window_s, "the automatic start")
+
+    def _check_keywords(self) -> dict[str, Any]:
+        """The model checks' (:mod:`.adequacy`) keywords from this run's configuration."""
+        closed = bool(self.cfg.closed_loop)
+        return {"controller": self.cfg.controller if closed else None, "input_delay": self.cfg.input_delay_samples,
+                "min_change": self.settings.min_change, "relevance": self.order_check.relevance,
+                "max_iterations": self.cfg.estimator.init_max_iterations}
+
+    def _flag_start(self, res: Any, window_s: tuple[float, float], what: str) -> None:
+        """A start that misfits its own window: on health until the regular check runs, and a notice."""
+        res.window_s, res.frf = window_s, None
         self.order_check.start_result = res
-        a, b = res.window_s
-        self.notices.append(f"model check of the automatic start on t={a:.1f}–{b:.1f} s: {res.message}")
+        a, b = window_s
+        self.notices.append(f"model check of {what} on t={a:.1f}–{b:.1f} s: {res.message}")
 
     def _adopt_modes(self, cfg: MonitorSettings, t_rel: float) -> None:
         """Build estimator and monitors for the modes found; health notes so far are kept (the failed searches'
@@ -851,23 +854,16 @@ class MonitorPipeline:
         self.order_check.start_result = None
         if not self.order_check.enabled:
             return
-        closed = bool(self.cfg.closed_loop)
         try:
-            res = check_initial_model(self.est.thetas, list(self.cfg.structures), r if closed else None, u, y,
-                                      self.rate, controller=self.cfg.controller if closed else None,
-                                      input_delay=self.cfg.input_delay_samples, min_change=self.settings.min_change,
-                                      relevance=self.order_check.relevance,
-                                      max_iterations=self.cfg.estimator.init_max_iterations)
+            res = check_initial_model(self.est.thetas, list(self.cfg.structures),
+                                      r if self.cfg.closed_loop else None, u, y, self.rate, **self._check_keywords())
         except Exception as exc:  # noqa: BLE001 - a failed check is a line, never a crash
             self.notices.append(f"check of the initial model failed ({type(exc).__name__}: {one_line(exc)})")
             return
         if res is None or not res.flagged:
             return
         t_rel = self._rel(t_end)
-        res.window_s, res.frf = (max(t_rel - u.size / self.rate, 0.0), t_rel), None
-        self.order_check.start_result = res
-        a, b = res.window_s
-        self.notices.append(f"model check of the initial model on t={a:.1f}–{b:.1f} s: {res.message}")
+        self._flag_start(res, (max(t_rel - u.size / self.rate, 0.0), t_rel), "the initial model")
         if not res.wrong_delay and not self._order_restarted:
             self._order_restarted = True
             try:
