@@ -175,7 +175,10 @@ def read_topics(path: str | Path, topics: set[str]) -> dict[str, tuple[np.ndarra
         raise FastPathUnsupported(f"{type(exc).__name__}: {exc}") from None
     out: dict[str, tuple[np.ndarray, list[bytes] | np.ndarray]] = {}
     for topic in topics:
-        sizes = {int(s) for _, _, sz, _ in parts[topic] for s in np.unique(sz)} | {len(d) for _, d in loose[topic]}
+        sizes = {len(d) for _, d in loose[topic]}     # one element exactly when every message has one size
+        for _, _, sz, _ in parts[topic]:
+            if sz.size:
+                sizes.update((int(sz.min()), int(sz.max())))
         times = [lt for lt, _, _, _ in parts[topic]] + [np.array([t for t, _ in loose[topic]], dtype=np.int64)]
         t_all = np.concatenate(times) if times else np.zeros(0, dtype=np.int64)
         order = np.argsort(t_all, kind="stable")
