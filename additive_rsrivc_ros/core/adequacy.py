@@ -484,33 +484,34 @@ def check_start(found: Any, r, u, y, rate_hz: float, *, controller: DiscreteCont
     check (:func:`check_model_order`), which tells a wrong start (``misfit``,
     ``too_low``) from modes left out that do not matter. So a start that misfits its own data is flagged from the
     first estimate, not after the regular check's window (4 memory lengths later)."""
-    if fits_its_frf(found.frf, model_frf_on_bins(found.frf, found.thetas, found.structures, input_delay)):
-        return None
-    return check_model_order(found.thetas, found.structures, u, y, rate_hz, r=r, controller=controller,
-                             input_delay=input_delay, min_change=min_change, relevance=relevance,
-                             max_iterations=max_iterations)
+    return check_initial_model(found.thetas, found.structures, r, u, y, rate_hz, frf=found.frf,
+                               controller=controller, input_delay=input_delay, min_change=min_change,
+                               relevance=relevance, max_iterations=max_iterations)
 
 
 def check_initial_model(thetas: Sequence[np.ndarray], structures: Sequence[SubmodelStructure], r, u, y,
-                        rate_hz: float, *, controller: DiscreteController | None = None, input_delay: int = 0,
+                        rate_hz: float, *, frf: FRFEstimate | None = None,
+                        controller: DiscreteController | None = None, input_delay: int = 0,
                         min_change: Sequence[float] = (0.02, 0.20, 0.10), relevance: float = 0.25,
                         max_iterations: int = 30) -> OrderCheckResult | None:
-    """:func:`check_start` for a model initialized from guesses (or again after a divergence) on the window ``r, u,
-    y`` (invalid outputs NaN; its longest finite stretch): the FRF of that stretch screens the model; None when it
-    fits (or the stretch is too short for the FRF), otherwise the whole check (:func:`check_model_order`)."""
-    closed = controller is not None and r is not None
-    seg = longest_finite(np.asarray(r, float) if closed else None, np.asarray(u, float), np.asarray(y, float))
-    if seg.stop - seg.start < MIN_WINDOW_S * rate_hz:
-        return None
-    try:
-        frf = estimate_frf(u[seg], y[seg], rate_hz, r[seg] if closed else None)
-    except ValueError:
-        return None
+    """The screen of a start on its own window ``r, u, y`` (invalid outputs NaN): :func:`fits_its_frf` against
+    ``frf`` (the automatic start's, :func:`check_start`) or, for a model initialized from guesses (or again after a
+    divergence), the FRF of the window's longest finite stretch. None when the model fits (or the stretch is too
+    short for an FRF), otherwise the whole check (:func:`check_model_order`, on that stretch)."""
+    if frf is None:
+        closed = controller is not None and r is not None
+        seg = longest_finite(np.asarray(r, float) if closed else None, np.asarray(u, float), np.asarray(y, float))
+        if seg.stop - seg.start < MIN_WINDOW_S * rate_hz:
+            return None
+        try:
+            frf = estimate_frf(u[seg], y[seg], rate_hz, r[seg] if closed else None)
+        except ValueError:
+            return None
     if fits_its_frf(frf, model_frf_on_bins(frf, thetas, structures, input_delay)):
         return None
-    return check_model_order(thetas, structures, u[seg], y[seg], rate_hz, r=r[seg] if closed else None,
-                             controller=controller, input_delay=input_delay, min_change=min_change,
-                             relevance=relevance, max_iterations=max_iterations)
+    return check_model_order(thetas, structures, u, y, rate_hz, r=r, controller=controller,
+                             input_delay=input_delay, min_change=min_change, relevance=relevance,
+                             max_iterations=max_iterations)
 
 
 def _verdict(res: OrderCheckResult, thresholds: np.ndarray) -> tuple[str, str]:

@@ -55,14 +55,14 @@ def _ell(a: np.ndarray, m: int) -> int:
     return max(int(math.ceil(math.log2(alpha / _UNIT_ROUNDOFF) / (2 * m))), 0)
 
 
-def _pade_low(a: np.ndarray, m: int) -> tuple[np.ndarray, np.ndarray]:
-    """``(U, V)`` of the degree-``m`` approximant, ``m`` in 3..9: ``U`` the odd part, ``V`` the even part."""
+def _pade_low(a: np.ndarray, even: tuple[np.ndarray, np.ndarray, np.ndarray], m: int) -> tuple[np.ndarray,
+                                                                                                np.ndarray]:
+    """``(U, V)`` of the degree-``m`` approximant, ``m`` in 3..9, from the powers ``even = (A^2, A^4, A^6)`` the
+    degree choice computed (``A^8 = A^6 A^2`` for ``m = 9``): ``U`` the odd part, ``V`` the even part."""
     b = _PADE[m]
-    ident = np.eye(a.shape[0])
-    a2 = a @ a
-    powers = [ident, a2]
-    for _ in range((m - 1) // 2 - 1):
-        powers.append(powers[-1] @ a2)
+    powers = [np.eye(a.shape[0]), *even][:(m + 1) // 2]
+    if m == 9:
+        powers.append(even[2] @ even[0])
     u = sum(b[2 * k + 1] * p for k, p in enumerate(powers))
     v = sum(b[2 * k] * p for k, p in enumerate(powers))
     return a @ u, v
@@ -106,13 +106,13 @@ def _scaling_and_squaring(a: np.ndarray) -> np.ndarray:
     eta = max(d4, d6)
     for m in (3, 5):
         if eta < _THETA[m] and _ell(a, m) == 0:
-            return _solve(*_pade_low(a, m))
+            return _solve(*_pade_low(a, (a2, a4, a6), m))
     a8 = a4 @ a4
     d8 = _norm1(a8) ** 0.125
     eta3 = max(d6, d8)
     for m in (7, 9):
         if eta3 < _THETA[m] and _ell(a, m) == 0:
-            return _solve(*_pade_low(a, m))
+            return _solve(*_pade_low(a, (a2, a4, a6), m))
     eta5 = min(eta3, max(d8, _norm1(a8 @ a2) ** 0.1))
     if not math.isfinite(eta5):           # the powers overflow: scale by the norm itself (Higham 2005)
         eta5 = _norm1(a)

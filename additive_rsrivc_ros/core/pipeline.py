@@ -687,7 +687,7 @@ class MonitorPipeline:
                                         "flagged")
 
     def _restart_from_data(self, r: np.ndarray, u: np.ndarray, y: np.ndarray, t_end: float, res: Any,
-                           stage: str = "model-order check") -> None:
+                           initial: bool = False) -> None:
         """The model-order check found the model wrong for the data (issue 12 item 4: ``misfit`` or ``too_low``; a
         wrong optimum can look like either): the modes are found again on the check's window (:mod:`.modefind`; K
         automatic when the run found its modes itself, else the configured K and integrators) and adopted only if
@@ -738,10 +738,11 @@ class MonitorPipeline:
         self.no_model = None
         self.health.clear_reference(self._modal())
         check.window_s, check.frf = (a, b), None
-        if stage == "model-order check":
-            self.order_check.result = check
-        else:                     # the initialization window: the regular check still runs on the data that follow
+        if initial:               # the initialization window: the regular check still runs on the data that follow
             self.order_check.start_result = None
+        else:
+            self.order_check.result = check
+        stage = "check of the initial model" if initial else "model-order check"
         line = (f"restarted from the data after the {stage} ({res.message}): the {self.K} mode(s) found "
                 f"on {where} ({modes}) fit it; fault monitoring starts over")
         self.health.note("restart_from_data", t_rel, line)
@@ -867,7 +868,7 @@ class MonitorPipeline:
         if not res.wrong_delay and not self._order_restarted:
             self._order_restarted = True
             try:
-                self._restart_from_data(r, u, y, t_end, res, stage="check of the initial model")
+                self._restart_from_data(r, u, y, t_end, res, initial=True)
             except Exception as exc:  # noqa: BLE001 - a failed restart is a line, never a crash
                 self.notices.append(f"restart from the data failed ({type(exc).__name__}: {one_line(exc)}); the "
                                     "model stays flagged")

@@ -252,7 +252,6 @@ def discrete_plant(thetas: Sequence[np.ndarray], structures: Sequence[SubmodelSt
         i += b.shape[0]
     gam = np.concatenate(blocks_gam)
     c = np.concatenate(blocks_c)
-    nx = phi.shape[0]
     if input_delay:
         d = input_delay
         big = np.zeros((nx + d, nx + d))
