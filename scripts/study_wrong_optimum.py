@@ -1,0 +1,63 @@
+"""Guesses that lead to a wrong optimum: 5 and 5.5 Hz for the 5 Hz + 40 Hz closed loop of test_pipeline_autostart
+(60 s, seed 11), through ``MonitorPipeline`` as the node and ``rsrivc_diagnose`` run it.
+
+``python scripts/study_wrong_optimum.py [--seed 11]`` prints the notices, the seconds of reports published with
+health OK while the estimate is wrong (a mode more than 5 % off the nearest true frequency, or a damping ratio of 1
+or more), when a check first flagged the model (its notice), and the end error. ``--tree DIR``: the package of
+another checkout (``git worktree add DIR REV``), to see an earlier revision on the same data.
+"""
+
+from __future__ import annotations
+
+import argparse
+import sys
+from pathlib import Path
+
+import numpy as np
+
+
+def main(argv: list[str] | None = None) -> int:
+    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    ap.add_argument("--seed", type=int, default=11)
+    ap.add_argument("--tree", help="import additive_rsrivc_ros from this checkout")
+    args = ap.parse_args(argv)
+    if args.tree:
+        sys.path.insert(0, str(Path(args.tree).resolve()))
+    sys.path.append(str(Path(__file__).resolve().parents[1] / "test"))
+    from test_pipeline_autostart import MODES, _cfg, _run, _sim
+
+    import additive_rsrivc_ros
+
+    print(f"package: {Path(additive_rsrivc_ros.__file__).parent}")
+    t, r, u, y = _sim(args.seed, 60.0)
+    cfg = _cfg(**{"modes.natural_frequency_hz": [5.0, 5.5], "modes.damping_ratio": [0.1, 0.1],
+                  "modes.gain": [1.0, 1.0], "modes.memory_s": [5.0, 5.0]})
+    pipe, reports = _run(cfg, t, r, u, y)
+    truth = np.array([m.natural_frequency_hz for m in MODES])
+    period = 1.0 / cfg.publish_rate_hz
+    wrong_ok, flagged_at = 0.0, None
+    for rep in reports:
+        for n in rep.notices:
+            print(f"{rep.time_s:6.1f} s  {n[:220]}")
+        if not rep.estimating:
+            continue
+        f, zeta = rep.modal[:, 0], rep.modal[:, 1]
+        off = np.min(np.abs(f[:, None] / truth[None, :] - 1.0), axis=1)
+        wrong = bool(np.any(off > 0.05) or np.any(zeta >= 1.0) or not np.all(np.isfinite(f)))
+        if wrong and int(rep.health["level"]) == 0:
+            wrong_ok += period
+        flags = [n for n in rep.notices if n.startswith(("model check of", "model-order check on"))] + \
+            ([1] if rep.health.get("model_order", {}).get("state") in ("misfit", "too_low") else [])
+        if flagged_at is None and flags:
+            flagged_at = rep.time_s
+    last = reports[-1]
+    err = np.abs(np.sort(last.modal[:, 0]) / np.sort(truth) - 1.0)
+    print(f"\nreports with health OK while the estimate was wrong: {wrong_ok:.1f} s; model first flagged at "
+          f"{'never' if flagged_at is None else f'{flagged_at:.1f} s'}; structural events "
+          f"{sum(len(rep.events_opened) for rep in reports)}; re-initializations {pipe.counters.reinitializations}; "
+          f"end frequency error {100 * float(np.max(err)):.3f} %")
+    return 0
+
+
+if __name__ == "__main__":
+    raise SystemExit(main())
