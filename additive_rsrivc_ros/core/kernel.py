@@ -81,7 +81,7 @@ import math
 import numpy as np
 
 from .compiled import kernel
-from .zoh import integrator_chain_zoh, second_order_zoh
+from .zoh import integrator_chain_zoh, second_order_zoh, zoh_coefficients
 
 # bank indices
 BY, BU, BZ, BX = 0, 1, 2, 3
@@ -149,10 +149,16 @@ def iv_denominator_ok(den: float, den_abs: float, lam: float) -> bool:
 
 
 @kernel
+def _finite_coefficients(p00: float, p01: float, p10: float, p11: float, g0: float, g1: float) -> bool:
+    """All of a mode's ``Phi`` (2x2) and ``Gamma`` (2,) entries are finite."""
+    return (math.isfinite(p00) and math.isfinite(p01) and math.isfinite(p10) and math.isfinite(p11)
+            and math.isfinite(g0) and math.isfinite(g1))
+
+
+@kernel
 def _finite_zoh(phi: np.ndarray, gam: np.ndarray) -> bool:
     """All entries of a mode's ``Phi`` (2x2) and ``Gamma`` (2,) are finite."""
-    return (math.isfinite(phi[0, 0]) and math.isfinite(phi[0, 1]) and math.isfinite(phi[1, 0])
-            and math.isfinite(phi[1, 1]) and math.isfinite(gam[0]) and math.isfinite(gam[1]))
+    return _finite_coefficients(phi[0, 0], phi[0, 1], phi[1, 0], phi[1, 1], gam[0], gam[1])
 
 
 @kernel
@@ -174,48 +180,33 @@ def _ensure_finite_zoh(i: int, kind: np.ndarray, theta: np.ndarray, thf: np.ndar
 
 
 @kernel
-def _propagate_mode(i: int, phi: np.ndarray, gam: np.ndarray, xs: np.ndarray, T: np.ndarray,
-                    vy: float, vu: float, vz: float, vx: float) -> None:
-    """``T[i, b] = Phi_i xs[i, b] + Gamma_i v_b`` for the four banks (t_{k-1} -> t_k)."""
-    p00 = phi[i, 0, 0]
-    p01 = phi[i, 0, 1]
-    p10 = phi[i, 1, 0]
-    p11 = phi[i, 1, 1]
-    g0 = gam[i, 0]
-    g1 = gam[i, 1]
-    for b in range(N_BANKS):
-        if b == BY:
-            v = vy
-        elif b == BU:
-            v = vu
-        elif b == BZ:
-            v = vz
-        else:
-            v = vx
-        s0 = xs[i, b, 0]
-        s1 = xs[i, b, 1]
-        T[i, b, 0] = p00 * s0 + p01 * s1 + g0 * v
-        T[i, b, 1] = p10 * s0 + p11 * s1 + g1 * v
+def _bank_input(b: int, vy: float, vu: float, vz: float, vx: float) -> float:
+    """The input of filter bank ``b``: residual output (Y), delayed input (U), instrument input (Z), auxiliary
+    output (X)."""
+    if b == BY:
+        return vy
+    if b == BU:
+        return vu
+    if b == BZ:
+        return vz
+    return vx
 
 
 @kernel
-def _sandwich_step(S: np.ndarray, i: int, full: bool, l2: float, z0: float, z1: float, z2: float) -> None:
-    """``S_i = lam^2 S_i + zeta zeta^T`` (symmetric; ``full``: 3 parameters, else the rigid body's ``b0`` only)."""
-    s00 = l2 * S[i, 0, 0] + z0 * z0
-    S[i, 0, 0] = s00
-    if not full:
-        return
-    s01 = l2 * S[i, 0, 1] + z0 * z1
-    s02 = l2 * S[i, 0, 2] + z0 * z2
-    s12 = l2 * S[i, 1, 2] + z1 * z2
-    S[i, 1, 1] = l2 * S[i, 1, 1] + z1 * z1
-    S[i, 2, 2] = l2 * S[i, 2, 2] + z2 * z2
-    S[i, 0, 1] = s01
-    S[i, 1, 0] = s01
-    S[i, 0, 2] = s02
-    S[i, 2, 0] = s02
-    S[i, 1, 2] = s12
-    S[i, 2, 1] = s12
+def _advance(p00: float, p01: float, p10: float, p11: float, g0: float, g1: float, s0: float, s1: float,
+             v: float) -> tuple[float, float]:
+    """One ZOH step of a filter state: ``Phi [s0, s1] + Gamma v``."""
+    return p00 * s0 + p01 * s1 + g0 * v, p10 * s0 + p11 * s1 + g1 * v
+
+
+@kernel
+def _propagate_mode(i: int, phi: np.ndarray, gam: np.ndarray, xs: np.ndarray, T: np.ndarray,
+                    vy: float, vu: float, vz: float, vx: float) -> None:
+    """``T[i, b] = Phi_i xs[i, b] + Gamma_i v_b`` for the four banks (t_{k-1} -> t_k). The per-sample loop inlines
+    it with scalars (an array argument costs two reference-count updates a call)."""
+    for b in range(N_BANKS):
+        T[i, b, 0], T[i, b, 1] = _advance(phi[i, 0, 0], phi[i, 0, 1], phi[i, 1, 0], phi[i, 1, 1], gam[i, 0], gam[i, 1],
+                                          xs[i, b, 0], xs[i, b, 1], _bank_input(b, vy, vu, vz, vx))
 
 
 def n_kernel_params(kind: int) -> int:
@@ -336,8 +327,6 @@ def run_block(  # noqa: C901 - one compiled per-sample loop (test/test_code_shap
     phP = np.zeros(NT)
     gain = np.zeros(NT)
     thn = np.zeros(NT)
-    phn = np.empty((2, 2))
-    gmn = np.empty(2)
     zoh_ok = np.empty(K, dtype=np.bool_)
     Pn = np.zeros((NT, NT))
     zl = np.zeros((K, NT))             # instrument of each mode's accepted iterate (IV sandwich accumulator S)
@@ -374,10 +363,13 @@ def run_block(  # noqa: C901 - one compiled per-sample loop (test/test_code_shap
         finite = True
         for i in range(K):
             zoh_ok[i] = True
-            _propagate_mode(i, phi, gam, xs, T, vin[i, 0], ud_prev, zd_prev, vin[i, 1])
             mode_finite = True
-            for b in range(N_BANKS):
-                if not (math.isfinite(T[i, b, 0]) and math.isfinite(T[i, b, 1])):
+            for b in range(N_BANKS):   # _propagate_mode with scalars (no reference counting in this loop)
+                t0, t1 = _advance(phi[i, 0, 0], phi[i, 0, 1], phi[i, 1, 0], phi[i, 1, 1], gam[i, 0], gam[i, 1],
+                                  xs[i, b, 0], xs[i, b, 1], _bank_input(b, vin[i, 0], ud_prev, zd_prev, vin[i, 1]))
+                T[i, b, 0] = t0
+                T[i, b, 1] = t1
+                if not (math.isfinite(t0) and math.isfinite(t1)):
                     mode_finite = False
             if not mode_finite and not _finite_zoh(phi[i], gam[i]):
                 # the cached Phi, Gamma are the cause (the kernel only caches finite ones: a restored snapshot)
@@ -559,8 +551,8 @@ def run_block(  # noqa: C901 - one compiled per-sample loop (test/test_code_shap
                             else:
                                 fa1 = mu_f * thf[i, 0] + (1.0 - mu_f) * thn[0]
                                 fa2 = mu_f * thf[i, 1] + (1.0 - mu_f) * thn[1]
-                            second_order_zoh(fa1, fa2, h, phn, gmn)
-                            if not _finite_zoh(phn, gmn):
+                            n00, n01, n10, n11, ng0, ng1 = zoh_coefficients(fa1, fa2, h)
+                            if not _finite_coefficients(n00, n01, n10, n11, ng0, ng1):
                                 rej[i] += 1
                                 rejr[i, R_DISC] += 1
                                 continue
@@ -578,11 +570,16 @@ def run_block(  # noqa: C901 - one compiled per-sample loop (test/test_code_shap
                         if kind[i] == 0:
                             tf_it[i, 0] = fa1
                             tf_it[i, 1] = fa2
-                            for a in range(2):
-                                gam_it[i, a] = gmn[a]
-                                for c in range(2):
-                                    phi_it[i, a, c] = phn[a, c]
-                            _propagate_mode(i, phi_it, gam_it, xs, T, vin[i, 0], ud_prev, zd_prev, vin[i, 1])
+                            phi_it[i, 0, 0] = n00
+                            phi_it[i, 0, 1] = n01
+                            phi_it[i, 1, 0] = n10
+                            phi_it[i, 1, 1] = n11
+                            gam_it[i, 0] = ng0
+                            gam_it[i, 1] = ng1
+                            for b in range(N_BANKS):   # _propagate_mode with the new filter model (scalars)
+                                T[i, b, 0], T[i, b, 1] = _advance(
+                                    n00, n01, n10, n11, ng0, ng1, xs[i, b, 0], xs[i, b, 1],
+                                    _bank_input(b, vin[i, 0], ud_prev, zd_prev, vin[i, 1]))
                             if not finite:
                                 T[i, :, :] = 0.0
             for i in range(K):
@@ -591,8 +588,14 @@ def run_block(  # noqa: C901 - one compiled per-sample loop (test/test_code_shap
                     thf[i, a] = tf_it[i, a]
                     for c in range(NT):
                         P[i, a, c] = P_it[i, a, c]
-                if lz[i] > 0.0:   # S follows P: lam^2 S + zeta zeta^T (IV sandwich, see the module docstring)
-                    _sandwich_step(S, i, ntk[i] > 1, lz[i] * lz[i], zl[i, 0], zl[i, 1], zl[i, 2])
+                if lz[i] > 0.0:   # S follows P: S = lam^2 S + zeta zeta^T, symmetric (IV sandwich, module docstring)
+                    l2 = lz[i] * lz[i]
+                    m = NT if ntk[i] > 1 else 1    # the rigid body's b0 alone when it has no free response
+                    for a in range(m):
+                        for c in range(a, m):
+                            s_ac = l2 * S[i, a, c] + zl[i, a] * zl[i, c]
+                            S[i, a, c] = s_ac
+                            S[i, c, a] = s_ac
                 for a in range(2):
                     gam[i, a] = gam_it[i, a]
                     for c in range(2):

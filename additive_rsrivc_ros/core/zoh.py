@@ -36,6 +36,7 @@ _INV_FACT = np.array([1.0 / math.factorial(k) for k in range(40)])   # 1/k! (com
 _INV_INT = np.array([1.0 / k if k else 0.0 for k in range(40)])
 SERIES_RADIUS = 1.0  # |pole| h below which Phi, Gamma come from the divided-difference series (all terms small)
 POLE_FORM_X = 0.5   # overdamped: q h from which the real-pole form replaces cosh/sinh (no e^{+q h} anywhere)
+ZohCoefficients = tuple[float, float, float, float, float, float]   # Phi11, Phi12, Phi21, Phi22, Gamma1, Gamma2
 
 
 @kernel
@@ -57,20 +58,16 @@ def _c_s_1mc(q2: float, h: float) -> tuple[float, float, float]:
 
 
 @kernel
-def _general_zoh(a1: float, a2: float, h: float, phi: np.ndarray, gamma: np.ndarray) -> None:
+def _general_zoh(a1: float, a2: float, h: float) -> ZohCoefficients:
     """``e^{s h}[c I + S (M - s I)]`` for any coefficients with ``a2 != 0`` (used outside the admissible set)."""
     s = -0.5 * a1 / a2
     q2 = s * s - 1.0 / a2
     c, sv, one_minus_c = _c_s_1mc(q2, h)
     e = math.exp(s * h)
     em1 = math.expm1(s * h)
-    phi[0, 0] = e * (c - s * sv)
-    phi[0, 1] = e * sv
-    phi[1, 0] = -e * sv / a2
-    phi[1, 1] = e * (c + s * sv)
-    # 1 - e (c - s S) = (1 - c) + s S - em1 (c - s S)
-    gamma[0] = one_minus_c + s * sv - em1 * (c - s * sv)
-    gamma[1] = e * sv / a2
+    # Gamma1 = 1 - e (c - s S) = (1 - c) + s S - em1 (c - s S)
+    return (e * (c - s * sv), e * sv, -e * sv / a2, e * (c + s * sv),
+            one_minus_c + s * sv - em1 * (c - s * sv), e * sv / a2)
 
 
 @kernel
@@ -91,7 +88,7 @@ def _discriminant(a1: float, a2: float) -> float:
 
 
 @kernel
-def _series_zoh(e1: float, e2: float, rho: float, h: float, a2: float, phi: np.ndarray, gamma: np.ndarray) -> None:
+def _series_zoh(e1: float, e2: float, rho: float, h: float, a2: float) -> ZohCoefficients:
     """All poles small (``|lambda| h <= SERIES_RADIUS``): divided differences of ``exp`` as power series.
 
     With ``z1, z2 = lambda_{1,2} h`` (``e1 = z1 + z2 = 2 s h``, ``e2 = z1 z2 = h^2/a2``, real also for complex
@@ -115,18 +112,12 @@ def _series_zoh(e1: float, e2: float, rho: float, h: float, a2: float, phi: np.n
         if bound < 1e-18:
             break
     g1 = e2 * d2
-    phi[0, 0] = 1.0 - g1
-    phi[0, 1] = h * d1
-    phi[1, 1] = 1.0 + e1 * d1 - g1
     g2 = (h / a2) * d1
-    phi[1, 0] = -g2
-    gamma[0] = g1
-    gamma[1] = g2
+    return 1.0 - g1, h * d1, -g2, 1.0 + e1 * d1 - g1, g1, g2
 
 
 @kernel
-def _oscillatory_zoh(x2: float, sigma: float, disc: float, h: float, a2: float, phi: np.ndarray,
-                     gamma: np.ndarray) -> None:
+def _oscillatory_zoh(x2: float, sigma: float, disc: float, h: float, a2: float) -> ZohCoefficients:
     """Underdamped (``x2 = q^2 h^2 < 0``) or overdamped with small ``q h``: ``e^{s h}[c I + S (M - s I)]``.
 
     ``c = cos/cosh``, ``St = sin(x)/x`` or ``sinh(x)/x`` are bounded here, ``e^{sigma}`` with ``sigma = s h <= 0``
@@ -155,19 +146,15 @@ def _oscillatory_zoh(x2: float, sigma: float, disc: float, h: float, a2: float, 
     else:  # h/a2 = 2 x / sqrt|disc|: only reached with a2 near the underflow limit
         g2 = e * st * 2.0 * math.sqrt(abs(x2)) / math.sqrt(abs(disc)) if e > 0.0 else 0.0
     p11 = e * (c - sigma * st)
-    phi[0, 0] = p11
-    phi[0, 1] = e * st * h
-    phi[1, 0] = -g2
-    phi[1, 1] = e * (c + sigma * st)
     if p11 < 0.5:
-        gamma[0] = 1.0 - p11
+        g1 = 1.0 - p11
     else:
-        gamma[0] = omc + sigma * st - math.expm1(sigma) * (c - sigma * st)
-    gamma[1] = g2
+        g1 = omc + sigma * st - math.expm1(sigma) * (c - sigma * st)
+    return p11, e * st * h, -g2, e * (c + sigma * st), g1, g2
 
 
 @kernel
-def _real_pole_zoh(a1: float, a2: float, disc: float, h: float, phi: np.ndarray, gamma: np.ndarray) -> None:
+def _real_pole_zoh(a1: float, a2: float, disc: float, h: float) -> ZohCoefficients:
     """Overdamped, ``q h >= POLE_FORM_X``: real poles ``lambda_1 = -2/(a1 + sD)`` (slow) and
     ``lambda_2 = -(a1 + sD)/(2 a2)`` (fast), ``sD = sqrt(a1^2 - 4 a2)``; only ``e^{lambda h} <= 1`` appear.
 
@@ -185,36 +172,31 @@ def _real_pole_zoh(a1: float, a2: float, disc: float, h: float, phi: np.ndarray,
     g2 = e1 * g / sd
     p12 = a2 * g2
     p11 = e1 - lam1 * p12
-    phi[0, 0] = p11
-    phi[0, 1] = p12
-    phi[1, 0] = -g2
-    phi[1, 1] = e1 * (1.0 - den * g / (2.0 * sd))
     if p11 < 0.5:
-        gamma[0] = 1.0 - p11
+        g1 = 1.0 - p11
     else:
         z2 = -(den / (2.0 * a2)) * h
-        gamma[0] = (-(0.5 * den) * math.expm1(z1) + (2.0 * a2 / den) * math.expm1(z2)) / sd
-    gamma[1] = g2
+        g1 = (-(0.5 * den) * math.expm1(z1) + (2.0 * a2 / den) * math.expm1(z2)) / sd
+    return p11, p12, -g2, e1 * (1.0 - den * g / (2.0 * sd)), g1, g2
 
 
 @kernel
-def second_order_zoh(a1: float, a2: float, h: float, phi: np.ndarray, gamma: np.ndarray) -> None:
-    """Fill ``phi`` (2x2) and ``gamma`` (2,) with the exact ZOH of ``a2 w'' + a1 w' + w = v``.
+def zoh_coefficients(a1: float, a2: float, h: float) -> ZohCoefficients:
+    """The exact ZOH of ``a2 w'' + a1 w' + w = v`` as ``(Phi11, Phi12, Phi21, Phi22, Gamma1, Gamma2)``.
 
     Admissible coefficients (``a1 >= 0``, ``a2 > 0``, every iterate after the projection of 000 §4.7): finite
     and accurate to a few ulp of each entry's scale for any ``h > 0`` (``scripts/validate_zoh.py``), by regime of
     the poles ``lambda`` of ``1/A``: all ``|lambda| h <= SERIES_RADIUS``: divided-difference series;
     underdamped or ``q h < POLE_FORM_X``: ``e^{s h}`` times bounded cos/cosh terms; otherwise the real-pole form
     (no ``e^{+q h}``). Other non-zero ``a2`` (unstable, not admissible) use the plain closed form; ``a2 = 0`` or
-    non-finite inputs give NaN entries (no discretization exists; callers reject them).
+    non-finite inputs give NaN entries (no discretization exists; callers reject them). Scalars in and out: the
+    per-sample kernel calls it without touching an array (no reference counting in its loop).
     """
     if not (a1 >= 0.0 and a2 > 0.0 and h > 0.0):
         if a2 != 0.0 and math.isfinite(a1) and math.isfinite(a2) and math.isfinite(h):
-            _general_zoh(a1, a2, h, phi, gamma)
-        else:   # no discretization (a2 = 0, NaN): NaN entries, which the kernel rejects and counts
-            phi[:, :] = math.nan
-            gamma[:] = math.nan
-        return
+            return _general_zoh(a1, a2, h)
+        nan = math.nan   # no discretization (a2 = 0, NaN): NaN entries, which the kernel rejects and counts
+        return nan, nan, nan, nan, nan, nan
     disc = _discriminant(a1, a2)            # 4 a2^2 q^2
     t = h / (2.0 * a2)
     sigma = -a1 * t                         # s h
@@ -224,11 +206,17 @@ def second_order_zoh(a1: float, a2: float, h: float, phi: np.ndarray, gamma: np.
     else:
         rho = (a1 + math.sqrt(disc)) * t    # |lambda_2| h, the fast pole
     if rho <= SERIES_RADIUS:
-        _series_zoh(2.0 * sigma, h * (h / a2), rho, h, a2, phi, gamma)
-    elif disc < 0.0 or x2 < POLE_FORM_X * POLE_FORM_X:
-        _oscillatory_zoh(x2, sigma, disc, h, a2, phi, gamma)
-    else:
-        _real_pole_zoh(a1, a2, disc, h, phi, gamma)
+        return _series_zoh(2.0 * sigma, h * (h / a2), rho, h, a2)
+    if disc < 0.0 or x2 < POLE_FORM_X * POLE_FORM_X:
+        return _oscillatory_zoh(x2, sigma, disc, h, a2)
+    return _real_pole_zoh(a1, a2, disc, h)
+
+
+@kernel
+def second_order_zoh(a1: float, a2: float, h: float, phi: np.ndarray, gamma: np.ndarray) -> None:
+    """Fill ``phi`` (2x2) and ``gamma`` (2,) with :func:`zoh_coefficients` (the exact ZOH of ``a2 w'' + a1 w' + w =
+    v``)."""
+    phi[0, 0], phi[0, 1], phi[1, 0], phi[1, 1], gamma[0], gamma[1] = zoh_coefficients(a1, a2, h)
 
 
 @kernel
