@@ -313,11 +313,21 @@ def run_block(  # noqa: C901 - one compiled per-sample loop (test/test_code_shap
 
     # workspace
     T = np.empty((K, N_BANKS, 2))
-    phi_it = np.empty((K, 2, 2))
-    gam_it = np.empty((K, 2))
-    th_it = np.empty((K, NT))
-    tf_it = np.empty((K, NT))
-    P_it = np.empty((K, NT, NT))
+    # the latest iterate of every mode. One iterate per mode and sample (M_l = 1, M_s = 0, the default) starts from
+    # theta_bar(t_{k-1}), P_bar(t_{k-1}) and only the later modes read it: it is written in place (no copies)
+    in_place = sweeps * (refine + 1) == 1
+    if in_place:
+        phi_it = phi
+        gam_it = gam
+        th_it = theta
+        tf_it = thf
+        P_it = P
+    else:
+        phi_it = np.empty((K, 2, 2))
+        gam_it = np.empty((K, 2))
+        th_it = np.empty((K, NT))
+        tf_it = np.empty((K, NT))
+        P_it = np.empty((K, NT, NT))
     xu = np.empty(K)
     xh = np.empty(K)
     ytil = np.empty(K)
@@ -422,6 +432,9 @@ def run_block(  # noqa: C901 - one compiled per-sample loop (test/test_code_shap
 
         if do_update:
             for i in range(K):
+                lz[i] = 0.0
+                if in_place:
+                    continue
                 for a in range(NT):
                     th_it[i, a] = theta[i, a]
                     tf_it[i, a] = thf[i, a]
@@ -431,7 +444,6 @@ def run_block(  # noqa: C901 - one compiled per-sample loop (test/test_code_shap
                     gam_it[i, a] = gam[i, a]
                     for c in range(2):
                         phi_it[i, a, c] = phi[i, a, c]
-                lz[i] = 0.0
             for _l in range(sweeps):
                 for i in range(K):
                     nt = ntk[i]
@@ -511,6 +523,7 @@ def run_block(  # noqa: C901 - one compiled per-sample loop (test/test_code_shap
                             rejr[i, R_DEN] += 1
                             continue
                         good = math.isfinite(eps)
+                        inv_lam = 1.0 / lam_eff   # one division instead of nt^2 (the divider is the bottleneck)
                         if good:
                             for a in range(NT):
                                 if a >= nt:
@@ -525,7 +538,7 @@ def run_block(  # noqa: C901 - one compiled per-sample loop (test/test_code_shap
                                 for c in range(NT):
                                     if c >= nt:
                                         break
-                                    Pn[a, c] = (P[i, a, c] - gain[a] * phP[c]) / lam_eff
+                                    Pn[a, c] = (P[i, a, c] - gain[a] * phP[c]) * inv_lam
                                     if not math.isfinite(Pn[a, c]):
                                         good = False
                         if good and kind[i] == 0:
@@ -583,11 +596,16 @@ def run_block(  # noqa: C901 - one compiled per-sample loop (test/test_code_shap
                             if not finite:
                                 T[i, :, :] = 0.0
             for i in range(K):
-                for a in range(NT):
-                    theta[i, a] = th_it[i, a]
-                    thf[i, a] = tf_it[i, a]
-                    for c in range(NT):
-                        P[i, a, c] = P_it[i, a, c]
+                if not in_place:
+                    for a in range(NT):
+                        theta[i, a] = th_it[i, a]
+                        thf[i, a] = tf_it[i, a]
+                        for c in range(NT):
+                            P[i, a, c] = P_it[i, a, c]
+                    for a in range(2):
+                        gam[i, a] = gam_it[i, a]
+                        for c in range(2):
+                            phi[i, a, c] = phi_it[i, a, c]
                 if lz[i] > 0.0:   # S follows P: S = lam^2 S + zeta zeta^T, symmetric (IV sandwich, module docstring)
                     l2 = lz[i] * lz[i]
                     m = NT if ntk[i] > 1 else 1    # the rigid body's b0 alone when it has no free response
@@ -596,10 +614,6 @@ def run_block(  # noqa: C901 - one compiled per-sample loop (test/test_code_shap
                             s_ac = l2 * S[i, a, c] + zl[i, a] * zl[i, c]
                             S[i, a, c] = s_ac
                             S[i, c, a] = s_ac
-                for a in range(2):
-                    gam[i, a] = gam_it[i, a]
-                    for c in range(2):
-                        phi[i, a, c] = phi_it[i, a, c]
             ist[I_UPDATES] += 1
         else:
             for i in range(K):
