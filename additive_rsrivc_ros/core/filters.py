@@ -149,6 +149,7 @@ def _closed_loop_loop(phi, gamma, cp, dp, delay, cnum, cden, r):  # pragma: no c
     xn = np.zeros(n)
     w = np.zeros(nc + 1)
     buf = np.zeros(delay + 1)  # circular buffer of past inputs
+    pos = 0                    # its slot of u_{k-d} (a running index: no integer division per sample)
     c0 = cnum[0]
     for k in range(nsamp):
         yx = 0.0
@@ -159,14 +160,17 @@ def _closed_loop_loop(phi, gamma, cp, dp, delay, cnum, cden, r):  # pragma: no c
             u = (c0 * (r[k] - yx) + w[0]) / (1.0 + c0 * dp)
             ud = u
         else:
-            ud = buf[k % delay]
+            ud = buf[pos]
             u = c0 * (r[k] - yx - dp * ud) + w[0]
         y = yx + dp * ud
         e = r[k] - y
         for i in range(nc):
             w[i] = cnum[i + 1] * e - cden[i + 1] * u + w[i + 1]
         if delay > 0:
-            buf[k % delay] = u
+            buf[pos] = u
+            pos += 1
+            if pos == delay:
+                pos = 0
         for i in range(n):  # x_{k+1} = phi x_k + gamma v_k into the other buffer, then swap (no copy back:
             acc = gamma[i] * ud  # a copy through memory puts a store-to-load round trip on the critical path)
             for j in range(n):

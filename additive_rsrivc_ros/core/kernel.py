@@ -650,7 +650,7 @@ def run_block(  # noqa: C901 - one compiled per-sample loop (test/test_code_shap
             cz[0] = zk
             zbuf[pos] = zk
         ubuf[pos] = uk
-        ist[I_POS] = (pos + 1) % nbuf
+        ist[I_POS] = pos + 1 if pos + 1 < nbuf else 0
         fst[F_RLAST] = rk
         fst[F_ULAST] = uk
         fst[F_YHAT] = yhat
