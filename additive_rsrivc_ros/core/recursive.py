@@ -25,7 +25,7 @@ from __future__ import annotations
 import math
 from collections.abc import Mapping, Sequence
 from pathlib import Path
-from typing import Any
+from typing import Any, NamedTuple
 
 import numpy as np
 
@@ -99,15 +99,26 @@ def p0_diagonal(theta: np.ndarray, kind: int, p0_relative: tuple[float, float]) 
 def covariance_problem(cov: np.ndarray, rel_tol: float = 1e-9) -> str:
     """``""`` for a usable covariance block, else ``"non-finite"`` or ``"indefinite"`` (an eigenvalue below
     ``-rel_tol`` times the largest magnitude; ``sqrt(max(var, 0))`` would turn it into a silent std of 0)."""
-    c = np.asarray(cov, dtype=float)
-    if not np.isfinite(c).all():
-        return "non-finite"
-    if c.size == 0:
-        return ""
-    ev = np.linalg.eigvalsh(0.5 * (c + c.T))       # ascending: the largest magnitude is at one end
-    if ev[0] < -rel_tol * max(abs(float(ev[0])), abs(float(ev[-1])), 1e-300):
-        return "indefinite"
-    return ""
+    return covariance_problems([np.asarray(cov, dtype=float)], rel_tol)[0]
+
+
+def covariance_problems(covs: Sequence[np.ndarray], rel_tol: float = 1e-9) -> list[str]:
+    """:func:`covariance_problem` of every block, with one ``eigvalsh`` call per block size (the same LAPACK
+    routine per matrix as one call each, so the same eigenvalues)."""
+    out = [""] * len(covs)
+    by_size: dict[int, list[int]] = {}
+    for i, c in enumerate(covs):
+        if not np.isfinite(c).all():
+            out[i] = "non-finite"
+        elif c.size:
+            by_size.setdefault(c.shape[0], []).append(i)
+    for idx in by_size.values():
+        stack = np.stack([covs[i] for i in idx])
+        ev = np.linalg.eigvalsh(0.5 * (stack + stack.transpose(0, 2, 1)))   # ascending per block
+        for i, e in zip(idx, ev, strict=True):
+            if e[0] < -rel_tol * max(abs(float(e[0])), abs(float(e[-1])), 1e-300):
+                out[i] = "indefinite"
+    return out
 
 
 def stationary_sandwich(p: np.ndarray, lam: float) -> np.ndarray:
@@ -213,6 +224,14 @@ def closed_loop_spectral_radius(kinds: Sequence[int], thetas: Sequence[np.ndarra
     if not np.all(np.isfinite(a)):
         return math.nan
     return float(np.max(np.abs(np.linalg.eigvals(a)))) if a.size else 0.0
+
+
+class _ReportBlocks(NamedTuple):
+    """Per mode the sandwich and the information covariance blocks and their problems (``""`` when usable)."""
+    covariances: list[np.ndarray]
+    problems: list[str]
+    information: list[np.ndarray]
+    information_problems: list[str]
 
 
 class RecursiveAdditiveSRIVC:
@@ -487,41 +506,54 @@ class RecursiveAdditiveSRIVC:
         excited joint directions instead of inflating its stationary variance, so no cross term is added (it
         matters in transients only: the offline start's coupled covariance enters through ``S(0)``).
         """
+        return [c.copy() for c in self._blocks().covariances]
+
+    def _blocks(self) -> _ReportBlocks:
+        """:attr:`covariances`, :attr:`information_covariances` and their problems for the current state, computed
+        once per state: a report asks for them through :meth:`modal` and :attr:`health`. The cache is keyed on the
+        bytes of every array they are computed from (``theta, P, S`` and the residual variance accumulator), so no
+        change of state, by whatever path, can serve stale numbers."""
+        st = self._s
+        key = b"".join(st[k].tobytes() for k in ("theta", "P", "S", "fst"))
+        cached = getattr(self, "_blocks_cache", None)
+        if cached is not None and cached[0] == key:
+            return cached[1]
         sig2 = self.residual_variance
-        out = []
+        covs, infos = [], []
         for i, s in enumerate(self.structures):
-            nk, nt = kn.n_kernel_params(int(self._s["kind"][i])), s.n_theta   # a rigid body: b0's marginal
-            p = self._s["P"][i, :nk, :nk]
+            nk, nt = kn.n_kernel_params(int(st["kind"][i])), s.n_theta   # a rigid body: b0's marginal
+            p = st["P"][i, :nk, :nk]
             with np.errstate(over="ignore", invalid="ignore"):   # a broken P: non-finite, flagged in modal()
-                c = (p @ self._s["S"][i, :nk, :nk] @ p.T)[:nt, :nt]
-            out.append(sig2 * 0.5 * (c + c.T))
-        return out
+                c = (p @ st["S"][i, :nk, :nk] @ p.T)[:nt, :nt]
+            covs.append(sig2 * 0.5 * (c + c.T))
+            pi = st["P"][i, :nt, :nt]
+            infos.append(sig2 * 0.5 * (pi + pi.T))
+        blocks = _ReportBlocks(covs, covariance_problems(covs), infos, covariance_problems(infos))
+        self._blocks_cache = (key, blocks)
+        return blocks
 
     @property
     def information_covariances(self) -> list[np.ndarray]:
         """``sigma^2 P_bar_i`` (the adaptation gain's scale, 000 §4.2): it winds up without excitation, the sandwich
         :attr:`covariances` does not (an estimate that stops moving keeps its error), so loss of excitation is
         judged on this one."""
-        sig2 = self.residual_variance
-        return [sig2 * 0.5 * (p + p.T) for p in
-                (self._s["P"][i, :s.n_theta, :s.n_theta] for i, s in enumerate(self.structures))]
+        return [c.copy() for c in self._blocks().information]
 
     def covariance_problems(self) -> list[str]:
         """Per mode ``""`` or why its covariance block gives no std: ``"non-finite"`` or ``"indefinite"`` (smallest
         eigenvalue below ``-1e-9`` times the largest magnitude). Such a mode reports NaN std, never 0."""
-        out = []
-        for cov in self.covariances:
-            out.append(covariance_problem(cov))
-        return out
+        return list(self._blocks().problems)
 
     def modal(self) -> np.ndarray:
         """(K, 6): ``f_hz, zeta, gain, f_std, zeta_std, gain_std`` (delta method, model.modal_std, on the IV sandwich
         :attr:`covariances`). A mode whose covariance block is non-finite or indefinite reports NaN std (see
         :meth:`covariance_problems` and ``health.covariance_problems``)."""
         out = np.full((self.K, 6), np.nan)
-        for i, (th, cov, s) in enumerate(zip(self.thetas, self.covariances, self.structures, strict=True)):
+        b = self._blocks()
+        for i, (th, cov, problem, s) in enumerate(zip(self.thetas, b.covariances, b.problems, self.structures,
+                                                      strict=True)):
             out[i, :3] = modal_from_theta(th, s)
-            if not covariance_problem(cov):
+            if not problem:
                 out[i, 3:] = modal_std(th, cov, s)
         return out
 
@@ -529,9 +561,10 @@ class RecursiveAdditiveSRIVC:
         """Per mode the largest relative std of (f, gain) from :attr:`information_covariances` (loss of excitation:
         ``P_bar`` winds up)."""
         out = np.full(self.K, np.nan)
-        for i, (th, cov, s) in enumerate(zip(self.thetas, self.information_covariances, self.structures,
-                                             strict=True)):
-            if covariance_problem(cov):
+        b = self._blocks()
+        for i, (th, cov, problem, s) in enumerate(zip(self.thetas, b.information, b.information_problems,
+                                                      self.structures, strict=True)):
+            if problem:
                 continue
             m, sd = modal_from_theta(th, s), modal_std(th, cov, s)
             with np.errstate(divide="ignore", invalid="ignore"):
@@ -554,13 +587,20 @@ class RecursiveAdditiveSRIVC:
     def iv_condition(self) -> np.ndarray:
         """Condition number per mode of the equilibrated IV matrix ``D R D`` (``R = P^-1``, ``D = |theta|``)."""
         out = np.full(self.K, np.nan)
+        by_size: dict[int, list[tuple[int, np.ndarray]]] = {}
         for i, s in enumerate(self.structures):
             nt = s.n_theta
             dinv = 1.0 / np.maximum(np.abs(self._s["theta"][i, :nt]), 1e-300)
             with np.errstate(over="ignore", invalid="ignore"):   # a zero parameter: cond is inf/NaN, not a warning
                 m = dinv[:, None] * self._s["P"][i, :nt, :nt] * dinv[None, :]
             if np.all(np.isfinite(m)):
-                out[i] = float(np.linalg.cond(m))
+                by_size.setdefault(nt, []).append((i, m))
+        for group in by_size.values():   # np.linalg.cond: the ratio of the extreme singular values, one call a size
+            sv = np.linalg.svd(np.stack([m for _, m in group]), compute_uv=False)
+            with np.errstate(divide="ignore", invalid="ignore"):
+                for (i, _), row in zip(group, sv, strict=True):
+                    c = float(row[0] / row[-1])
+                    out[i] = math.inf if math.isnan(c) else c   # 0/0 (P = 0) is singular, as np.linalg.cond says
         return out
 
     @property
