@@ -220,6 +220,48 @@ def test_modal_and_health_outputs():
         est.set_forgetting(1.5)
 
 
+def test_report_numbers_follow_every_change_of_state():
+    """modal() and health share their covariance blocks through a cache keyed on the state's bytes: after an update, a
+    restored snapshot and an in-place change of P, the numbers are those of a fresh computation, never the previous
+    ones; returned covariances are copies (a caller's change does not reach the next report)."""
+    r, u, y = _data(4000, True, noise_std=0.1)
+    est = _est(PAPER_THETA, True)
+    est.update(r[:2000], u[:2000], y[:2000])
+    snap, m_a, h_a = est.get_state(), est.modal(), est.health
+    est.update(r[2000:], u[2000:], y[2000:])
+    m_b = est.modal()
+    assert not np.array_equal(m_a, m_b)
+    est.set_state(snap)
+    np.testing.assert_array_equal(est.modal(), m_a)
+    assert est.health.covariance_problems == h_a.covariance_problems and est.health.cond == h_a.cond
+    est._s["P"][1] *= 2.0                        # in place: mode 2's sandwich P S P^T four times, its std twice
+    np.testing.assert_allclose(est.modal()[1, 3:], 2.0 * m_a[1, 3:], rtol=1e-12)
+    np.testing.assert_array_equal(est.modal()[[0, 2]], m_a[[0, 2]])
+    est._s["S"][1] *= -1.0                       # in place: mode 2 indefinite, its std NaN, its problem named
+    m_c, h_c = est.modal(), est.health
+    assert np.all(np.isnan(m_c[1, 3:])) and np.all(np.isfinite(m_c[[0, 2], 3:]))
+    assert h_c.covariance_problems[1] == "indefinite" and h_c.covariance_problems[0] == ""
+    est.covariances[0][:] = np.nan
+    assert np.all(np.isfinite(est.covariances[0]))
+
+
+def test_batched_covariance_problems_equal_one_matrix_at_a_time():
+    from additive_rsrivc_ros.core.recursive import covariance_problem, covariance_problems
+    rng = np.random.default_rng(3)
+    covs = []
+    for n in (3, 1, 2, 3, 3, 0):
+        a = rng.standard_normal((n, n))
+        covs.append(a @ a.T)
+    covs[3] = covs[3] - 2.0 * np.eye(3) * np.abs(np.linalg.eigvalsh(covs[3])).max()   # indefinite
+    covs[4][0, 1] = np.inf                                                            # non-finite
+    covs.append(np.diag([1.0, -1e-12, 1.0]))          # negative within the relative tolerance: usable
+    single = [covariance_problem(c) for c in covs]
+    assert covariance_problems(covs) == single
+    assert single == ["", "", "", "indefinite", "non-finite", "", ""]
+    ev = [np.linalg.eigvalsh(0.5 * (c + c.T)) for c in covs[:3]]
+    assert all(e[0] >= 0 for e in ev)
+
+
 def test_from_config_and_initialize():
     """from_config maps the parameter table; initialize() runs the offline init, then primes (no updates)."""
     params = {"loop_rate_hz": 20.0, "closed_loop": True, "controller.numerator": list(PID.numerator),
