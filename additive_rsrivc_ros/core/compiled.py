@@ -181,9 +181,11 @@ def matcher(specs: tuple[ArgSpec, ...]) -> Callable[..., bool]:
 class Kernel:
     """A kernel served by the extension for its exported signatures, by numba's JIT for anything else."""
 
-    def __init__(self, py_func: Callable, variants: list[tuple[Callable, tuple[ArgSpec, ...]]]) -> None:
+    def __init__(self, py_func: Callable, variants: list[tuple[Callable, tuple[ArgSpec, ...]]],
+                 inline: bool = False) -> None:
         functools.update_wrapper(self, py_func)
         self.py_func = py_func
+        self.inline = inline
         self.variants = [(fn, matcher(specs)) for fn, specs in variants]
         self.dispatcher: Any = None
 
@@ -209,10 +211,8 @@ def ensure_jit() -> None:
     with _LOCK:
         if _state["jit"]:
             return
-        from numba import njit
-
         for k in _REGISTRY:
-            k.dispatcher = njit(cache=True)(k.py_func)
+            k.dispatcher = _njit(k.py_func, k.inline)
         for name, module in list(sys.modules.items()):
             if module is None or not (name == _PACKAGE or name.startswith(_PACKAGE + ".")):
                 continue
@@ -222,20 +222,30 @@ def ensure_jit() -> None:
         _state["jit"] = True
 
 
-def kernel(py_func: Callable) -> Any:
-    """Declare a numba kernel (``njit(cache=True)``): the extension's code when built, else numba's JIT."""
+def kernel(py_func: Callable | None = None, *, inline: bool = False) -> Any:
+    """Declare a numba kernel (``njit(cache=True)``): the extension's code when built, else numba's JIT.
+
+    ``@kernel(inline=True)``: numba inlines the function into the kernels that call it (``inline="always"``, at the
+    level of numba's IR: the same operations in the same order, so the same results), for small scalar helpers of
+    a per-sample loop, whose call and returned tuple cost more than their arithmetic."""
+    if py_func is None:
+        return functools.partial(kernel, inline=inline)
     loaded = None if _state["jit"] else _extension()
     if loaded is None:
-        from numba import njit
-
-        return njit(cache=True)(py_func)
+        return _njit(py_func, inline)
     module, exports = loaded
     variants = [(getattr(module, export), specs)
                 for export, specs in exports.get(f"{py_func.__module__}.{py_func.__name__}", [])
                 if hasattr(module, export)]
-    k = Kernel(py_func, variants)
+    k = Kernel(py_func, variants, inline)
     _REGISTRY.append(k)
     return k
+
+
+def _njit(py_func: Callable, inline: bool) -> Any:
+    from numba import njit
+
+    return njit(cache=True, inline="always" if inline else "never")(py_func)
 
 
 def _arg_spec(t: Any) -> ArgSpec:

@@ -140,7 +140,7 @@ def discretize_mode(kind: int, a1: float, a2: float, h: float, phi: np.ndarray, 
         integrator_chain_zoh(kind, h, phi[:kind, :kind], gam[:kind])
 
 
-@kernel
+@kernel(inline=True)
 def iv_denominator_ok(den: float, den_abs: float, lam: float) -> bool:
     """IV-RLS denominator ``den = lam + phi^T P phi^`` usable (000 eq. 31 / B.5): ``den >= DEN_FLOOR lam`` (ordinary
     RLS has ``den >= lam``; a smaller one multiplies the step by ``lam/den``) and ``den >= DEN_ROUNDOFF den_abs``
@@ -148,7 +148,7 @@ def iv_denominator_ok(den: float, den_abs: float, lam: float) -> bool:
     return math.isfinite(den) and math.isfinite(den_abs) and den >= DEN_FLOOR * lam and den >= DEN_ROUNDOFF * den_abs
 
 
-@kernel
+@kernel(inline=True)
 def _finite_coefficients(p00: float, p01: float, p10: float, p11: float, g0: float, g1: float) -> bool:
     """All of a mode's ``Phi`` (2x2) and ``Gamma`` (2,) entries are finite."""
     return (math.isfinite(p00) and math.isfinite(p01) and math.isfinite(p10) and math.isfinite(p11)
@@ -179,7 +179,7 @@ def _ensure_finite_zoh(i: int, kind: np.ndarray, theta: np.ndarray, thf: np.ndar
     return False
 
 
-@kernel
+@kernel(inline=True)
 def _bank_input(b: int, vy: float, vu: float, vz: float, vx: float) -> float:
     """The input of filter bank ``b``: residual output (Y), delayed input (U), instrument input (Z), auxiliary
     output (X)."""
@@ -192,7 +192,7 @@ def _bank_input(b: int, vy: float, vu: float, vz: float, vx: float) -> float:
     return vx
 
 
-@kernel
+@kernel(inline=True)
 def _advance(p00: float, p01: float, p10: float, p11: float, g0: float, g1: float, s0: float, s1: float,
              v: float) -> tuple[float, float]:
     """One ZOH step of a filter state: ``Phi [s0, s1] + Gamma v``."""

@@ -39,7 +39,7 @@ POLE_FORM_X = 0.5   # overdamped: q h from which the real-pole form replaces cos
 ZohCoefficients = tuple[float, float, float, float, float, float]   # Phi11, Phi12, Phi21, Phi22, Gamma1, Gamma2
 
 
-@kernel
+@kernel(inline=True)
 def _c_s_1mc(q2: float, h: float) -> tuple[float, float, float]:
     """``c = cosh(q h)``, ``S = sinh(q h)/q`` and ``1 - c`` for real or imaginary ``q`` (q2 = q^2)."""
     x2 = q2 * h * h
@@ -57,7 +57,7 @@ def _c_s_1mc(q2: float, h: float) -> tuple[float, float, float]:
     return math.cos(wd * h), math.sin(wd * h) / wd, 2.0 * half * half
 
 
-@kernel
+@kernel(inline=True)
 def _general_zoh(a1: float, a2: float, h: float) -> ZohCoefficients:
     """``e^{s h}[c I + S (M - s I)]`` for any coefficients with ``a2 != 0`` (used outside the admissible set)."""
     s = -0.5 * a1 / a2
@@ -70,7 +70,7 @@ def _general_zoh(a1: float, a2: float, h: float) -> ZohCoefficients:
             one_minus_c + s * sv - em1 * (c - s * sv), e * sv / a2)
 
 
-@kernel
+@kernel(inline=True)
 def _discriminant(a1: float, a2: float) -> float:
     """``a1^2 - 4 a2`` with the rounding error of ``a1^2`` added back (Dekker's exact product).
 
@@ -87,7 +87,7 @@ def _discriminant(a1: float, a2: float) -> float:
     return (p - 4.0 * a2) + err
 
 
-@kernel
+@kernel(inline=True)
 def _series_zoh(e1: float, e2: float, rho: float, h: float, a2: float) -> ZohCoefficients:
     """All poles small (``|lambda| h <= SERIES_RADIUS``): divided differences of ``exp`` as power series.
 
@@ -116,7 +116,7 @@ def _series_zoh(e1: float, e2: float, rho: float, h: float, a2: float) -> ZohCoe
     return 1.0 - g1, h * d1, -g2, 1.0 + e1 * d1 - g1, g1, g2
 
 
-@kernel
+@kernel(inline=True)
 def _oscillatory_zoh(x2: float, sigma: float, disc: float, h: float, a2: float) -> ZohCoefficients:
     """Underdamped (``x2 = q^2 h^2 < 0``) or overdamped with small ``q h``: ``e^{s h}[c I + S (M - s I)]``.
 
@@ -153,7 +153,7 @@ def _oscillatory_zoh(x2: float, sigma: float, disc: float, h: float, a2: float) 
     return p11, e * st * h, -g2, e * (c + sigma * st), g1, g2
 
 
-@kernel
+@kernel(inline=True)
 def _real_pole_zoh(a1: float, a2: float, disc: float, h: float) -> ZohCoefficients:
     """Overdamped, ``q h >= POLE_FORM_X``: real poles ``lambda_1 = -2/(a1 + sD)`` (slow) and
     ``lambda_2 = -(a1 + sD)/(2 a2)`` (fast), ``sD = sqrt(a1^2 - 4 a2)``; only ``e^{lambda h} <= 1`` appear.
@@ -180,7 +180,7 @@ def _real_pole_zoh(a1: float, a2: float, disc: float, h: float) -> ZohCoefficien
     return p11, p12, -g2, e1 * (1.0 - den * g / (2.0 * sd)), g1, g2
 
 
-@kernel
+@kernel(inline=True)
 def zoh_coefficients(a1: float, a2: float, h: float) -> ZohCoefficients:
     """The exact ZOH of ``a2 w'' + a1 w' + w = v`` as ``(Phi11, Phi12, Phi21, Phi22, Gamma1, Gamma2)``.
 
