@@ -209,6 +209,22 @@ def _propagate_mode(i: int, phi: np.ndarray, gam: np.ndarray, xs: np.ndarray, T:
                                           xs[i, b, 0], xs[i, b, 1], _bank_input(b, vy, vu, vz, vx))
 
 
+@kernel(inline=True)
+def _copy_mode(i: int, theta: np.ndarray, thf: np.ndarray, P: np.ndarray, phi: np.ndarray, gam: np.ndarray,
+               theta_to: np.ndarray, thf_to: np.ndarray, P_to: np.ndarray, phi_to: np.ndarray,
+               gam_to: np.ndarray) -> None:
+    """Mode ``i``'s estimate, filter model, ``P`` and filter discretization into the second set of arrays."""
+    for a in range(NT):
+        theta_to[i, a] = theta[i, a]
+        thf_to[i, a] = thf[i, a]
+        for c in range(NT):
+            P_to[i, a, c] = P[i, a, c]
+    for a in range(2):
+        gam_to[i, a] = gam[i, a]
+        for c in range(2):
+            phi_to[i, a, c] = phi[i, a, c]
+
+
 def n_kernel_params(kind: int) -> int:
     """Parameters of a mode in the kernel: ``a1, a2, b0``, or a rigid body's ``b0`` and free response ``c0`` (``1/p``)
     or ``c0, c1`` (``1/p^2``); the model's own parameters are the first ``SubmodelStructure.n_theta``."""
@@ -433,17 +449,8 @@ def run_block(  # noqa: C901 - one compiled per-sample loop (test/test_code_shap
         if do_update:
             for i in range(K):
                 lz[i] = 0.0
-                if in_place:
-                    continue
-                for a in range(NT):
-                    th_it[i, a] = theta[i, a]
-                    tf_it[i, a] = thf[i, a]
-                    for c in range(NT):
-                        P_it[i, a, c] = P[i, a, c]
-                for a in range(2):
-                    gam_it[i, a] = gam[i, a]
-                    for c in range(2):
-                        phi_it[i, a, c] = phi[i, a, c]
+                if not in_place:   # every iterate restarts from theta_bar(t_{k-1}), P_bar(t_{k-1})
+                    _copy_mode(i, theta, thf, P, phi, gam, th_it, tf_it, P_it, phi_it, gam_it)
             for _l in range(sweeps):
                 for i in range(K):
                     nt = ntk[i]
@@ -597,15 +604,7 @@ def run_block(  # noqa: C901 - one compiled per-sample loop (test/test_code_shap
                                 T[i, :, :] = 0.0
             for i in range(K):
                 if not in_place:
-                    for a in range(NT):
-                        theta[i, a] = th_it[i, a]
-                        thf[i, a] = tf_it[i, a]
-                        for c in range(NT):
-                            P[i, a, c] = P_it[i, a, c]
-                    for a in range(2):
-                        gam[i, a] = gam_it[i, a]
-                        for c in range(2):
-                            phi[i, a, c] = phi_it[i, a, c]
+                    _copy_mode(i, th_it, tf_it, P_it, phi_it, gam_it, theta, thf, P, phi, gam)
                 if lz[i] > 0.0:   # S follows P: S = lam^2 S + zeta zeta^T, symmetric (IV sandwich, module docstring)
                     l2 = lz[i] * lz[i]
                     m = NT if ntk[i] > 1 else 1    # the rigid body's b0 alone when it has no free response
