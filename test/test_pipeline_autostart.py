@@ -225,7 +225,8 @@ def test_a_wrong_start_is_flagged_by_the_model_check_and_restarted_from_the_data
         assert abs(m[0] / truth.natural_frequency_hz - 1.0) < 0.01
 
 
-def test_guesses_that_lead_to_a_wrong_optimum_are_never_reported_healthy():
+@pytest.mark.parametrize("scale", [1.0, 1.0 + 8e-12, 1.0 + 11e-12])
+def test_guesses_that_lead_to_a_wrong_optimum_are_never_reported_healthy(scale):
     """Guesses 5 and 5.5 Hz for the 5 Hz + 40 Hz loop. The initialization and the recursion may settle on the 5 Hz
     mode split in two (measured: 5.00 Hz zeta 0.034 and 4.85 Hz zeta 0.12 at 58 s), with the 40 Hz mode missing;
     whether they do depends on the machine's rounding (the split mode is a saddle the recursion may leave by
@@ -235,26 +236,26 @@ def test_guesses_that_lead_to_a_wrong_optimum_are_never_reported_healthy():
     (``scripts/study_wrong_optimum.py --tree DIR`` prints it). When the wrong optimum happens, the estimate's own
     misfit flags it (the check of the initial model on its own window, or the regular model-order check later), the
     K = 2 modes are found again on the window and the estimator starts over from them. At the end the estimates are
-    the truth's, with no structural event."""
+    the truth's, with no structural event. ``scale``: the guesses times 1 + a few 1e-12, other rounding paths (on a
+    Xeon of 2026-11, 1 + 8e-12 and 1 + 11e-12 reach the truth without a flag, 1 is flagged at 5 s;
+    ``scripts/study_wrong_optimum.py --perturb 12`` prints a table of such runs)."""
     t, r, u, y = _sim(11, 60.0)
-    cfg = _cfg(**{"modes.natural_frequency_hz": [5.0, 5.5], "modes.damping_ratio": [0.1, 0.1],
+    cfg = _cfg(**{"modes.natural_frequency_hz": [5.0 * scale, 5.5 * scale], "modes.damping_ratio": [0.1, 0.1],
                   "modes.gain": [1.0, 1.0], "modes.memory_s": [5.0, 5.0]})
     pipe, reports = _run(cfg, t, r, u, y)
     truth = np.sort([m.natural_frequency_hz for m in MODES])
-    wrong_at, healthy_while_wrong = [], []
+    healthy_while_wrong = []
     for rep in reports:
-        if not rep.estimating:
+        if not rep.estimating or int(rep.health["level"]) != int(Level.OK):
             continue
         f = np.sort(rep.modal[:, 0])
         if not np.all(np.isfinite(f)) or np.any(np.abs(f / truth - 1.0) > 0.05) or np.any(rep.modal[:, 1] >= 1.0):
-            wrong_at.append(rep.time_s)
-            if int(rep.health["level"]) == int(Level.OK):
-                healthy_while_wrong.append(rep.time_s)
+            healthy_while_wrong.append(rep.time_s)
     assert not healthy_while_wrong, f"wrong estimates reported with health OK at {healthy_while_wrong[:5]} s"
-    if wrong_at:      # the wrong optimum happened on this machine: flagged and restarted from the data
-        notices = [n for rep in reports for n in rep.notices]
-        k = next(i for i, n in enumerate(notices)
-                 if n.startswith(("model-order check on", "model check of the initial model on")))
+    notices = [n for rep in reports for n in rep.notices]
+    k = next((i for i, n in enumerate(notices)
+              if n.startswith(("model-order check on", "model check of the initial model on"))), None)
+    if k is not None:   # the wrong optimum happened on this rounding path: flagged, restarted from the data
         assert "misfits the data" in notices[k] and "wrong optimum" in notices[k]
         assert notices[k + 1].startswith("restarted from the data") and "the 2 mode(s) found" in notices[k + 1]
     assert not any(rep.events_opened for rep in reports)
