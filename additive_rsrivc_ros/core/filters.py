@@ -26,7 +26,7 @@ import numpy as np
 
 from .compiled import kernel
 from .controller import DiscreteController
-from .model import SubmodelStructure, split_theta
+from .model import SubmodelStructure, parallel_state_space, split_theta
 from .zoh import zoh_matrices
 
 
@@ -302,20 +302,8 @@ def instrument_filter(theta: np.ndarray, st: SubmodelStructure, v: np.ndarray, h
 def total_model_discrete(thetas: list[np.ndarray], structures: list[SubmodelStructure], h: float) -> DiscreteSS:
     """ZOH equivalent of the additive model ``sum_i B_i/(p^l_i A_i)`` as a block-diagonal state space."""
     blocks = [discretize(*submodel_continuous(th, st), h) for th, st in zip(thetas, structures, strict=True)]
-    n = sum(b.n_states for b in blocks)
-    phi = np.zeros((n, n))
-    gam = np.zeros(n)
-    c = np.zeros((1, n))
-    d = 0.0
-    i = 0
-    for b in blocks:
-        k = b.n_states
-        phi[i:i + k, i:i + k] = b.phi
-        gam[i:i + k] = b.gamma
-        c[0, i:i + k] = b.c[0]
-        d += float(b.d[0])
-        i += k
-    return DiscreteSS(phi, gam, c, np.array([d]))
+    phi, gam, c = parallel_state_space([(b.phi, b.gamma, b.c[0]) for b in blocks])
+    return DiscreteSS(phi, gam, c[None, :], np.array([sum((float(b.d[0]) for b in blocks), 0.0)]))
 
 
 DENSE_MAX_DIM = 400

@@ -31,7 +31,7 @@ import numpy as np
 
 from . import kernel as kn
 from .estimator import EstimatorHealth, MonitorSettings
-from .model import SubmodelStructure, modal_from_theta, modal_std, theta_from_modal
+from .model import SubmodelStructure, modal_from_theta, modal_std, parallel_state_space, theta_from_modal
 from .params import EstimatorOptions, core_param
 
 STATE_KEYS = ("kind", "lam", "muf", "cnum", "cden", "cfg_i", "cfg_f", "p0diag", "theta", "thf", "P", "S", "xs", "vin",
@@ -178,7 +178,8 @@ def closed_loop_matrix(kinds: Sequence[int], thetas: Sequence[np.ndarray], rate_
         c = np.zeros(ns)
         c[0] = b0
         blocks.append((phi[:ns, :ns], gam[:ns], c))
-    nx = sum(b[0].shape[0] for b in blocks)
+    phi_all, gam_all, c_all = parallel_state_space(blocks)
+    nx = phi_all.shape[0]
     d = int(input_delay)
     num, den = np.asarray(controller.num, float), np.asarray(controller.den, float)
     nc = max(num.size, den.size) - 1
@@ -187,13 +188,7 @@ def closed_loop_matrix(kinds: Sequence[int], thetas: Sequence[np.ndarray], rate_
     dc = nump[0]
     n = nx + d + nc
     a = np.zeros((n, n))
-    gam_all, c_all = np.zeros(nx), np.zeros(nx)
-    j = 0
-    for phi, gam, c in blocks:
-        ns = phi.shape[0]
-        a[j:j + ns, j:j + ns] = phi
-        gam_all[j:j + ns], c_all[j:j + ns] = gam, c
-        j += ns
+    a[:nx, :nx] = phi_all
     ic = nx + d                                  # controller states s_1..s_nc
     # u_k = dc e_k + s_1,k with e_k = -c x_k (r = 0)
     u_row = np.zeros(n)
