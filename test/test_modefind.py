@@ -360,16 +360,26 @@ def test_an_order_gain_must_hold_throughout_the_held_out_data():
     assert false_gains <= 6 and found == 200
 
 
-def test_a_split_mode_on_a_short_window_is_not_a_gain(monkeypatch):
+SPLIT_MODE_PATHS = (0, 2, 4, 6, 7)
+"""Rounding paths of the split-mode test (the output times ``1 + j 1e-12``): on this machine's CPU (a Xeon of 2026-11)
+the scan without its protections picks 3 or 4 modes on paths 2, 4, 6 and 7 and the true 2 on path 0
+(``python scripts/study_split_mode_paths.py``)."""
+
+
+@pytest.mark.parametrize("path", SPLIT_MODE_PATHS)
+def test_a_split_mode_on_a_short_window_is_not_a_gain(monkeypatch, path):
     """A 5 s window cut from a running square-wave loop (5 Hz zeta 0.05 and 40 Hz; 1.5 s held out), the scan's fits
     allowed 20 iterations: K = 2, the true modes, with the paired test and with the margin alone. Where the fits
     left only a warm-up out of a record in motion (before the free response was projected out), a K = 3 fit with a
     weak second mode beside the 5 Hz one predicted the held-out data 10 % better than the two-mode fit, past the
     2 % margin but not throughout them: the paired test kept it out, the margin alone did not. That K = 3 fit does
     not converge (its last step changes the parameters by 150 %), so where it stops depends on the rounding of the
-    machine's BLAS: on a Xeon of 2026-11 it stopped 2 % worse than K = 2 instead of 10 % better, and the negative
-    control (K = 3 with both protections off) is not asserted here. The paired test itself is checked on residuals
-    with known statistics (:func:`test_an_order_gain_must_hold_throughout_the_held_out_data`)."""
+    machine's BLAS: on a Xeon of 2026-11 it stopped 2 % worse than K = 2 instead of 10 % better. Hence several
+    rounding paths (the output times ``1 + j 1e-12``, :data:`SPLIT_MODE_PATHS`), as other CPUs' arithmetic would
+    take: the scan must find the true modes on every one. The negative control (both protections off: K >= 3) is
+    path- and CPU-dependent and is printed by ``scripts/study_split_mode_paths.py``, not asserted. The paired test
+    itself is checked on residuals with known statistics
+    (:func:`test_an_order_gain_must_hold_throughout_the_held_out_data`)."""
     from additive_rsrivc_ros.core import modefind
 
     rng = np.random.default_rng(7)
@@ -378,10 +388,11 @@ def test_a_split_mode_on_a_short_window_is_not_a_gain(monkeypatch):
     sim = simulate_modes(MODES, FS, r=r, controller=CONTROLLER, input_delay=DELAY,
                          noise=white_noise(t.size, 0.01, rng), rng=rng)
     w = slice(int(5.0 * FS), int(10.0 * FS))
+    y = sim.y * (1.0 + path * 1e-12)
     monkeypatch.setattr(modefind, "SCAN_MAX_ITERATIONS", 20)
 
     def search():
-        return find_modes(sim.u[w], sim.y[w], FS, r=sim.r[w], controller=CONTROLLER, input_delay=DELAY,
+        return find_modes(sim.u[w], y[w], FS, r=sim.r[w], controller=CONTROLLER, input_delay=DELAY,
                           refit_tol=modefind.SCAN_TOL)
 
     _check_modes(search(), MODES)
