@@ -16,7 +16,10 @@ frequency) under a lead controller (crossover
 a quarter of the lowest flexible mode, at most 5 Hz); it counts if found as ``b0/p^2`` with b0 within 1 %.
 Prints one row per plant, the failures with the reason (order table, candidates), and the totals.
 
-    python scripts/validate_autostart.py [--plants 40] [--seed 0]
+    python scripts/validate_autostart.py [--plants 40] [--seed 0] [--path J]
+
+``--path J``: the same plants and data on another rounding path (the outputs times ``1 + J 1e-12``), as another
+CPU's arithmetic would take: the counts and flags should not depend on it.
 
 ``--in-motion``: each record is cut from a loop that has already run for 2-6 square-wave periods, as when the monitor
 attaches to a running machine (the default records start from rest).
@@ -34,6 +37,7 @@ import math
 import os
 import sys
 import time
+from dataclasses import replace
 
 os.environ.setdefault("OPENBLAS_NUM_THREADS", "1")
 os.environ.setdefault("OMP_NUM_THREADS", "1")
@@ -124,7 +128,7 @@ def design_controller(modes: list[PlantMode], rate: float, delay: int) -> Discre
     raise RuntimeError("no stabilizing PI found")
 
 
-def run_plant(seed: int, rigid: bool = False, in_motion: bool = False) -> dict:
+def run_plant(seed: int, rigid: bool = False, in_motion: bool = False, path: int = 0) -> dict:
     rng = np.random.default_rng(seed)
     modes, rate, delay = random_plant(rng)
     if rigid:
@@ -144,6 +148,8 @@ def run_plant(seed: int, rigid: bool = False, in_motion: bool = False) -> dict:
     noise_std = 0.01 * float(np.std(clean.y))
     sim = simulate_modes(modes, rate, r=r, controller=ctrl, input_delay=delay,
                          noise=white_noise(t.size, noise_std, rng), rng=rng)
+    if path:   # another CPU's rounding, emulated: the same data times 1 + path 1e-12
+        sim = replace(sim, y=sim.y * (1.0 + path * 1e-12))
     t0 = time.perf_counter()
     try:
         res = find_modes(sim.u[lead:], sim.y[lead:], rate, r=sim.r[lead:], controller=ctrl, input_delay=delay)
@@ -259,6 +265,9 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--in-motion", action="store_true",
                     help="cut each record from a loop that has run for 2-6 square-wave periods (a monitor attached "
                          "to a running machine) instead of starting it from rest")
+    ap.add_argument("--path", type=int, default=0, metavar="J",
+                    help="a rounding path, as another CPU's arithmetic would take: the outputs times 1 + J 1e-12 "
+                         "(default 0: as simulated)")
     ap.add_argument("--timing", type=int, default=0, metavar="N",
                     help="time the automatic start in the pipeline on N plants (K = 4, 4096 Hz, 20 s)")
     args = ap.parse_args(argv)
@@ -269,7 +278,7 @@ def main(argv: list[str] | None = None) -> int:
     print(f"{'plant':>5} {'rate':>6} {'d':>1} {'T[s]':>5} {'K':>3} {'found':>5} {'ok':>3} {'time[s]':>7} "
           f"{'flagged':>8} {'run':>4}  modes (f Hz / zeta)")
     for i in range(args.plants):
-        row = run_plant(args.seed * 100000 + i, args.rigid, args.in_motion)
+        row = run_plant(args.seed * 100000 + i, args.rigid, args.in_motion, args.path)
         rows.append(row)
         desc = " ".join(f"rigid b0 {m.gain:.3g}" if m.rigid else f"{m.natural_frequency_hz:.4g}/{m.damping_ratio:.3g}"
                         for m in row["modes"])

@@ -16,6 +16,7 @@ def test_bench_json_keys():
     assert out["cold_start"]["warm_cache_s"] > 0 and out["cold_start"]["empty_cache_s"] > 0
     dg = out["diagnose_4096hz_k2"]
     assert dg["process_s"] >= dg["total_s"] > 0 and dg["seconds_of_data"] == 6 and dg["process_jit_s"] > 0
+    assert dg["runs"] == 3 and dg["process_median_s"] >= dg["process_s"]
     assert out["kernels"] in ("ahead_of_time", "jit")
     st = out["autostart_4096hz_k4"]
     assert st["seconds_of_data"] == 10 and st["start_s"] > 0 and st["modes_true"] == 4
