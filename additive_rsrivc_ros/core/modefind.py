@@ -638,7 +638,7 @@ def _fit(u, y, rate_hz, r, controller, input_delay, start: list[Candidate], max_
 
 def _refit_worse(full: Any, scan: Any, u, y, rate_hz: float, r, controller, input_delay: int,
                  margin: float) -> tuple[float, float] | None:
-    """``(refit's, scan fit's)`` mean squared output error on the whole record (:func:`_held_out_error`, simulated
+    """``(refit's, scan fit's)`` mean squared output error on the whole record (:func:`_output_error`, simulated
     from rest, the slow poles' free response taken out) when the whole-record refit is more than ``margin`` worse
     than the scan's fit it started from, else None. The refit only adds the held-out samples to the same model; one
     that ends elsewhere is another optimum, not a refinement (a 7 + 142 Hz plant cut in motion, one rounding path in
