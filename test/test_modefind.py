@@ -4,7 +4,7 @@ from __future__ import annotations
 
 import numpy as np
 import pytest
-from frf_cases import CONTROLLER, DELAY, FS, MODES
+from frf_cases import CONTROLLER, DELAY, FS, MODES, split_mode_window
 
 from additive_rsrivc_ros.core.modefind import find_modes
 from additive_rsrivc_ros.sim.simulate import PlantMode, simulate_modes, square_wave, white_noise
@@ -382,18 +382,11 @@ def test_a_split_mode_on_a_short_window_is_not_a_gain(monkeypatch, path):
     (:func:`test_an_order_gain_must_hold_throughout_the_held_out_data`)."""
     from additive_rsrivc_ros.core import modefind
 
-    rng = np.random.default_rng(7)
-    t = np.arange(int(18.0 * FS)) / FS
-    r = square_wave(t, 0.5, 1.0) + white_noise(t.size, 0.05, rng)
-    sim = simulate_modes(MODES, FS, r=r, controller=CONTROLLER, input_delay=DELAY,
-                         noise=white_noise(t.size, 0.01, rng), rng=rng)
-    w = slice(int(5.0 * FS), int(10.0 * FS))
-    y = sim.y * (1.0 + path * 1e-12)
+    r, u, y = split_mode_window(path)
     monkeypatch.setattr(modefind, "SCAN_MAX_ITERATIONS", 20)
 
     def search():
-        return find_modes(sim.u[w], y[w], FS, r=sim.r[w], controller=CONTROLLER, input_delay=DELAY,
-                          refit_tol=modefind.SCAN_TOL)
+        return find_modes(u, y, FS, r=r, controller=CONTROLLER, input_delay=DELAY, refit_tol=modefind.SCAN_TOL)
 
     _check_modes(search(), MODES)
     monkeypatch.setattr(modefind, "GAIN_T", -np.inf)
