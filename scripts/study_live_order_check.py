@@ -12,11 +12,12 @@ check, the structural events (0 expected everywhere), column ``base`` the baseli
 untrusted: 0 expected on these healthy plants) and, column ``delay``, the output error of the better of the
 two neighbouring input delays over the configured (true) one's (step 0 flags below ``adequacy.DELAY_ERROR_RATIO``).
 
-    python scripts/study_live_order_check.py [--seeds 3] [--random 20]
+    python scripts/study_live_order_check.py [--seeds 3] [--random 20] [--path J]
 
 ``--random N``: also N random closed-loop plants of ``validate_autostart.py`` (1-4 modes, 1-8 kHz loops, delay 0-2
 samples, PI loop, square wave plus dither, 40 s), configured correctly (their true modes as guesses, memories
-10 periods of the lowest mode, at most 5 s): the same columns.
+10 periods of the lowest mode, at most 5 s): the same columns. ``--path J``: every record on another rounding path
+(the outputs times ``1 + J 1e-12``, as another CPU's arithmetic would take): the table should not depend on it.
 """
 
 from __future__ import annotations
@@ -39,12 +40,12 @@ CASES = (("beam_healthy", {}, 60.0), ("beam_fault", {"fault_size": 0.0}, 60.0),
           400.0))
 
 
-def run_case(name: str, overrides: dict, seconds: float, seed: int) -> dict:
+def run_case(name: str, overrides: dict, seconds: float, seed: int, path: int = 0) -> dict:
     sc = build(name, duration_s=seconds, seed=seed, **overrides)
-    return _through_pipeline(sc.config, sc.t, sc.r, sc.u, sc.y)
+    return _through_pipeline(sc.config, sc.t, sc.r, sc.u, sc.y, path)
 
 
-def run_random(seed: int) -> tuple[str, dict]:
+def run_random(seed: int, path: int = 0) -> tuple[str, dict]:
     """A random plant of ``validate_autostart.py`` through the pipeline with its true modes as guesses."""
     sys.path.insert(0, os.path.dirname(os.path.abspath(__file__)))
     import validate_autostart as va
@@ -67,10 +68,13 @@ def run_random(seed: int) -> tuple[str, dict]:
         "modes.damping_ratio": [m.damping_ratio for m in modes], "modes.gain": [m.gain for m in modes],
         "modes.integrators": [0] * len(modes), "modes.memory_s": [min(max(1.0, 10.0 / f0), 5.0)] * len(modes)}))
     name = f"random {rate:.0f} Hz d={delay} K={len(modes)}"
-    return name, _through_pipeline(cfg, t, r, sim.u, sim.y)
+    return name, _through_pipeline(cfg, t, r, sim.u, sim.y, path)
 
 
-def _through_pipeline(cfg, t, r, u, y) -> dict:
+def _through_pipeline(cfg, t, r, u, y, path: int = 0) -> dict:
+    """The record through the pipeline in one-second batches; ``path``: the outputs times ``1 + path 1e-12`` (another
+    CPU's rounding, emulated)."""
+    y = y * (1.0 + path * 1e-12) if path else y
     pipe = MonitorPipeline(cfg)
     step = max(1, int(cfg.loop_rate_hz))
     reports = []
@@ -96,13 +100,15 @@ def main(argv: list[str] | None = None) -> int:
     ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     ap.add_argument("--seeds", type=int, default=3)
     ap.add_argument("--random", type=int, default=0, metavar="N", help="also N random closed-loop plants")
+    ap.add_argument("--path", type=int, default=0, metavar="J",
+                    help="a rounding path: the outputs times 1 + J 1e-12, as another CPU's arithmetic would take")
     args = ap.parse_args(argv)
     print(f"{'scenario':<28} {'seed':>4} {'window [s]':>14} {'state':>10} {'run':>4} {'run band [Hz]':>16} "
           f"{'flagged':>7} {'events':>6} {'delay':>6} {'base':>4}")
     total = {"checks": 0, "flagged": 0, "events": 0, "longest": 0, "delay": np.inf, "untrusted": 0, "baselines": 0}
-    jobs = [(seed, lambda n=name, o=over, sec=seconds, sd=seed: (n, run_case(n, o, sec, sd)))
+    jobs = [(seed, lambda n=name, o=over, sec=seconds, sd=seed: (n, run_case(n, o, sec, sd, args.path)))
             for name, over, seconds in CASES for seed in range(args.seeds)]
-    jobs += [(500 + i, lambda sd=500 + i: run_random(sd)) for i in range(args.random)]
+    jobs += [(500 + i, lambda sd=500 + i: run_random(sd, args.path)) for i in range(args.random)]
     for seed, job in jobs:
         name, row = job()
         run = row["run"] or (0, np.nan, np.nan)
