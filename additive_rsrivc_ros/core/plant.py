@@ -231,7 +231,7 @@ def discrete_plant(thetas: Sequence[np.ndarray], structures: Sequence[SubmodelSt
     """Exact ZOH state-space ``(Phi, Gamma, C)`` of the frozen plant ``sum_i B_i/(p^l A_i)`` with the delay
     as extra shift states (000 eq. 10): ``x_{k+1} = Phi x_k + Gamma u_k``, ``y_k = C x_k``."""
     h = 1.0 / rate_hz
-    blocks_phi, blocks_gam, blocks_c = [], [], []
+    blocks = []
     for th, s in zip(thetas, structures, strict=True):
         th = np.asarray(th, float)
         kind = _KIND_CHAIN if s.n == 0 else (_KIND_SECOND if s.integrators == 0 else _KIND_GENERAL)
@@ -239,12 +239,10 @@ def discrete_plant(thetas: Sequence[np.ndarray], structures: Sequence[SubmodelSt
         phi, gam = np.zeros((5, 5)), np.zeros(5)
         a1, a2, b0 = (0.0, 0.0, th[0]) if s.n == 0 else (th[0], th[1], th[2])
         _mode_zoh(kind, s.integrators, a1, a2, b0, h, phi, gam)
-        blocks_phi.append(phi[:ns, :ns])
-        blocks_gam.append(gam[:ns])
         c = np.zeros(ns)
         c[0] = 1.0
-        blocks_c.append(c)
-    phi, gam, c = parallel_state_space(list(zip(blocks_phi, blocks_gam, blocks_c, strict=True)))
+        blocks.append((phi[:ns, :ns], gam[:ns], c))
+    phi, gam, c = parallel_state_space(blocks)
     nx = phi.shape[0]
     if input_delay:
         d = input_delay
