@@ -9,8 +9,9 @@ must come out ``adequate``, also with long misfit runs around an unmodelled reso
 sizes set to 0) runs through ``MonitorPipeline`` with its own params file, fed in one-second batches as the node
 would; prints the check's window, state, longest misfit run and its band, the reports flagged on health by the
 check, the structural events (0 expected everywhere), column ``base`` the baseline at the end (``T`` trusted, ``U``
-untrusted: 0 expected on these healthy plants) and, column ``delay``, the output error of the better of the
-two neighbouring input delays over the configured (true) one's (step 0 flags below ``adequacy.DELAY_ERROR_RATIO``).
+untrusted: 0 expected on these healthy plants), column ``delay`` the output error of the better of the two
+neighbouring input delays over the configured (true) one's (step 0 flags below ``adequacy.DELAY_ERROR_RATIO``), and
+column ``check s`` the check's own seconds.
 
     python scripts/study_live_order_check.py [--seeds 3] [--random 20] [--path J]
 
@@ -87,7 +88,8 @@ def _through_pipeline(cfg, t, r, u, y, path: int = 0) -> dict:
     return {"window": None if res is None else res.window_s, "state": "none" if res is None else res.state,
             "delay_ratio": min(ratios.values()) if ratios else np.nan,
             "run": None if res is None else res.misfit_run, "flagged_reports": flagged,
-            "events": sum(len(rp.events_opened) for rp in reports), "baseline": _baseline_state(pipe)}
+            "events": sum(len(rp.events_opened) for rp in reports), "baseline": _baseline_state(pipe),
+            "seconds": np.nan if res is None else res.seconds}
 
 
 def _baseline_state(pipe) -> str:
@@ -104,7 +106,7 @@ def main(argv: list[str] | None = None) -> int:
                     help="a rounding path: the outputs times 1 + J 1e-12, as another CPU's arithmetic would take")
     args = ap.parse_args(argv)
     print(f"{'scenario':<28} {'seed':>4} {'window [s]':>14} {'state':>10} {'run':>4} {'run band [Hz]':>16} "
-          f"{'flagged':>7} {'events':>6} {'delay':>6} {'base':>4}")
+          f"{'flagged':>7} {'events':>6} {'delay':>6} {'base':>4} {'check s':>7}")
     total = {"checks": 0, "flagged": 0, "events": 0, "longest": 0, "delay": np.inf, "untrusted": 0, "baselines": 0}
     jobs = [(seed, lambda n=name, o=over, sec=seconds, sd=seed: (n, run_case(n, o, sec, sd, args.path)))
             for name, over, seconds in CASES for seed in range(args.seeds)]
@@ -115,7 +117,7 @@ def main(argv: list[str] | None = None) -> int:
         win = row["window"] or (np.nan, np.nan)
         print(f"{name:<28} {seed:>4} {win[0]:6.1f}-{win[1]:6.1f} {row['state']:>10} {run[0]:>4} "
               f"{run[1]:7.2f}-{run[2]:7.2f} {row['flagged_reports']:>7} {row['events']:>6} "
-              f"{row['delay_ratio']:6.2f} {row['baseline']:>4}", flush=True)
+              f"{row['delay_ratio']:6.2f} {row['baseline']:>4} {row['seconds']:7.2f}", flush=True)
         total["checks"] += row["state"] != "none"
         total["flagged"] += row["state"] in ("misfit", "too_low")
         total["events"] += row["events"]
