@@ -35,6 +35,12 @@ def _f(v: float) -> str:
     return f"{min(max(v, -1e5), 1e5):.1f}"
 
 
+def _points(xs: np.ndarray, ys: np.ndarray) -> list[str]:
+    """``x,y`` pairs exactly as ``f"{_f(x)},{_f(y)}"`` writes them, formatted in one pass (a report's polylines
+    and bands hold tens of thousands of points)."""
+    return list(map("{:.1f},{:.1f}".format, np.clip(xs, -1e5, 1e5).tolist(), np.clip(ys, -1e5, 1e5).tolist()))
+
+
 def text_width(s: str, size_pt: float) -> float:
     """Approximate width in pixels of ``s`` in a sans-serif font (0.55 em per character)."""
     return 0.55 * size_pt * PT * len(s)
@@ -442,8 +448,7 @@ class Axes:
         parts = []
         for a, b in _runs(ok):
             xs, ls_, hs = _decimate_band(px[a:b], lo[a:b], hi[a:b], self.box[2])
-            pts = [f"{_f(x)},{_f(y)}" for x, y in zip(xs, hs, strict=True)] + \
-                  [f"{_f(x)},{_f(y)}" for x, y in zip(xs[::-1], ls_[::-1], strict=True)]
+            pts = _points(xs, hs) + _points(xs[::-1], ls_[::-1])
             parts.append("M" + "L".join(pts) + "Z")
         if not parts:
             return []
@@ -663,5 +668,5 @@ def _polyline(px: np.ndarray, py: np.ndarray, ok: np.ndarray, width_px: float) -
     parts = []
     for a, b in _runs(ok):
         xs, ys = _decimate(px[a:b], py[a:b], width_px)
-        parts.append("M" + "L".join(f"{_f(x)},{_f(y)}" for x, y in zip(xs, ys, strict=True)))
+        parts.append("M" + "L".join(_points(xs, ys)))
     return "".join(parts)

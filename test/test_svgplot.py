@@ -77,6 +77,15 @@ def test_a_line_is_drawn_where_its_values_are() -> None:
     assert np.allclose(back_x, x, atol=0.06 * px) and np.allclose(back_y, y, atol=0.06 * (yb - ya) / h)
 
 
+def test_points_are_written_as_single_coordinates_are() -> None:
+    """The one-pass pair formatting of polylines and bands writes exactly what :func:`svgplot._f` writes: one
+    decimal, clamped to +-1e5 px (the clip path hides the rest), -0.0 and ties as Python rounds them."""
+    edge = [np.nan, -0.0, -0.04, 0.05, 0.15, 0.25, 2.675, 1e5, -1e5, 1e5 + 0.05, 3e7, -np.inf, np.inf]
+    x = np.concatenate([np.random.default_rng(1).normal(0.0, 3e3, 2000), edge])
+    y = x[::-1].copy()
+    assert sp._points(x, y) == [f"{sp._f(a)},{sp._f(b)}" for a, b in zip(x, y, strict=True)]
+
+
 def test_log_axis_places_decades_evenly_and_breaks_at_non_positive_values() -> None:
     fig = sp.Figure(6.0, 4.0)
     ax = fig.subplots()[0, 0]
