@@ -226,10 +226,10 @@ def open_loop_output(thetas: Sequence[np.ndarray], structures: Sequence[Submodel
 # ----------------------------------------------------------------------------------------------------------------
 # Closed-loop analysis
 # ----------------------------------------------------------------------------------------------------------------
-def discrete_plant(thetas: Sequence[np.ndarray], structures: Sequence[SubmodelStructure], rate_hz: float,
-                   input_delay: int = 0) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-    """Exact ZOH state-space ``(Phi, Gamma, C)`` of the frozen plant ``sum_i B_i/(p^l A_i)`` with the delay
-    as extra shift states (000 eq. 10): ``x_{k+1} = Phi x_k + Gamma u_k``, ``y_k = C x_k``."""
+def discrete_mode_blocks(thetas: Sequence[np.ndarray], structures: Sequence[SubmodelStructure],
+                         rate_hz: float) -> list[tuple[np.ndarray, np.ndarray, np.ndarray]]:
+    """Per submodel the exact ZOH ``(Phi_i, Gamma_i, c_i)`` of ``B_i/(p^l A_i)`` (000 eq. 10, without the delay):
+    the blocks of :func:`discrete_plant`."""
     h = 1.0 / rate_hz
     blocks = []
     for th, s in zip(thetas, structures, strict=True):
@@ -242,7 +242,14 @@ def discrete_plant(thetas: Sequence[np.ndarray], structures: Sequence[SubmodelSt
         c = np.zeros(ns)
         c[0] = 1.0
         blocks.append((phi[:ns, :ns], gam[:ns], c))
-    phi, gam, c = parallel_state_space(blocks)
+    return blocks
+
+
+def discrete_plant(thetas: Sequence[np.ndarray], structures: Sequence[SubmodelStructure], rate_hz: float,
+                   input_delay: int = 0) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Exact ZOH state-space ``(Phi, Gamma, C)`` of the frozen plant ``sum_i B_i/(p^l A_i)`` with the delay
+    as extra shift states (000 eq. 10): ``x_{k+1} = Phi x_k + Gamma u_k``, ``y_k = C x_k``."""
+    phi, gam, c = parallel_state_space(discrete_mode_blocks(thetas, structures, rate_hz))
     nx = phi.shape[0]
     if input_delay:
         d = input_delay
