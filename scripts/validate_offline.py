@@ -18,8 +18,15 @@ Cases (run all, or pick with --case):
           (forced integrator) vs 003 Table 4.
   speed   time of a K = 2 additive CLSRIVC on N = 10000 (target < 1 s).
 
-Usage: python scripts/validate_offline.py [--runs N] [--case cl52 bcd uns int speed] [--seed S]
+Usage: python scripts/validate_offline.py [--runs N] [--case cl52 bcd uns int speed] [--seed S] [--paths J ...]
 (default runs: 50 per case, 300 for bcd)
+
+``--paths J ...``: the same cases on other rounding paths as well (every fit's output times ``1 + J 1e-12``, as
+another CPU's arithmetic would perturb it; J = 0 is this CPU's path and is always run first). Each path prints its
+own tables, then one line per case and path: the fits whose estimate moved from path 0's by more than 1 % of the
+Monte Carlo spread of that method's estimates (a fit near a tipping point lands on another optimum), the largest
+move in those units, the convergence flips and the fits that stopped at another iteration. The speed case runs on
+path 0 only.
 """
 
 from __future__ import annotations
@@ -36,7 +43,8 @@ import numpy as np  # noqa: E402
 
 from additive_rsrivc_ros.core.controller import DiscreteController  # noqa: E402
 from additive_rsrivc_ros.core.model import SubmodelStructure  # noqa: E402
-from additive_rsrivc_ros.core.offline import identify, to_unfactored  # noqa: E402
+from additive_rsrivc_ros.core.offline import identify as _identify_path0  # noqa: E402
+from additive_rsrivc_ros.core.offline import to_unfactored  # noqa: E402
 from additive_rsrivc_ros.sim.independent import (  # noqa: E402
     MODE,
     PAPER_THETAS,
@@ -56,6 +64,22 @@ from additive_rsrivc_ros.sim.plants import (  # noqa: E402
 
 NAMES_52 = ["a11", "a12", "b10", "a21", "a22", "b20"]
 VERDICT_NOTES: dict[str, str] = {}
+#: the rounding path (``--paths``): the output scale of every fit and, when not None, the log of every fit's
+#: ``(method, beta, converged, iterations)`` in call order (the same on every path: no random draw depends on a fit)
+PATH: dict = {"scale": 1.0, "log": None}
+#: a fit whose estimate moved between rounding paths by more than this fraction of the Monte Carlo spread of its
+#: method's estimates (per parameter) is near a tipping point; stopping at another iteration moves it by ~1e-4
+MOVED_SPREAD = 0.01
+
+
+def identify(u, y, *args, **kwargs):
+    """:func:`..core.offline.identify` on the current rounding path (``y`` times ``PATH['scale']``: 1.0 leaves it
+    bit for bit), logging the result when ``PATH['log']`` is a list."""
+    res = _identify_path0(u, y * PATH["scale"], *args, **kwargs)
+    if PATH["log"] is not None:
+        PATH["log"].append((str(kwargs.get("method", "default")), np.array(res.beta, dtype=float),
+                            bool(res.converged), int(res.iterations)))
+    return res
 
 
 def _table(title: str, names: list[str], rows: dict[str, list[float]], fmt: str = "{:>11.3e}") -> None:
@@ -344,19 +368,62 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--seed", type=int, default=2024)
     ap.add_argument("--case", nargs="+", default=["speed", "cl52", "bcd", "uns", "int"],
                     choices=["speed", "cl52", "bcd", "uns", "int"])
+    ap.add_argument("--paths", type=int, nargs="+", default=None, metavar="J",
+                    help="also run on these rounding paths (outputs x (1 + J 1e-12)) and compare every fit with "
+                         "path 0's")
     a = ap.parse_args(argv)
-    results = {}
-    for c in a.case:
-        if c == "speed":
-            results[c] = case_speed(a.seed)
-        else:
+    paths = [0] + [j for j in dict.fromkeys(a.paths or []) if j != 0]
+    results: dict[str, bool] = {}
+    logs: dict[tuple[str, int], list] = {}
+    verdicts: dict[tuple[str, int], bool] = {}
+    for j in paths:
+        PATH["scale"] = 1.0 + j * 1e-12
+        if len(paths) > 1:
+            print(f"\n##### rounding path {j} (outputs x (1 + {j}e-12)) #####")
+        for c in a.case:
+            if c == "speed":
+                if j == 0:
+                    results[c] = case_speed(a.seed)
+                continue
             runs = a.runs if a.runs is not None else (300 if c == "bcd" else 50)
-            results[c] = {"cl52": case_cl52, "bcd": case_bcd, "uns": case_uns, "int": case_int}[c](runs, a.seed)
+            PATH["log"] = logs[(c, j)] = []
+            ok = {"cl52": case_cl52, "bcd": case_bcd, "uns": case_uns, "int": case_int}[c](runs, a.seed)
+            PATH["log"] = None
+            verdicts[(c, j)] = ok
+            results[c] = results.get(c, True) and ok
+    if len(paths) > 1:
+        _print_path_comparison(logs, verdicts, paths)
     print("\nsummary: " + ", ".join(f"{k}: {'PASS' if v else 'FAIL'}" for k, v in results.items()))
     for k, note in VERDICT_NOTES.items():
         if not results.get(k, True):
             print(f"  {k}: {note}")
     return 0 if all(results.values()) else 1
+
+
+def _print_path_comparison(logs: dict, verdicts: dict, paths: list[int]) -> None:
+    """Per case and rounding path: the verdict, and how many fits moved from path 0's by more than MOVED_SPREAD of
+    their method's Monte Carlo spread (path 0's sample standard deviation per parameter), the largest move in those
+    units, the convergence flips and the fits that stopped at another iteration."""
+    print(f"\n=== rounding paths: every fit against path 0's (moved: by more than {MOVED_SPREAD:g} x the Monte Carlo "
+          "spread of its method's estimates) ===")
+    print(f"{'case':<6}{'path':>5}{'verdict':>9}{'fits':>6}{'moved':>7}{'largest move [spread]':>23}"
+          f"{'conv. flips':>13}{'other iters':>13}")
+    for case in dict.fromkeys(c for c, _ in logs):
+        base = logs[(case, 0)]
+        spread = {m: np.std([b for mm, b, _, _ in base if mm == m], axis=0, ddof=1)
+                  for m in dict.fromkeys(m for m, _, _, _ in base)}
+        for j in paths:
+            log = logs[(case, j)]
+            if [m for m, *_ in log] != [m for m, *_ in base]:
+                print(f"{case:<6}{j:>5}  fit sequences differ ({len(log)} against {len(base)} fits)")
+                continue
+            moves = [float(np.max(np.abs(b - b0) / np.maximum(spread[m], 1e-300))) if b.shape == b0.shape else np.inf
+                     for (m, b, _, _), (_, b0, _, _) in zip(log, base, strict=True)]
+            moved = sum(not v <= MOVED_SPREAD for v in moves)
+            flips = sum(c != c0 for (_, _, c, _), (_, _, c0, _) in zip(log, base, strict=True))
+            iters = sum(i != i0 for (_, _, _, i), (_, _, _, i0) in zip(log, base, strict=True))
+            print(f"{case:<6}{j:>5}{'PASS' if verdicts[(case, j)] else 'FAIL':>9}{len(log):>6}{moved:>7}"
+                  f"{max(moves, default=0.0):>23.2e}{flips:>13}{iters:>13}")
 
 
 if __name__ == "__main__":
