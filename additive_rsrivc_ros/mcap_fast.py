@@ -159,6 +159,8 @@ def read_topics(path: str | Path, topics: set[str]) -> dict[str, tuple[np.ndarra
                     chan, logt, off, size, chrec, used = scan_records(buf)
                     if used != buf.size:
                         raise FastPathUnsupported("truncated records in a chunk")
+                    if size.size and int(size.min()) < 0:
+                        raise FastPathUnsupported("a message record shorter than its header")
                     for p in chrec:
                         cid, topic = _channel_from_content(data, int(p))
                         channel_topic[cid] = topic

@@ -64,3 +64,23 @@ def test_scan_records_stops_at_a_truncated_record():
     rec = bytes([5]) + (100).to_bytes(8, "little") + bytes(10)
     chan, logt, off, size, chrec, used = mcap_fast.scan_records(np.frombuffer(rec, dtype=np.uint8))
     assert chan.size == 0 and used == 0 < len(rec)
+
+
+def test_a_message_record_shorter_than_its_header_goes_to_rosbags(repo, monkeypatch):
+    """A message record whose length is below the 22-byte message header has a negative payload size: the bulk
+    reader hands the file to rosbags (which judges it) instead of reading a payload from the wrong bytes."""
+    cfg = load_config(repo / "config" / "beam.yaml")
+    bag = repo / "bags" / "beam"
+    scan = mcap_fast.scan_records
+
+    def short_record(buf):
+        chan, logt, off, size, chrec, used = scan(buf)
+        size = size.copy()
+        size[:1] = -3
+        return chan, logt, off, size, chrec, used
+
+    monkeypatch.setattr(mcap_fast, "scan_records", short_record)
+    with pytest.raises(mcap_fast.FastPathUnsupported, match="shorter than its header"):
+        mcap_fast.read_topics(next(bag.glob("*.mcap")), {"/plant_output"})
+    fast, slow = _read_both(bag, cfg, monkeypatch)     # read_signals falls back to rosbags: the same samples
+    _assert_same(fast, slow)
