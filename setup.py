@@ -47,9 +47,10 @@ setup(
         # third-party Python modules imported by the package (ROS interfaces: see package.xml)
         "setuptools", "numpy", "scipy", "numba", "pyyaml", "rosbags",
     ],
-    # optional MCAP bulk reader (mcap_fast.py); without it bags are read by rosbags (bagio._read_fast)
+    # optional fast bag reading: the MCAP bulk reader (mcap_fast.py; without it bags are read by rosbags,
+    # bagio._read_fast) and the libyaml parser of rosbags' metadata (ruamel.yaml's pure-Python one otherwise)
     extras_require={
-        "mcap": ["mcap"],
+        "mcap": ["mcap", "ruamel.yaml.clib"],
         # rsrivc_fleet only (rosdistro has no dask key; the node never needs it)
         "fleet": ["dask[distributed]"],
         "test": ["pytest", "ruff", "mcap", "mcap-ros2-support"],
