@@ -613,8 +613,12 @@ def mean_sample_spacing(t_ns: np.ndarray) -> float:
 def _metadata_info(path: Path) -> dict[str, Any]:
     """Storage identifier and custom data from metadata.yaml (already parsed successfully by the reader)."""
     try:
-        loader = getattr(yaml, "CSafeLoader", yaml.SafeLoader)     # libyaml when PyYAML has it: 5x faster
-        info = yaml.load((path / "metadata.yaml").read_text(), Loader=loader)["rosbag2_bagfile_information"]
+        text = (path / "metadata.yaml").read_text()
+        try:                  # libyaml when PyYAML has it (5x faster); the pure-Python parser if it has not or fails
+            doc = yaml.load(text, Loader=getattr(yaml, "CSafeLoader", yaml.SafeLoader))
+        except yaml.YAMLError:
+            doc = yaml.safe_load(text)
+        info = doc["rosbag2_bagfile_information"]
         return {"storage": str(info.get("storage_identifier", "")),
                 "metadata": {str(k): str(v) for k, v in (info.get("custom_data") or {}).items()}}
     except Exception:  # noqa: BLE001 - informative only

@@ -331,3 +331,21 @@ def test_truth_messages_decoded_without_the_type_store_as_with_it():
             _decode_multiarray(data[:-8])
     text = '{"mode": 2, "quantity": "natural frequency", "note": "Δf −5 %"}'
     assert _decode_string(_string(text)) == ts.deserialize_cdr(_string(text), STRING).data == text
+
+
+def test_metadata_custom_data_is_read_when_libyaml_fails(repo, monkeypatch):
+    """The storage and custom data come from metadata.yaml by libyaml when PyYAML has it; a document libyaml
+    rejects is read by the pure-Python parser, never dropped in silence."""
+    import yaml
+
+    from additive_rsrivc_ros import bagio
+
+    fast = bagio._metadata_info(repo / "bags" / "beam_fault")
+    assert fast["storage"] == "mcap" and "additive_rsrivc.parameters" in fast["metadata"]
+
+    class Refuses(yaml.SafeLoader):
+        def __init__(self, stream):
+            raise yaml.YAMLError("libyaml refused the document")
+
+    monkeypatch.setattr(yaml, "CSafeLoader", Refuses, raising=False)
+    assert bagio._metadata_info(repo / "bags" / "beam_fault") == fast
