@@ -31,8 +31,9 @@ import numpy as np
 
 from . import kernel as kn
 from .estimator import EstimatorHealth, MonitorSettings
-from .model import SubmodelStructure, modal_from_theta, modal_std, parallel_state_space, theta_from_modal
+from .model import SubmodelStructure, modal_from_theta, parallel_state_space, theta_from_modal
 from .params import EstimatorOptions, core_param
+from .report_numbers import PROBLEM_NAMES, report_numbers
 
 STATE_KEYS = ("kind", "lam", "muf", "cnum", "cden", "cfg_i", "cfg_f", "p0diag", "theta", "thf", "P", "S", "xs", "vin",
               "phi",
@@ -96,13 +97,16 @@ def p0_diagonal(theta: np.ndarray, kind: int, p0_relative: tuple[float, float]) 
     return out
 
 
-def covariance_problem(cov: np.ndarray, rel_tol: float = 1e-9) -> str:
+COVARIANCE_REL_TOL = 1e-9   # an eigenvalue below -this x the largest magnitude makes a covariance block indefinite
+
+
+def covariance_problem(cov: np.ndarray, rel_tol: float = COVARIANCE_REL_TOL) -> str:
     """``""`` for a usable covariance block, else ``"non-finite"`` or ``"indefinite"`` (an eigenvalue below
     ``-rel_tol`` times the largest magnitude; ``sqrt(max(var, 0))`` would turn it into a silent std of 0)."""
     return covariance_problems([np.asarray(cov, dtype=float)], rel_tol)[0]
 
 
-def covariance_problems(covs: Sequence[np.ndarray], rel_tol: float = 1e-9) -> list[str]:
+def covariance_problems(covs: Sequence[np.ndarray], rel_tol: float = COVARIANCE_REL_TOL) -> list[str]:
     """:func:`covariance_problem` of every block, with one ``eigvalsh`` call per block size (the same LAPACK
     routine per matrix as one call each, so the same eigenvalues)."""
     out = [""] * len(covs)
@@ -222,11 +226,15 @@ def closed_loop_spectral_radius(kinds: Sequence[int], thetas: Sequence[np.ndarra
 
 
 class _ReportBlocks(NamedTuple):
-    """Per mode the sandwich and the information covariance blocks and their problems (``""`` when usable)."""
+    """Per mode the sandwich and the information covariance blocks and their problems (``""`` when usable), and the
+    published numbers computed from them (:func:`.report_numbers.report_numbers`)."""
     covariances: list[np.ndarray]
     problems: list[str]
     information: list[np.ndarray]
     information_problems: list[str]
+    modal: np.ndarray                 # (K, 6) f_hz, zeta, gain and their stds
+    information_relative_std: np.ndarray
+    iv_condition: np.ndarray
 
 
 class RecursiveAdditiveSRIVC:
@@ -504,26 +512,27 @@ class RecursiveAdditiveSRIVC:
         return [c.copy() for c in self._blocks().covariances]
 
     def _blocks(self) -> _ReportBlocks:
-        """:attr:`covariances`, :attr:`information_covariances` and their problems for the current state, computed
-        once per state: a report asks for them through :meth:`modal` and :attr:`health`. The cache is keyed on the
-        bytes of every array they are computed from (``theta, P, S`` and the residual variance accumulator), so no
-        change of state, by whatever path, can serve stale numbers."""
+        """:attr:`covariances`, :attr:`information_covariances`, their problems and the numbers a report publishes
+        (:meth:`modal`, :meth:`information_relative_std`, :meth:`iv_condition`) for the current state, computed once
+        per state in one compiled pass (:func:`.report_numbers.report_numbers`): a report asks for them through
+        :meth:`modal` and :attr:`health`. The cache is keyed on the bytes of every array they are computed from
+        (``theta, P, S`` and the residual variance accumulator), so no change of state, by whatever path, can serve
+        stale numbers."""
         st = self._s
         key = b"".join(st[k].tobytes() for k in ("theta", "P", "S", "fst"))
         cached = getattr(self, "_blocks_cache", None)
         if cached is not None and cached[0] == key:
             return cached[1]
-        sig2 = self.residual_variance
-        covs, infos = [], []
-        for i, s in enumerate(self.structures):
-            nk, nt = kn.n_kernel_params(int(st["kind"][i])), s.n_theta   # a rigid body: b0's marginal
-            p = st["P"][i, :nk, :nk]
-            with np.errstate(over="ignore", invalid="ignore"):   # a broken P: non-finite, flagged in modal()
-                c = (p @ st["S"][i, :nk, :nk] @ p.T)[:nt, :nt]
-            covs.append(sig2 * 0.5 * (c + c.T))
-            pi = st["P"][i, :nt, :nt]
-            infos.append(sig2 * 0.5 * (pi + pi.T))
-        blocks = _ReportBlocks(covs, covariance_problems(covs), infos, covariance_problems(infos))
+        K = self.K
+        cov, info = np.zeros((K, 3, 3)), np.zeros((K, 3, 3))
+        problem, info_problem = np.zeros(K, dtype=np.int64), np.zeros(K, dtype=np.int64)
+        modal, info_rel, cond = np.empty((K, 6)), np.empty(K), np.empty(K)
+        report_numbers(st["kind"], st["theta"], st["P"], st["S"], float(self.residual_variance), COVARIANCE_REL_TOL,
+                       cov, info, problem, info_problem, modal, info_rel, cond)
+        nts = [s.n_theta for s in self.structures]
+        blocks = _ReportBlocks([cov[i, :n, :n] for i, n in enumerate(nts)], [PROBLEM_NAMES[p] for p in problem],
+                               [info[i, :n, :n] for i, n in enumerate(nts)], [PROBLEM_NAMES[p] for p in info_problem],
+                               modal, info_rel, cond)
         self._blocks_cache = (key, blocks)
         return blocks
 
@@ -543,30 +552,12 @@ class RecursiveAdditiveSRIVC:
         """(K, 6): ``f_hz, zeta, gain, f_std, zeta_std, gain_std`` (delta method, model.modal_std, on the IV sandwich
         :attr:`covariances`). A mode whose covariance block is non-finite or indefinite reports NaN std (see
         :meth:`covariance_problems` and ``health.covariance_problems``)."""
-        out = np.full((self.K, 6), np.nan)
-        b = self._blocks()
-        for i, (th, cov, problem, s) in enumerate(zip(self.thetas, b.covariances, b.problems, self.structures,
-                                                      strict=True)):
-            out[i, :3] = modal_from_theta(th, s)
-            if not problem:
-                out[i, 3:] = modal_std(th, cov, s)
-        return out
+        return self._blocks().modal.copy()
 
     def information_relative_std(self) -> np.ndarray:
         """Per mode the largest relative std of (f, gain) from :attr:`information_covariances` (loss of excitation:
-        ``P_bar`` winds up)."""
-        out = np.full(self.K, np.nan)
-        b = self._blocks()
-        for i, (th, cov, problem, s) in enumerate(zip(self.thetas, b.information, b.information_problems,
-                                                      self.structures, strict=True)):
-            if problem:
-                continue
-            m, sd = modal_from_theta(th, s), modal_std(th, cov, s)
-            with np.errstate(divide="ignore", invalid="ignore"):
-                rel = np.abs(sd / m)
-            known = [v for v in (float(rel[0]) if s.n == 2 else 0.0, float(rel[2])) if not math.isnan(v)]
-            out[i] = max(known) if known else math.nan     # np.nanmax of the two, without its overhead
-        return out
+        ``P_bar`` winds up); NaN for a mode whose information block is non-finite or indefinite."""
+        return self._blocks().information_relative_std.copy()
 
     def closed_loop_max_pole(self) -> float:
         """Largest closed-loop pole modulus of the current model with ``C_d`` and the input delay (NaN in open loop).
@@ -580,23 +571,9 @@ class RecursiveAdditiveSRIVC:
                                            int(self._s["cfg_i"][kn.C_DELAY]))
 
     def iv_condition(self) -> np.ndarray:
-        """Condition number per mode of the equilibrated IV matrix ``D R D`` (``R = P^-1``, ``D = |theta|``)."""
-        out = np.full(self.K, np.nan)
-        by_size: dict[int, list[tuple[int, np.ndarray]]] = {}
-        for i, s in enumerate(self.structures):
-            nt = s.n_theta
-            dinv = 1.0 / np.maximum(np.abs(self._s["theta"][i, :nt]), 1e-300)
-            with np.errstate(over="ignore", invalid="ignore"):   # a zero parameter: cond is inf/NaN, not a warning
-                m = dinv[:, None] * self._s["P"][i, :nt, :nt] * dinv[None, :]
-            if np.all(np.isfinite(m)):
-                by_size.setdefault(nt, []).append((i, m))
-        for group in by_size.values():   # np.linalg.cond: the ratio of the extreme singular values, one call a size
-            sv = np.linalg.svd(np.stack([m for _, m in group]), compute_uv=False)
-            with np.errstate(divide="ignore", invalid="ignore"):
-                for (i, _), row in zip(group, sv, strict=True):
-                    c = float(row[0] / row[-1])
-                    out[i] = math.inf if math.isnan(c) else c   # 0/0 (P = 0) is singular, as np.linalg.cond says
-        return out
+        """Condition number per mode of the equilibrated IV matrix ``D R D`` (``R = P^-1``, ``D = |theta|``): infinite
+        when singular, NaN when not finite."""
+        return self._blocks().iv_condition.copy()
 
     @property
     def health(self) -> EstimatorHealth:
