@@ -127,6 +127,7 @@ def _state(rng, kind, how):
     elif how == "nonfinite":
         P[0, 1, 1] = np.nan
         S[-1, 0, 0] = np.inf
+        theta[1, 0] = np.nan                           # a non-finite parameter: NaN values, stds and cond
     elif how == "singular":
         P[0] = 0.0                                     # cond 0/0 -> inf, zero covariance
         P[-1, :, 0] = P[-1, 0, :] = 0.0
