@@ -171,23 +171,25 @@ def _modal_stds(kind: int, th: np.ndarray, c: np.ndarray, out: np.ndarray) -> No
     out[2] = math.sqrt(var_g) if var_g >= 0.0 else math.nan
 
 
+@kernel(inline=True)
+def _product(x: np.ndarray, y: np.ndarray, rows: int, inner: int, cols: int, y_transposed: bool,
+             out: np.ndarray) -> None:
+    """``out = x y`` (or ``x y^T``) on the leading ``rows x inner`` and ``inner x cols`` blocks."""
+    for a in range(rows):
+        for b in range(cols):
+            acc = 0.0
+            for j in range(inner):
+                acc += x[a, j] * (y[b, j] if y_transposed else y[j, b])
+            out[a, b] = acc
+
+
 @kernel
 def _sandwich(p: np.ndarray, s: np.ndarray, nk: int, nt: int, scale: float, out: np.ndarray) -> None:
     """``out = scale (c + c^T)`` with ``c = (P S P^T)[:nt, :nt]`` (``scale = sigma^2 / 2``)."""
     ps = np.zeros((3, 3))
-    for a in range(nt):
-        for k in range(nk):
-            acc = 0.0
-            for j in range(nk):
-                acc += p[a, j] * s[j, k]
-            ps[a, k] = acc
+    _product(p, s, nt, nk, nk, False, ps)
     c = np.zeros((3, 3))
-    for a in range(nt):
-        for b in range(nt):
-            acc = 0.0
-            for k in range(nk):
-                acc += ps[a, k] * p[b, k]
-            c[a, b] = acc
+    _product(ps, p, nt, nk, nt, True, c)
     for a in range(nt):
         for b in range(nt):
             out[a, b] = scale * (c[a, b] + c[b, a])
