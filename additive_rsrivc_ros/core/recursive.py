@@ -31,9 +31,9 @@ import numpy as np
 
 from . import kernel as kn
 from .estimator import EstimatorHealth, MonitorSettings
-from .model import SubmodelStructure, modal_from_theta, parallel_state_space, theta_from_modal
+from .model import SubmodelStructure, modal_from_theta, theta_from_modal
 from .params import EstimatorOptions, core_param
-from .report_numbers import PROBLEM_NAMES, report_numbers
+from .report_numbers import PROBLEM_NAMES, closed_loop_state_matrix, report_numbers
 
 STATE_KEYS = ("kind", "lam", "muf", "cnum", "cden", "cfg_i", "cfg_f", "p0diag", "theta", "thf", "P", "S", "xs", "vin",
               "phi",
@@ -168,49 +168,19 @@ def closed_loop_matrix(kinds: Sequence[int], thetas: Sequence[np.ndarray], rate_
     own ZOH discretization of ``1/A_i`` (or ``1/p^l``) with output ``b0 w``; ``d`` input-delay shift states
     (``x_{k+1} = Phi x_k + Gamma u_{k-d}``); ``C_d`` in transposed direct form II (``scipy.signal.lfilter``).
     """
-    h = 1.0 / rate_hz
-    blocks = []
-    for kind, th in zip(kinds, thetas, strict=True):
-        th = np.asarray(th, dtype=float)
-        phi, gam = np.zeros((2, 2)), np.zeros(2)
-        if int(kind) == 0:
-            kn.discretize_mode(0, float(th[0]), float(th[1]), h, phi, gam)
-            ns, b0 = 2, float(th[2])
-        else:
-            kn.discretize_mode(int(kind), 0.0, 0.0, h, phi, gam)
-            ns, b0 = int(kind), float(th[0])
-        c = np.zeros(ns)
-        c[0] = b0
-        blocks.append((phi[:ns, :ns], gam[:ns], c))
-    phi_all, gam_all, c_all = parallel_state_space(blocks)
-    nx = phi_all.shape[0]
-    d = int(input_delay)
+    kind = np.asarray(kinds, dtype=np.int64)
+    theta = np.zeros((kind.size, kn.NT))
+    for i, th in enumerate(thetas):
+        th = np.asarray(th, dtype=float).ravel()
+        theta[i, :th.size] = th
     num, den = np.asarray(controller.num, float), np.asarray(controller.den, float)
     nc = max(num.size, den.size) - 1
     nump, denp = np.zeros(nc + 1), np.zeros(nc + 1)
     nump[:num.size], denp[:den.size] = num / den[0], den / den[0]
-    dc = nump[0]
-    n = nx + d + nc
+    nx = int(sum(2 if k == 0 else k for k in kind))
+    n = nx + int(input_delay) + nc
     a = np.zeros((n, n))
-    a[:nx, :nx] = phi_all
-    ic = nx + d                                  # controller states s_1..s_nc
-    # u_k = dc e_k + s_1,k with e_k = -c x_k (r = 0)
-    u_row = np.zeros(n)
-    u_row[:nx] = -dc * c_all
-    if nc:
-        u_row[ic] = 1.0
-    if d == 0:
-        a[:nx, :] += np.outer(gam_all, u_row)
-    else:
-        a[:nx, nx + d - 1] += gam_all            # the oldest delayed input drives the plant
-        a[nx, :] = u_row                         # delay line: newest input first
-        for k in range(1, d):
-            a[nx + k, nx + k - 1] = 1.0
-    for k in range(nc):                          # s_k+ = (n_k - d_k dc) e - d_k s_1 + s_{k+1}
-        a[ic + k, :nx] = -(nump[k + 1] - denp[k + 1] * dc) * c_all
-        a[ic + k, ic] -= denp[k + 1]
-        if k + 1 < nc:
-            a[ic + k, ic + k + 1] += 1.0
+    closed_loop_state_matrix(kind, theta, 1.0 / rate_hz, int(input_delay), nump, denp, a)
     return a
 
 

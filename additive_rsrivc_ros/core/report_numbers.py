@@ -1,4 +1,4 @@
-"""The recursive estimator's per-report numbers in one compiled pass (issue 16).
+"""The recursive estimator's per-report numbers in one compiled pass (issue 16), and its closed-loop state matrix.
 
 Every report publishes, per mode, the modal values and their delta-method stds from the IV sandwich covariance
 (000 §4.2, ``RecursiveAdditiveSRIVC.covariances``), the covariance blocks' problems (a non-finite or indefinite
@@ -17,6 +17,7 @@ import math
 import numpy as np
 
 from .compiled import kernel
+from .kernel import discretize_mode
 
 #: ``problem`` codes of :func:`report_numbers`, and their names (``covariance_problems``)
 PROBLEM_NAMES = ("", "non-finite", "indefinite")
@@ -264,3 +265,60 @@ def report_numbers(kind: np.ndarray, theta: np.ndarray, P: np.ndarray, S: np.nda
             _modal_stds(k, theta[i], info[i], stds)
             info_rel[i] = _relative_std(k, modal[i, :3], stds)
         cond[i] = _condition(theta[i], P[i], nt)
+
+
+@kernel
+def closed_loop_state_matrix(kind: np.ndarray, theta: np.ndarray, h: float, delay: int, nump: np.ndarray,
+                             denp: np.ndarray, a: np.ndarray) -> None:
+    """Fill the zeroed ``a`` (n x n, ``n = nx + delay + nc``) with the state matrix of the noise-free sampled loop
+    ``u = C_d(q)(r - y)`` around the frozen ZOH model (000 eq. 10; :func:`.recursive.closed_loop_matrix`): per mode
+    the kernel's ZOH of ``1/A_i`` (or ``1/p^l``) with output ``b0 w``, then ``delay`` shift states, then ``C_d`` in
+    transposed direct form II with ``nump, denp`` (numerator and denominator over ``den[0]``, equal length
+    ``nc + 1``)."""
+    n = a.shape[0]
+    nc = nump.shape[0] - 1
+    nx = n - delay - nc
+    gam_all = np.zeros(nx)
+    c_all = np.zeros(nx)
+    phi = np.zeros((2, 2))
+    gam = np.zeros(2)
+    i = 0
+    for m in range(kind.shape[0]):
+        k = kind[m]
+        if k == 0:
+            discretize_mode(0, theta[m, 0], theta[m, 1], h, phi, gam)
+            ns, b0 = 2, theta[m, 2]
+        else:
+            discretize_mode(k, 0.0, 0.0, h, phi, gam)
+            ns, b0 = k, theta[m, 0]
+        for r in range(ns):
+            for col in range(ns):
+                a[i + r, i + col] = phi[r, col]
+            gam_all[i + r] = gam[r]
+        c_all[i] = b0
+        i += ns
+    dc = nump[0]
+    ic = nx + delay                              # controller states s_1..s_nc
+    u_row = np.zeros(n)                          # u_k = dc e_k + s_1,k with e_k = -c x_k (r = 0)
+    for j in range(nx):
+        u_row[j] = -dc * c_all[j]
+    if nc:
+        u_row[ic] = 1.0
+    if delay == 0:
+        for r in range(nx):
+            for col in range(n):
+                a[r, col] += gam_all[r] * u_row[col]
+    else:
+        for r in range(nx):
+            a[r, nx + delay - 1] += gam_all[r]   # the oldest delayed input drives the plant
+        for col in range(n):
+            a[nx, col] = u_row[col]              # delay line: newest input first
+        for k in range(1, delay):
+            a[nx + k, nx + k - 1] = 1.0
+    for k in range(nc):                          # s_k+ = (n_k - d_k dc) e - d_k s_1 + s_{k+1}
+        coef = -(nump[k + 1] - denp[k + 1] * dc)
+        for j in range(nx):
+            a[ic + k, j] = coef * c_all[j]
+        a[ic + k, ic] -= denp[k + 1]
+        if k + 1 < nc:
+            a[ic + k, ic + k + 1] += 1.0
