@@ -3,7 +3,7 @@
 Every report publishes, per mode, the modal values and their delta-method stds from the IV sandwich covariance
 (000 §4.2, ``RecursiveAdditiveSRIVC.covariances``), the covariance blocks' problems (a non-finite or indefinite
 block reports NaN std, never 0), the loss-of-excitation relative std from ``sigma^2 P_bar`` and the IV condition
-numbers. Done with numpy, these are some forty small-array calls per report (0.3 ms for K = 2, a fifth of a 60 s
+numbers. Done with numpy, these are some forty small-array calls per report (0.3 ms for K = 2, a tenth of a 60 s
 diagnosis); here they are one call. The arithmetic is that of :func:`.model.modal_from_theta`,
 :func:`.model.modal_std`, :func:`.recursive.covariance_problems` and ``np.linalg.cond``; eigenvalues and singular
 values of the (at most 3 x 3) blocks come from Jacobi rotations instead of LAPACK, so results agree with those
