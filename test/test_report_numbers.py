@@ -1,6 +1,6 @@
 """The compiled per-report numbers (core/report_numbers.py) against the numpy functions they replace.
 
-References: model.modal_from_theta and model.modal_std (delta method), recursive.covariance_problems (LAPACK
+References: model.modal_from_theta and model.modal_std (delta method), recursive.covariance_problem (LAPACK
 eigvalsh), np.linalg.svd for the IV condition number. Tolerances are rounding bounds: a sum computed in another
 order differs by at most a few eps x the sum of its terms' magnitudes (a variance ``J C J^T`` whose terms cancel
 differs relatively by more than eps); backward-stable eigen and singular value algorithms agree within a few
@@ -16,7 +16,7 @@ import pytest
 
 from additive_rsrivc_ros.core import report_numbers as rn
 from additive_rsrivc_ros.core.model import SubmodelStructure, modal_from_theta, modal_jacobian, modal_std
-from additive_rsrivc_ros.core.recursive import COVARIANCE_REL_TOL, covariance_problems
+from additive_rsrivc_ros.core.recursive import COVARIANCE_REL_TOL, covariance_problem
 
 SECOND, RIGID1, RIGID2 = 0, 1, 2
 
@@ -37,8 +37,8 @@ def _reference(kind, theta, P, S, sig2):
         out["cov"].append(sig2 * 0.5 * (c + c.T))
         pi = P[i, :nt, :nt]
         out["info"].append(sig2 * 0.5 * (pi + pi.T))
-    out["problems"] = covariance_problems(out["cov"])
-    out["info_problems"] = covariance_problems(out["info"])
+    out["problems"] = [covariance_problem(c) for c in out["cov"]]
+    out["info_problems"] = [covariance_problem(c) for c in out["info"]]
     for i, k in enumerate(kind):
         s = _structure(int(k))
         th = theta[i, :s.n_theta]

@@ -102,27 +102,15 @@ COVARIANCE_REL_TOL = 1e-9   # an eigenvalue below -this x the largest magnitude 
 
 def covariance_problem(cov: np.ndarray, rel_tol: float = COVARIANCE_REL_TOL) -> str:
     """``""`` for a usable covariance block, else ``"non-finite"`` or ``"indefinite"`` (an eigenvalue below
-    ``-rel_tol`` times the largest magnitude; ``sqrt(max(var, 0))`` would turn it into a silent std of 0)."""
-    return covariance_problems([np.asarray(cov, dtype=float)], rel_tol)[0]
-
-
-def covariance_problems(covs: Sequence[np.ndarray], rel_tol: float = COVARIANCE_REL_TOL) -> list[str]:
-    """:func:`covariance_problem` of every block, with one ``eigvalsh`` call per block size (the same LAPACK
-    routine per matrix as one call each, so the same eigenvalues)."""
-    out = [""] * len(covs)
-    by_size: dict[int, list[int]] = {}
-    for i, c in enumerate(covs):
-        if not np.isfinite(c).all():
-            out[i] = "non-finite"
-        elif c.size:
-            by_size.setdefault(c.shape[0], []).append(i)
-    for idx in by_size.values():
-        stack = np.stack([covs[i] for i in idx])
-        ev = np.linalg.eigvalsh(0.5 * (stack + stack.transpose(0, 2, 1)))   # ascending per block
-        for i, e in zip(idx, ev, strict=True):
-            if e[0] < -rel_tol * max(abs(float(e[0])), abs(float(e[-1])), 1e-300):
-                out[i] = "indefinite"
-    return out
+    ``-rel_tol`` times the largest magnitude; ``sqrt(max(var, 0))`` would turn it into a silent std of 0). The
+    per-report blocks are judged by the same rule in :func:`.report_numbers.report_numbers`."""
+    cov = np.asarray(cov, dtype=float)
+    if not np.isfinite(cov).all():
+        return "non-finite"
+    if cov.size == 0:
+        return ""
+    e = np.linalg.eigvalsh(0.5 * (cov + cov.T))       # ascending
+    return "indefinite" if e[0] < -rel_tol * max(abs(float(e[0])), abs(float(e[-1])), 1e-300) else ""
 
 
 def stationary_sandwich(p: np.ndarray, lam: float) -> np.ndarray:

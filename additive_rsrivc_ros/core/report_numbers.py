@@ -5,7 +5,7 @@ Every report publishes, per mode, the modal values and their delta-method stds f
 block reports NaN std, never 0), the loss-of-excitation relative std from ``sigma^2 P_bar`` and the IV condition
 numbers. Done with numpy, these are some forty small-array calls per report (0.3 ms for K = 2, a tenth of a 60 s
 diagnosis); here they are one call. The arithmetic is that of :func:`.model.modal_from_theta`,
-:func:`.model.modal_std`, :func:`.recursive.covariance_problems` and ``np.linalg.cond``; eigenvalues and singular
+:func:`.model.modal_std`, :func:`.recursive.covariance_problem` and ``np.linalg.cond``; eigenvalues and singular
 values of the (at most 3 x 3) blocks come from Jacobi rotations instead of LAPACK, so results agree with those
 to rounding (test/test_report_numbers.py), not bit for bit.
 """
@@ -19,7 +19,7 @@ import numpy as np
 from .compiled import kernel
 from .kernel import discretize_mode
 
-#: ``problem`` codes of :func:`report_numbers`, and their names (``covariance_problems``)
+#: ``problem`` codes of :func:`report_numbers`, and their names (as :func:`.recursive.covariance_problem` gives)
 PROBLEM_NAMES = ("", "non-finite", "indefinite")
 _TWO_PI = 2.0 * math.pi
 _SWEEPS = 60     # Jacobi sweeps at most (a 3 x 3 block converges in about five)
