@@ -30,15 +30,19 @@ def _esc(s: str) -> str:
     return html.escape(str(s), quote=True)
 
 
+PX_LIMIT = 1e5    # pixel coordinates are clamped to +-this (the clip path hides what lies outside)
+
+
 def _f(v: float) -> str:
-    """A pixel coordinate: one decimal, clamped (the clip path hides what lies outside)."""
-    return f"{min(max(v, -1e5), 1e5):.1f}"
+    """A pixel coordinate: one decimal, clamped to :data:`PX_LIMIT`."""
+    return f"{min(max(v, -PX_LIMIT), PX_LIMIT):.1f}"
 
 
 def _points(xs: np.ndarray, ys: np.ndarray) -> list[str]:
     """``x,y`` pairs exactly as ``f"{_f(x)},{_f(y)}"`` writes them, formatted in one pass (a report's polylines
     and bands hold tens of thousands of points)."""
-    return list(map("{:.1f},{:.1f}".format, np.clip(xs, -1e5, 1e5).tolist(), np.clip(ys, -1e5, 1e5).tolist()))
+    return list(map("{:.1f},{:.1f}".format, np.clip(xs, -PX_LIMIT, PX_LIMIT).tolist(),
+                    np.clip(ys, -PX_LIMIT, PX_LIMIT).tolist()))
 
 
 def text_width(s: str, size_pt: float) -> float:
