@@ -55,6 +55,7 @@ class DiagnosisSeries:
     hold: np.ndarray = field(default_factory=lambda: np.zeros(0, bool))      # (N,) health hold
     issues: list[list[str] | None] = field(default_factory=list)             # health issue kinds (None: unknown)
     model_order: list[dict[str, str]] = field(default_factory=list)         # model-order check: state, message
+    decisions: list[list[dict[str, Any]]] = field(default_factory=list)     # per report: the modes' decision states
 
     @property
     def K(self) -> int:
@@ -92,6 +93,8 @@ class DiagnosisSeries:
             out.issues.append(None if iss is None else [str(x) for x in iss])
             mo = h.get("model_order") or {}
             out.model_order.append({k: str(mo[k]) for k in ("state", "message") if k in mo})
+            out.decisions.append([{k: d.get(k) for k in ("mode", "state", "reason", "holds")}
+                                  for d in h.get("modes") or ()])
         return out
 
     def records(self) -> list[Any]:
@@ -106,6 +109,8 @@ class DiagnosisSeries:
                 h["issues"] = self.issues[j]
             if j < len(self.model_order) and self.model_order[j]:
                 h["model_order"] = self.model_order[j]
+            if j < len(self.decisions) and self.decisions[j]:
+                h["modes"] = self.decisions[j]
             out.append(SimpleNamespace(time_s=float(self.time_s[j]), phase=self.phase[j],
                                        estimating=bool(self.estimating[j]), health=h))
         return out

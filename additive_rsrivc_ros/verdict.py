@@ -66,6 +66,8 @@ class Verdict:
     monitoring_start_s: float | None
     blind_intervals: list[BlindInterval] = field(default_factory=list)
     flagged_model_s: float = 0.0          # of monitored_s: the tests ran against a model the order check flagged
+    mode_blind: dict[int, list[BlindInterval]] = field(default_factory=dict)   # mode (1-based) -> its own blind
+    #                                       intervals while the others were tested (a hold scoped to that mode)
 
     def __post_init__(self) -> None:
         if self.level not in VERDICTS:
@@ -77,7 +79,10 @@ class Verdict:
                 "monitoring_start_s": self.monitoring_start_s, "monitored_fraction":
                 self.monitored_s / self.duration_s if self.duration_s > 0 else 0.0,
                 "blind_intervals": [b.to_dict() for b in self.blind_intervals],
-                "flagged_model_s": round(self.flagged_model_s, 6)}
+                "flagged_model_s": round(self.flagged_model_s, 6),
+                "modes_blind": [{"mode": i, "blind_s": round(sum(b.end_s - b.start_s for b in bl), 6),
+                                 "blind_intervals": [b.to_dict() for b in bl]}
+                                for i, bl in sorted(self.mode_blind.items())]}
 
     @property
     def line(self) -> str:
@@ -157,6 +162,7 @@ class Coverage:
     blind: list[BlindInterval]
     flagged_model_s: float = 0.0
     flag: tuple[float, str] | None = None     # (time, finding) of the first report whose model was flagged
+    mode_blind: dict[int, list[BlindInterval]] = field(default_factory=dict)   # see Verdict.mode_blind
 
 
 def coverage(reports: Sequence[Any], duration_s: float) -> Coverage:
@@ -170,6 +176,7 @@ def coverage(reports: Sequence[Any], duration_s: float) -> Coverage:
         return Coverage(0.0, None, [BlindInterval(0.0, duration_s, "no_estimate", "no report: no valid data")]
                         if duration_s > 0 else [])
     flagged_s, flag = 0.0, None
+    mode_blind: dict[int, list[BlindInterval]] = {}
     if times[0] > 0:
         segs.append((0.0, times[0], "initializing", "initializing: collecting data for the first model"))
     for j, rep in enumerate(reports):
@@ -178,6 +185,8 @@ def coverage(reports: Sequence[Any], duration_s: float) -> Coverage:
         kind, reason = _state(rep, seen)
         end = min(t_next, t0 + period) if t_next - t0 > 1.5 * period else t_next
         segs.append((t0, end, kind, reason))
+        if kind == "monitored":
+            _mode_blind(mode_blind, rep, t0, end)
         if finding := model_flag(rep.health or {}):
             flag = flag or (t0, finding)
             flagged_s += end - t0 if kind == "monitored" else 0.0
@@ -196,7 +205,32 @@ def coverage(reports: Sequence[Any], duration_s: float) -> Coverage:
             continue
         blind.append(BlindInterval(a, b, kind, reason))
     _mark_startup(blind, first_mon)
-    return Coverage(monitored, first_mon, blind, flagged_s, flag)
+    return Coverage(monitored, first_mon, blind, flagged_s, flag, mode_blind)
+
+
+def _mode_blind(out: dict[int, list[BlindInterval]], rep: Any, start: float, end: float) -> None:
+    """Add ``[start, end)`` to the blind intervals of each mode that the report's decisions show blind (a hold
+    scoped to that mode) while the record as a whole was tested; contiguous equal reasons merge."""
+    for d in (rep.health or {}).get("modes") or ():
+        if str(d.get("state")) != "blind" or end <= start:
+            continue
+        runs = out.setdefault(int(d["mode"]), [])
+        owners = ",".join(sorted({str(h.get("owner")) for h in d.get("holds") or ()})) or "hold"
+        if runs and math.isclose(runs[-1].end_s, start, abs_tol=1e-9) and runs[-1].kind == owners:
+            runs[-1].end_s = end    # the same holds go on: one interval (its first reason)
+        else:
+            runs.append(BlindInterval(start, end, owners, _clean(str(d.get("reason", "")))))
+
+
+def _mode_blind_text(mode_blind: Mapping[int, Sequence[BlindInterval]], limit: int = 2) -> str:
+    """'mode 4 blind 9.8 s (20.1–29.9 s: loss of excitation ...)'; ... for every mode with blind time."""
+    parts = []
+    for i, runs in sorted(mode_blind.items()):
+        total = sum(b.end_s - b.start_s for b in runs)
+        spans = "; ".join(f"{b.start_s:.1f}–{b.end_s:.1f} s: {b.reason}" for b in runs[:limit])
+        more = f"; and {len(runs) - limit} more" if len(runs) > limit else ""
+        parts.append(f"mode {i} blind {total:.1f} s ({spans}{more})")
+    return "; ".join(parts)
 
 
 def _mark_startup(blind: list[BlindInterval], first_mon: float | None) -> None:
@@ -296,7 +330,9 @@ def assess(reports: Sequence[Any], duration_s: float,
     spans = _span_text(blind)
 
     def verdict(level: str, text: str) -> Verdict:
-        return Verdict(level, text, duration_s, monitored, first_mon, blind, cov.flagged_model_s)
+        return Verdict(level, text, duration_s, monitored, first_mon, blind, cov.flagged_model_s, cov.mode_blind)
+
+    modes_blind = _mode_blind_text(cov.mode_blind)
 
     if not any(r.estimating for r in reports):
         last = next((d for r in reversed(reports) if (d := _disruption(r.health or {}))), None)
@@ -305,16 +341,17 @@ def assess(reports: Sequence[Any], duration_s: float,
                        f"({why}); fault tests did not run.")
     if events:
         return verdict("FAULT", f"{_event_text(events)}; {ran}" + (f", {flagged}" if flagged else "")
-                       + (f"; blind {spans}" if disrupted else "") + ".")
+                       + (f"; blind {spans}" if disrupted else "") + (f"; {modes_blind}" if modes_blind else "") + ".")
     if monitored <= 0.0:
         end = blind[-1].reason if blind else ""
         return verdict("DEGRADED", f"fault tests never ran: no trusted baseline in {duration_s:.1f} s of data (at "
                        f"the end: {end})" + (f"; {flagged}" if flagged else "") + (f"; blind {spans}" if disrupted
                                                                                   else "")
                        + "; structural faults could not be tested.")
-    if disrupted or cov.flagged_model_s > 0:
+    if disrupted or cov.flagged_model_s > 0 or modes_blind:
         return verdict("DEGRADED", ran + (f", {flagged}" if cov.flagged_model_s > 0 else "")
-                       + (f"; blind {spans}" if disrupted else "") + "; no structural fault detected while they ran"
+                       + (f"; blind {spans}" if disrupted else "") + (f"; {modes_blind}" if modes_blind else "")
+                       + "; no structural fault detected while they ran"
                        + ("; a misfitting model can hide a fault" if cov.flagged_model_s > 0 else "") + ".")
     return verdict("OK", f"no structural fault detected in the {monitored:.1f} s the fault tests ran (from "
                    f"{first_mon:.1f} s to the end of the {duration_s:.1f} s record; before that the start-up: "

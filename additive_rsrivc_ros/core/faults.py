@@ -51,6 +51,7 @@ from typing import Any
 
 import numpy as np
 
+from .decision import Hold
 from .estimator import EstimatorHealth
 from .joint_check import JointVerdict, applicable_mask
 from .model import SubmodelStructure
@@ -516,10 +517,11 @@ class FaultMonitor:
         self.last_modal = np.full((self.K, 6), np.nan)
         self.history: deque[tuple[float, np.ndarray]] = deque()
         self.settle_forced = False
-        self.anomaly_since: float | None = None   # latched advisory stress (S5), see update()
-        self.anomaly_quiet_since = math.nan
+        self.anomaly_since: float | None = None   # start of the advisory stress episode (S5), see update()
         self.break_t = math.nan                   # first data problem that paused the current baseline window
-        self.joint_armed = False                  # S6: the baseline's joint fit found non-identifiable quantities
+        # S6, per mode: the baseline's joint fit found a quantity of that mode not identifiable; only such a mode's
+        # deviations need the joint check's support (a weakly excited mode does not make its neighbours wait)
+        self.joint_armed_modes = np.zeros(self.K, dtype=bool)
         self.joint: JointVerdict | None = None    # the latest joint check (S6)
         self.joint_reference: JointVerdict | None = None   # the joint fit of the end of the baseline window (S6)
         self.joint_streak = np.zeros((self.K, 3), dtype=int)   # signed run of consecutive supporting checks
@@ -596,9 +598,10 @@ class FaultMonitor:
                 test.event, test.state, test.direction, test.since = None, "ok", 0, math.nan
                 test.reset(t)
         self.baseline = None
-        self.anomaly_since, self.anomaly_quiet_since = None, math.nan
+        self.anomaly_since = None
         self.break_t = math.nan
-        self.joint_armed, self.joint, self.joint_reference = False, None, None
+        self.joint_armed_modes[:] = False
+        self.joint, self.joint_reference = None, None
         self.joint_streak[:] = 0
         if self.phase in ("learning", "monitoring"):
             self.phase, self.t_phase = "learning", t
@@ -606,7 +609,8 @@ class FaultMonitor:
         return closed
 
     def update(self, t: float, modal: np.ndarray, *, hold: bool = False,
-               suspect_since: float | None = None) -> FaultUpdate:
+               suspect_since: float | None = None, mode_hold: Sequence[bool] | np.ndarray | None = None,
+               ) -> FaultUpdate:
         """Process one modal estimate (K, 6) at time ``t`` (s); see the class docstring.
 
         ``suspect_since`` (S5, advisory health issues such as a residual-variance jump): the estimator has
@@ -615,8 +619,12 @@ class FaultMonitor:
         estimate can stay in a broadened fit for a while before it travels) -- the stress is explained by that
         structural change -- and it is the mode's leading deviation: the natural frequency when it is relevant
         (a frequency shift makes damping and gain swing while the estimate re-converges, not the converse),
-        else the most significant (largest ``|z|``); other tests stay at WARN. At all times damping and gain are
-        confirmed only once they and the mode's frequency hold still (:meth:`_moving`).
+        else the most significant (largest ``|z|``); other tests stay at WARN. This isolation is bounded
+        (:meth:`restricted_until`): after it every persistent deviation is judged against the baseline again. At all
+        times damping and gain are confirmed only once they and the mode's frequency hold still (:meth:`_moving`).
+
+        ``mode_hold`` (K,) bool: holds scoped to single modes (:mod:`.decision`): a held mode's tests are reset and
+        do not step (an open event stays open); the other modes are judged on their own.
         """
         out = FaultUpdate()
         modal = np.asarray(modal, dtype=float)
@@ -649,23 +657,18 @@ class FaultMonitor:
             for q in range(3):
                 if not self.applicable(i, q):
                     score[i, q] = -1.0
-        # S5: an advisory stress episode latches as an output anomaly until every estimate is back within its
-        # relevant change for a clear time (or a rebaseline): a persistent sensor bias is slowly absorbed into
-        # the gains while the residual recovers; those later deviations must not become structural faults.
+        # S5: an advisory stress episode restricts confirmation for a bounded window from its start (isolation,
+        # _confirm_before); the window never waits for the estimates to return: once it has passed, every persistent
+        # deviation is judged against the baseline. The episode ends when the advisory issue has lapsed.
         if suspect_since is not None and suspect_since < self.t_phase:
             suspect_since = None   # a stress older than the monitoring phase: deviations are judged afresh from it
         if suspect_since is not None:
             self.anomaly_since = suspect_since if self.anomaly_since is None else min(self.anomaly_since,
                                                                                          suspect_since)
-            self.anomaly_quiet_since = math.nan
-        elif self.anomaly_since is not None:
-            if np.any(relevant & (score >= 0)) or self.flags.any():
-                self.anomaly_quiet_since = math.nan
-            elif math.isnan(self.anomaly_quiet_since):
-                self.anomaly_quiet_since = t
-            elif t - self.anomaly_quiet_since >= max(self.clear_time_s(i) for i in range(self.K)):
-                self.anomaly_since, self.anomaly_quiet_since = None, math.nan
+        elif self.anomaly_since is not None and t >= max(self.restricted_until(i) or t for i in range(self.K)):
+            self.anomaly_since = None
         stress_since = self.anomaly_since
+        held_mode = np.zeros(self.K, dtype=bool) if mode_hold is None else np.asarray(mode_hold, dtype=bool)
         lead = np.argmax(score, axis=1)   # the most significant of the mode's relevant deviations
         moving = self._moving(t, modal, rho)
         arriving = self._moving(t, modal, rho, lookback=0.5)
@@ -679,6 +682,10 @@ class FaultMonitor:
                 lead[i] = faulted[0]
         for i in range(self.K):
             w = min(1.0, dt / (2.0 * float(self.memory_s[i])))   # S1: weight per independent sample
+            if held_mode[i]:
+                for test in self.tests[i]:
+                    test.reset(t)       # evidence gathered under the hold is not evidence; an open event stays
+                continue
             for q in range(3):
                 if not self.applicable(i, q):
                     continue
@@ -703,9 +710,20 @@ class FaultMonitor:
                     out.closed.append(closed)
         return out
 
+    def stress_window_s(self, i: int, q: int) -> float:
+        """Length of the isolation window after a stress began (S5): a lightly damped mode's frequency estimate can
+        stay in the broadened fit for a few memory lengths before it travels (and no sensor bias moves it)."""
+        return (5.0 if q == 0 else 2.0) * float(self.memory_s[i])
+
+    def restricted_until(self, i: int) -> float | None:
+        """End of mode ``i``'s isolation window under the current stress episode (None without one)."""
+        if self.anomaly_since is None:
+            return None
+        return self.anomaly_since + max(self.stress_window_s(i, q) for q in range(3))
+
     def _confirm_before(self, i: int, q: int, travelling: bool, stress_since: float | None, lead: int) -> float:
         """Latest onset of a deviation of (mode ``i``, quantity ``q``) that may still be confirmed (S4-S6)."""
-        if self.joint_armed and self.joint_streak[i, q] == 0:
+        if self.joint_armed_modes[i] and self.joint_streak[i, q] == 0:
             return -math.inf        # S6: the data do not support this deviation jointly
         if q > 0 and travelling:
             # damping and gain are confirmed once they, and the mode's frequency, hold still: while the
@@ -713,10 +731,14 @@ class FaultMonitor:
             return -math.inf
         if stress_since is None:
             return math.inf
+        if q != lead and any(tst.state == "fault" for tst in self.tests[i]):
+            # while the stress lasts (a bounded advisory hold-off), the mode's confirmed fault explains the swings of
+            # its other quantities as the estimate re-converges
+            return -math.inf
+        if self.t_last >= stress_since + self.stress_window_s(i, q):
+            return math.inf         # the isolation window has passed: judged against the baseline
         if q == lead:
-            # the deviation must begin with the stress; a lightly damped mode's frequency estimate can stay
-            # in the broadened fit for a few memory lengths before it travels (and no sensor bias moves it)
-            return stress_since + (5.0 if q == 0 else 2.0) * float(self.memory_s[i])
+            return stress_since + self.stress_window_s(i, q)   # the deviation must begin with the stress
         return -math.inf            # isolation under stress: only the mode's dominant deviation can be the fault
 
     def _baseline_phases(self, t: float, modal: np.ndarray, suspect_since: float | None, out: FaultUpdate) -> bool:
@@ -930,6 +952,11 @@ class FaultMonitor:
         return self.baseline.value.copy(), self.baseline.std.copy()
 
     # -- joint confirmation (S6)
+    @property
+    def joint_armed(self) -> bool:
+        """Some mode's deviations need the joint check's support (S6)."""
+        return bool(self.joint_armed_modes.any())
+
     def arm_joint(self, verdict: JointVerdict) -> None:
         """The baseline window's joint fit: arm S6 when some applicable quantity is not identifiable jointly."""
         base = self.baseline
@@ -940,7 +967,7 @@ class FaultMonitor:
             verdict = replace(verdict, value=base.value.copy(), std=base.std.copy(), peak_own_std=peak)
         self.joint = self.joint_reference = verdict
         app = applicable_mask(self.structures)
-        self.joint_armed = bool(verdict.converged and np.any(app & ~verdict.identifiable))
+        self.joint_armed_modes = verdict.armed_modes(app)
 
     def apply_joint(self, t: float, verdict: JointVerdict) -> FaultUpdate:
         """One joint check while monitoring (S6): confirm what two consecutive checks support, clear what two no
@@ -968,7 +995,8 @@ class FaultMonitor:
                         test.event, test.state = None, "ok"
                         test.reset(t)
                     continue
-                if test.state == "fault" or abs(self.joint_streak[i, q]) < 2 or not self.applicable(i, q):
+                if test.state == "fault" or abs(self.joint_streak[i, q]) < 2 or not self.applicable(i, q) \
+                        or not self.joint_armed_modes[i]:     # an unarmed mode: its recursion's tests decide
                     continue
                 sigma = math.hypot(float(verdict.std[i, q]), float(ref.std[i, q]))
                 dev = float(verdict.value[i, q] - ref.value[i, q])
@@ -997,9 +1025,10 @@ class FaultMonitor:
                 "learner": self.learner.to_dict(),
                 "tests": [[t.to_dict() for t in row] for row in self.tests],
                 "history": [[tp, m.tolist()] for tp, m in self.history], "settle_forced": self.settle_forced,
-                "anomaly_since": self.anomaly_since, "anomaly_quiet_since": self.anomaly_quiet_since,
+                "anomaly_since": self.anomaly_since,
                 "break_t": self.break_t, "events": [e.to_dict() for e in self.events],
-                "joint_armed": self.joint_armed, "joint": None if self.joint is None else self.joint.to_dict(),
+                "joint_armed_modes": self.joint_armed_modes.tolist(),
+                "joint": None if self.joint is None else self.joint.to_dict(),
                 "joint_reference": None if self.joint_reference is None else self.joint_reference.to_dict(),
                 "joint_streak": self.joint_streak.tolist()}
 
@@ -1015,10 +1044,10 @@ class FaultMonitor:
         self.history = deque((float(tp), np.asarray(m, float)) for tp, m in state.get("history", []))
         self.settle_forced = bool(state.get("settle_forced", False))
         self.anomaly_since = state.get("anomaly_since")
-        self.anomaly_quiet_since = float(state.get("anomaly_quiet_since", math.nan))
         self.break_t = float(state.get("break_t", math.nan))
         self.tests = [[SequentialTest.from_dict(d) for d in row] for row in state["tests"]]
-        self.joint_armed = bool(state.get("joint_armed", False))
+        armed = state.get("joint_armed_modes", [bool(state.get("joint_armed", False))] * self.K)
+        self.joint_armed_modes = np.asarray(armed, dtype=bool).reshape(self.K)
         self.joint = None if state.get("joint") is None else JointVerdict.from_dict(state["joint"])
         ref = state.get("joint_reference")
         self.joint_reference = None if ref is None else JointVerdict.from_dict(ref)
@@ -1030,14 +1059,23 @@ class FaultMonitor:
 
 
 # ----------------------------------------------------------------------------------------------- health
+MODE_SCOPE = ":mode"
+"""Key suffix of a health issue scoped to one mode (``loss_of_excitation:mode4``)."""
+
+
 @dataclass
 class HealthStatus:
     """Estimator/data health at one report (S5); ``hold`` means structural alarms are held back."""
 
     level: Level
     reasons: list[str]
-    hold: bool
+    hold: bool                      # an issue holds every mode
     values: dict[str, Any]
+    holds: list[Hold] = field(default_factory=list)   # every active hold (owner, reason, end, modes)
+
+    def mode_hold(self, n_modes: int) -> np.ndarray:
+        """(K,) bool: the mode's tests are held (by an issue of every mode or of its own)."""
+        return np.array([any(h.holds(i) for h in self.holds) or self.hold for i in range(n_modes)], dtype=bool)
 
     @property
     def ok(self) -> bool:
@@ -1093,10 +1131,12 @@ class HealthMonitor:
         """Hold-off (s) after the last sighting of an issue of this kind (see ``SHORT_KINDS``)."""
         return self.settings.health_holdoff_min_s if kind in self.SHORT_KINDS else self.holdoff_s
 
-    def note(self, kind: str, t: float, message: str, count: int = 1) -> None:
-        """Record an incident at time ``t`` (s); it stays active for the hold-off."""
-        self.active[kind] = (t, message)
-        self.first_seen.setdefault(kind, t)
+    def note(self, kind: str, t: float, message: str, count: int = 1, *, mode: int | None = None) -> None:
+        """Record an incident at time ``t`` (s); it stays active for the hold-off. ``mode`` (0-based) scopes it to
+        one mode: it then holds that mode's tests only (:mod:`.decision`)."""
+        key = kind if mode is None else f"{kind}{MODE_SCOPE}{mode + 1}"
+        self.active[key] = (t, message)
+        self.first_seen.setdefault(key, t)
         self.counts[kind] = self.counts.get(kind, 0) + count
 
     def clear_reference(self, modal: np.ndarray | None = None) -> None:
@@ -1135,21 +1175,25 @@ class HealthMonitor:
         if np.shape(est.information_relative_std) == (self.K,):
             rel = np.asarray(est.information_relative_std, dtype=float)[:, None]
         values["max_relative_std"] = float(np.nanmax(rel)) if np.any(np.isfinite(rel)) else math.nan
-        if np.any(rel > s.health_max_relative_std):
-            i = int(np.argwhere(rel > s.health_max_relative_std)[0][0])
+        for i in sorted({int(i) for i in np.argwhere(rel > s.health_max_relative_std)[:, 0]}):
+            # a weakly excited mode blinds itself, not its neighbours (their estimates are judged on their own)
             self.note("loss_of_excitation", t, f"loss of excitation: mode {i + 1} relative std "
-                      f"{np.nanmax(rel[i]):.2g} > {s.health_max_relative_std:g}")
-        # published std unavailable: a non-finite or indefinite covariance block reports NaN, never 0 (issue 17)
-        bad_cov = [f"mode {i + 1} {p}" for i, p in enumerate(est.covariance_problems) if p]
-        if bad_cov:
-            self.note("invalid_uncertainty", t, "no valid uncertainty (std NaN): covariance block "
-                      + ", ".join(bad_cov))
+                      f"{np.nanmax(rel[i]):.2g} > {s.health_max_relative_std:g}", mode=i)
+        # published std unavailable: a non-finite or indefinite covariance block reports NaN, never 0
+        for i, p in enumerate(est.covariance_problems):
+            if p:
+                self.note("invalid_uncertainty", t, f"no valid uncertainty (std NaN): mode {i + 1} covariance "
+                          f"block {p}", mode=i)
         if est.cond:
-            c = float(np.nanmax(np.asarray(est.cond, float)))
+            conds = np.asarray(est.cond, float)
+            c = float(np.nanmax(conds))
             values["condition"] = c
-            if not c <= s.health_max_condition:
-                self.note("loss_of_excitation", t, f"loss of excitation: IV condition number {c:.3g} > "
-                          f"{s.health_max_condition:.3g}")
+            per_mode = conds.shape == (self.K,)
+            for i in (range(self.K) if per_mode else [None]):
+                ci = c if i is None else float(conds[i])
+                if not ci <= s.health_max_condition:
+                    self.note("loss_of_excitation", t, f"loss of excitation: {'' if i is None else f'mode {i + 1} '}"
+                              f"IV condition number {ci:.3g} > {s.health_max_condition:.3g}", mode=i)
         # projection storm: fraction of updates that needed the stability projection (000 §4.7)
         if est.projections:
             p_now = float(np.sum(np.asarray(est.projections, float)))
@@ -1185,33 +1229,40 @@ class HealthMonitor:
         return status
 
     def status(self, t: float) -> HealthStatus:
-        """Active issues at ``t`` (expired ones are dropped); ``values['new_issues']`` were seen at ``t``."""
+        """Active issues at ``t`` (expired ones are dropped); ``values['new_issues']`` were seen at ``t``.
+
+        ``hold`` is True while an issue that holds every mode is active; ``holds`` lists every active hold as a
+        :class:`.decision.Hold` (owner, reason, since, end, modes), the ones scoped to a mode included."""
         reasons = []
         level = Level.OK
         new = []
         hold = False
+        holds: list[Hold] = []
         advisory_since: float | None = None
-        for kind, (t_seen, msg) in list(self.active.items()):
+        for key, (t_seen, msg) in list(self.active.items()):
+            kind, _, scope = key.partition(MODE_SCOPE)
             hold_s = self.hold_of(kind)
             if t - t_seen > hold_s:
-                del self.active[kind]
+                del self.active[key]
                 continue
             if t_seen >= t:
                 new.append(kind)
             suffix = "" if t_seen >= t else f" (recovering, hold-off until t={t_seen + hold_s:.1f} s)"
             reasons.append(msg + suffix)
             level = max(level, Level.ERROR if kind in self.ERROR_KINDS else Level.WARN)
+            first = self.first_seen.get(key, t_seen)
             if kind in self.ADVISORY_KINDS:
-                first = self.first_seen.get(kind, t_seen)
                 advisory_since = first if advisory_since is None else min(advisory_since, first)
-            else:
-                hold = True
-        for kind in list(self.first_seen):
-            if kind not in self.active:
-                del self.first_seen[kind]
-        values = {"counts": dict(self.counts), "issues": sorted(self.active), "new_issues": sorted(new),
-                  "advisory_since": advisory_since}
-        return HealthStatus(level, reasons, hold, values)
+                continue
+            modes = (int(scope) - 1,) if scope else None
+            holds.append(Hold(kind, msg, first, t_seen + hold_s, modes))
+            hold = hold or modes is None
+        for key in list(self.first_seen):
+            if key not in self.active:
+                del self.first_seen[key]
+        values = {"counts": dict(self.counts), "issues": sorted({k.partition(MODE_SCOPE)[0] for k in self.active}),
+                  "new_issues": sorted(set(new)), "advisory_since": advisory_since}
+        return HealthStatus(level, reasons, hold, values, holds)
 
     def get_state(self) -> dict[str, Any]:
         return {"active": {k: list(v) for k, v in self.active.items()}, "counts": dict(self.counts),

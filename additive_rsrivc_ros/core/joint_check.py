@@ -36,6 +36,7 @@ from .model import SubmodelStructure, guess_theta, modal_jacobian
 from .vocabulary import QUANTITIES
 
 Z_IDENTIFIABLE = 3.0   # a relevant change is this many joint stds: the quantity is identifiable
+COUPLING = 0.5         # |correlation| between two modes' quantities from which one's weakness holds the other
 Z_SUPPORT = 4.0        # a change is this many stds from the reference: supported. Checks repeat every half memory on
                        # overlapping windows for up to 3K quantities (measured at 3: 2 wrong events in 20 runs of
                        # scripts/study_narrow_excitation.py, a mode-3 frequency at -2.5 % late in the run)
@@ -57,6 +58,27 @@ class JointVerdict:
     peak_supported: np.ndarray    # (K,) int
     peak_own_std: np.ndarray      # (K,) relative std of this fit's own gain / (2 damping)
     message: str = ""
+    coupling: np.ndarray | None = None   # (K, K) largest |correlation| between two modes' quantities in this fit
+
+    def armed_modes(self, applicable: np.ndarray, threshold: float = COUPLING) -> np.ndarray:
+        """(K,) bool: modes whose deviations need this fit's support: a mode with a quantity the window does not
+        identify, and every mode coupled to one (|correlation| of their quantities >= ``threshold``: the
+        recursion's split between them is not trustworthy). A weakly excited mode far from the others holds
+        only itself."""
+        weak = self.converged & np.any(applicable & ~self.identifiable, axis=1)
+        if self.coupling is None:       # a fit saved without its coupling: every mode, as one block
+            return np.full(weak.shape, bool(weak.any()))
+        coupled = np.asarray(self.coupling, float) >= threshold
+        return np.asarray(weak | np.any(coupled[:, weak], axis=1), bool)
+
+    def coupling_lines(self, armed: np.ndarray, applicable: np.ndarray) -> list[str]:
+        """'mode i held by mode j' for each armed mode that is armed through another one's coupling."""
+        weak = np.any(applicable & ~self.identifiable, axis=1)
+        if self.coupling is None:
+            return []
+        return [f"mode {i + 1} held by mode {j + 1} (correlation {self.coupling[i, j]:.2f})"
+                for i in np.flatnonzero(armed & ~weak) for j in np.flatnonzero(weak)
+                if self.coupling[i, j] >= COUPLING]
 
     def not_identifiable(self, applicable: np.ndarray) -> list[str]:
         """``"mode i quantity"`` for every applicable quantity the window does not identify."""
@@ -79,7 +101,7 @@ class JointVerdict:
                 "supported": self.supported.tolist(), "peak_change": clean(self.peak_change),
                 "peak_std": clean(self.peak_std), "peak_supported": self.peak_supported.tolist(),
                 "peak_own_std": clean(self.peak_own_std),
-                "message": self.message}
+                "message": self.message, "coupling": None if self.coupling is None else clean(self.coupling)}
 
     @classmethod
     def from_dict(cls, d: dict) -> JointVerdict:
@@ -87,7 +109,8 @@ class JointVerdict:
             return np.asarray(d[k], dtype=float).astype(dtype)
         return cls(float(d["t"]), tuple(d["window_s"]), bool(d["converged"]), arr("value"), arr("std"),
                    arr("identifiable", bool), arr("supported", int), arr("peak_change"), arr("peak_std"),
-                   arr("peak_supported", int), arr("peak_own_std"), str(d.get("message", "")))
+                   arr("peak_supported", int), arr("peak_own_std"), str(d.get("message", "")),
+                   None if d.get("coupling") is None else arr("coupling"))
 
 
 def applicable_mask(structures: Sequence[SubmodelStructure]) -> np.ndarray:
@@ -147,7 +170,19 @@ def verdict_from_fit(t: float, window_s: tuple[float, float], converged: bool, m
                 abs(peak_change[i]) >= z * peak_std[i]:
             peak_supported[i] = int(np.sign(peak_change[i]))
     return JointVerdict(float(t), (float(window_s[0]), float(window_s[1])), bool(converged), value, std,
-                        identifiable, supported, peak_change, peak_std, peak_supported, peak_own, message)
+                        identifiable, supported, peak_change, peak_std, peak_supported, peak_own, message,
+                        mode_coupling(cov_modal, K))
+
+
+def mode_coupling(cov_modal: np.ndarray, K: int) -> np.ndarray:
+    """(K, K): the largest |correlation| between a quantity of mode i and one of mode j (0 on the diagonal)."""
+    c = np.asarray(cov_modal, float)
+    d = np.sqrt(np.abs(np.diag(c)))
+    with np.errstate(divide="ignore", invalid="ignore"):
+        corr = np.abs(c / np.outer(d, d))
+    corr = np.where(np.isfinite(corr), corr, 0.0).reshape(K, 3, K, 3).max(axis=(1, 3))
+    np.fill_diagonal(corr, 0.0)
+    return corr
 
 
 def joint_fit(r: np.ndarray | None, u: np.ndarray, y: np.ndarray, rate_hz: float,

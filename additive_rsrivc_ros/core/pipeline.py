@@ -50,8 +50,9 @@ import numpy as np
 from .adequacy import ModelOrderCheck
 from .alignment import AlignedBlock, InvariantAligner
 from .autostart import FoundModes, ModeSearch
+from .decision import ModeDecision, decide
 from .estimator import EstimatorHealth, MonitorSettings, RecursiveEstimator
-from .faults import FaultEvent, FaultMonitor, FaultSettings, HealthMonitor, Level
+from .faults import FaultEvent, FaultMonitor, FaultSettings, HealthMonitor, HealthStatus, Level
 from .joint_check import JointChecker, applicable_mask
 from .vocabulary import BASELINE_FIELDS, FLAG_FIELDS, MODE_FIELDS, QUANTITIES, one_line, plain
 
@@ -88,6 +89,7 @@ class Report:
                                                         # automatic start) for the node's log / the CLI's stderr
     estimator_health: EstimatorHealth | None = None     # the estimator's own record (None while not estimating);
                                                         # health["estimator"] is its to_dict()
+    decisions: list[ModeDecision] = field(default_factory=list)   # per mode: state, reason, holds (core/decision.py)
 
     @property
     def K(self) -> int:
@@ -987,7 +989,8 @@ class MonitorPipeline:
             status = self.health.status(t_rep)
         if self.initialized:
             upd = self.faults.update(t_rep, modal, hold=status.hold,
-                                     suspect_since=status.values.get("advisory_since"))
+                                     suspect_since=status.values.get("advisory_since"),
+                                     mode_hold=status.mode_hold(self.K))
             self.pending_opened += upd.opened
             self.pending_closed += upd.closed
             upd = None if status.hold else self.joint.step(t_rep, self.faults)
@@ -997,15 +1000,20 @@ class MonitorPipeline:
         health = status.to_dict()
         if self.search is not None:
             health["autostart"] = self.search.info()
-        if self.faults is not None and self.faults.anomaly_since is not None:
+        until = None if self.faults is None or self.faults.anomaly_since is None else \
+            max(self.faults.restricted_until(i) or t_rep for i in range(self.K))
+        if until is not None and t_rep < until:
             health["reasons"].append(f"output anomaly since t={self.faults.anomaly_since:.1f} s (residual variance "
-                                     "jump or projection storm): only a fault that began with it can be confirmed; "
-                                     "later deviations wait until the estimates return to the baseline (or rebaseline)")
+                                     f"jump or projection storm): until t={until:.1f} s only a fault that began "
+                                     "with it can be confirmed; after that every persistent deviation is judged "
+                                     "against the baseline")
             health["level"] = max(int(health["level"]), int(Level.WARN))
             health["ok"] = False
         self._alignment_health(health, t_rep)
         health["anomaly_since"] = None if self.faults is None else self.faults.anomaly_since
         self._health_extras(health, status.hold, t_rep)
+        decisions = self._decisions(status)
+        health["modes"] = [d.to_dict() for d in decisions]
         self.order_check.apply(health, Level.WARN)
         health.update(self.counters.to_dict())
         health["estimator"] = {} if est_health is None else est_health.to_dict()
@@ -1014,12 +1022,24 @@ class MonitorPipeline:
             self.faults.baseline.source
         rep = Report(time_s=t_rep, modal=modal, **self._fault_fields(), events_opened=self.pending_opened,
                      events_closed=self.pending_closed, health=health, phase=self.phase,
-                     estimating=self.initialized, notices=self.notices, estimator_health=est_health)
+                     estimating=self.initialized, notices=self.notices, estimator_health=est_health,
+                     decisions=decisions)
         reports.append(rep)
         self.last_report = rep
         self.pending_opened, self.pending_closed, self.notices = [], [], []
         if self.initialized and "divergence" in status.values.get("new_issues", []):
             self._reinitialize(t_rep)
+
+    def _decisions(self, status: HealthStatus) -> list[ModeDecision]:
+        """Each mode's decision state at this report (:mod:`.decision`): the one account of what the tests did."""
+        if self.faults is None:
+            return []
+        holds = list(status.holds)
+        if self.faults.phase == "learning" and not status.hold:
+            holds = []          # holds scoped to one mode do not pause the baseline window (its spread shows them)
+        restricted = [self.faults.restricted_until(i) for i in range(self.K)]
+        return decide(self.faults.phase, self.initialized, [[tst.state for tst in row] for row in self.faults.tests],
+                      holds, restricted, no_model_reason=self.no_model or "initializing")
 
     def _fault_fields(self) -> dict[str, Any]:
         """Baseline, flags, levels and directions of a report ((0, 3) while the modes are not known)."""
@@ -1095,7 +1115,10 @@ class MonitorPipeline:
         of a mode whose gain and damping cannot be told apart is reported here, never as a gain or damping event)."""
         verdict = self.faults.joint
         health["joint_check"] = None if verdict is None else {
-            "armed": self.faults.joint_armed, "t": verdict.t, "converged": verdict.converged,
+            "armed": self.faults.joint_armed,
+            "armed_modes": [int(i) + 1 for i in np.flatnonzero(self.faults.joint_armed_modes)],
+            "coupling": verdict.coupling_lines(self.faults.joint_armed_modes, applicable_mask(self.cfg.structures)),
+            "t": verdict.t, "converged": verdict.converged,
             "not_identifiable": verdict.not_identifiable(applicable_mask(self.cfg.structures)),
             "peak_changes": verdict.peak_lines()}
         if verdict is None or not self.faults.joint_armed:
