@@ -70,10 +70,13 @@ def alignment_values(al: Mapping[str, Any]) -> dict[str, Any]:
 
 
 def mode_message(rep: Report, i: int) -> str:
-    """``fault: natural_frequency down, ...`` for a mode with fault flags, else the pipeline's phase."""
+    """``fault: natural_frequency down, ...`` for a mode with fault flags, ``blind: <why>`` for a mode whose tests
+    are held (its decision state, core/decision.py), else the pipeline's phase."""
     faults = [f"{QUANTITIES[j]} {rep.directions[i][j]}".strip() for j in range(3) if rep.flags[i, j]]
     if faults:
         return "fault: " + ", ".join(faults)
+    if i < len(rep.decisions) and rep.decisions[i].state.value == "blind" and rep.phase == "monitoring":
+        return f"blind: {rep.decisions[i].reason}"
     return rep.phase
 
 
@@ -166,6 +169,8 @@ class PublishingMixin:
             if rep is not None and rep.K == n_modes:
                 md = rep.mode_dict(i)
                 vals.update({k: md[k] for k in (*cv.BASELINE_FIELDS, *cv.FLAG_FIELDS)})
+                if i < len(rep.decisions):      # the mode's decision state and why (core/decision.py)
+                    vals.update(decision_state=rep.decisions[i].state.value, decision_reason=rep.decisions[i].reason)
                 found = Finding(Level(int(rep.mode_levels[i])), mode_message(rep, i))
             level, msg = mode_summary(found, silent=silent_text, estimating=rep is not None and rep.estimating,
                                       looking=bool(self.looking_since_ns))
