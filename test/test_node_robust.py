@@ -20,9 +20,9 @@ REPO = Path(__file__).resolve().parents[1]
 PAPER = str(REPO / "config" / "paper_example.yaml")
 
 
-def _state_doc(**overrides) -> str:
+def _state_doc(node: str = "/additive_rsrivc_monitor", **overrides) -> str:
     params = {**load_params_file(PAPER), **overrides}
-    return json.dumps({"node": "test", "pipeline": MonitorPipeline(MonitorConfig.from_params(params)).get_state()})
+    return json.dumps({"node": node, "pipeline": MonitorPipeline(MonitorConfig.from_params(params)).get_state()})
 
 
 def _run_briefly(env: dict, *overrides: str) -> str:
@@ -57,6 +57,7 @@ def test_refused_state_file_is_kept_and_the_run_saves_beside_it(ros_env, tmp_pat
     MonitorPipeline(cfg, state=json.loads(beside[0].read_text())["pipeline"])      # a valid state of this model
     # another input delay and a corrupt file: refused the same way, never overwritten
     for content, why in ((_state_doc(input_delay_samples=2), "input_delay_samples"),
+                         (_state_doc("/axis2/additive_rsrivc_monitor"), "written by node /axis2/additive_rsrivc_monitor"),
                          ('{"pipeline": {"version": 1, "K"', "unreadable")):
         for f in tmp_path.glob("state.*.json"):
             f.unlink()
@@ -161,3 +162,25 @@ def test_publisher_at_half_the_loop_rate_is_a_warn_naming_the_topic(ros_env):
         rc, out = stop_node(proc, "INT")
     assert rc == 0 and "Traceback" not in out, out
     assert sum("arrival rate" in ln and "/plant_output" in ln for ln in out.splitlines()) == 1, out
+
+
+def test_two_nodes_of_one_name_are_warned(ros_env):
+    """Two monitors with the same fully qualified name in one graph: both say so (their statuses would mix)."""
+    def until_configured(proc) -> str:
+        lines, t_end = [], time.monotonic() + 120
+        while time.monotonic() < t_end and (line := proc.stdout.readline()):
+            lines.append(line)
+            if "configured:" in line:
+                break
+        return "".join(lines)
+    first = start_node(ros_env, PAPER)
+    second = start_node(ros_env, PAPER)
+    heads = [until_configured(p) for p in (first, second)]
+    time.sleep(4.0)       # the check after activation, once discovery has seen both
+    outs = [h + stop_node(p, "TERM")[1] for h, p in zip(heads, (first, second), strict=True)]
+    assert all("2 nodes named /additive_rsrivc_monitor" in out for out in outs), outs
+    # a node alone in its graph (another namespace) is not warned
+    alone = start_node(ros_env, PAPER, ros_args=("-r", "__ns:=/axis7"))
+    head = until_configured(alone)
+    time.sleep(4.0)
+    assert "nodes named" not in head + stop_node(alone, "TERM")[1]

@@ -107,6 +107,7 @@ class MonitorNode(ParametersMixin, InputsMixin, StateMixin, WorkerMixin, Publish
             f"{'closed' if cfg.closed_loop else 'open'} loop, "
             f"inputs {', '.join(self.topics[s] for s in self.signals)} ({self.sync.pairing}), QoS {qos_text}, input "
             f"queues bounded at {self.sync.max_queue} samples per topic (<= {self.sync.queue_bytes() / 1e6:.3g} MB)")
+        self.warn_duplicate_name()       # again after activation, once discovery has seen the graph
         return TransitionCallbackReturn.SUCCESS
 
     def _reject(self, exc: Exception) -> TransitionCallbackReturn:

@@ -80,19 +80,41 @@ def mode_message(rep: Report, i: int) -> str:
     return rep.phase
 
 
+DUPLICATE_NAME_CHECK_S = 2.0
+"""Seconds after activation at which the node looks for another node of its fully qualified name (DDS discovery
+of a running graph takes a few hundred milliseconds on loopback)."""
+
+
 class PublishingMixin:
     """The publisher thread and the composition of ``/diagnostics`` (part of :class:`.monitor_node.MonitorNode`)."""
+
+    def warn_duplicate_name(self) -> bool:
+        """Warn (once per call) when another node in the graph has this node's fully qualified name: their
+        statuses, ~/modes, parameters and state files would be mixed up. True when one was found."""
+        me = self.get_fully_qualified_name()
+        same = [ns for name, ns in self.get_node_names_and_namespaces()
+                if f"{ns.rstrip('/')}/{name}" == me]
+        if len(same) > 1:
+            self.get_logger().warning(f"{len(same)} nodes named {me} run in this ROS graph (domain): their "
+                                      "/diagnostics, ~/modes, parameters and state files collide; give each a "
+                                      "name or namespace of its own (-r __node:=... or -r __ns:=...)")
+            return True
+        return False
 
     def _run_publisher(self) -> None:
         """Publish the newest report on ~/modes once per ``1/publish_rate_hz`` and one /diagnostics array once
         per ``diagnostics_period_s``, each on its own schedule (no catch-up burst after falling behind)."""
         start = time.monotonic()
         due = {"modes": start + self._publish_period_s, "diagnostics": start + self._diag_period_s}
+        name_check = start + DUPLICATE_NAME_CHECK_S     # once discovery has had time to see the graph
         while not self._stop.is_set():
             now = time.monotonic()
             if self._stop.wait(max(0.0, min(due.values()) - now)):
                 break
             now = time.monotonic()
+            if now >= name_check:
+                name_check = math.inf
+                self.warn_duplicate_name()
             for out, period in (("modes", self._publish_period_s), ("diagnostics", self._diag_period_s)):
                 if now < due[out]:
                     continue

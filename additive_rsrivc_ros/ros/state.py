@@ -47,13 +47,17 @@ class StateMixin:
     """Restore and save of the pipeline state (part of :class:`.monitor_node.MonitorNode`)."""
 
     def _restore(self, cfg: MonitorConfig, state_file: str) -> MonitorPipeline | None:
-        """The pipeline restored from ``state_file``, or None. A refused file (corrupt, other K, rate,
-        controller, delay, loop or structures) is kept untouched: this run saves beside it (one log line)."""
+        """The pipeline restored from ``state_file``, or None. A refused file (corrupt, another node's fully
+        qualified name, other K, rate, controller, delay, loop or structures) is kept untouched: this run saves
+        beside it (one log line)."""
         self._save_path = state_file
         if not state_file or not Path(state_file).exists():
             return None
         try:
             saved = json.loads(Path(state_file).read_text())
+            node = str(saved.get("node", ""))
+            if node and node != self.get_fully_qualified_name():
+                raise PipelineError(f"written by node {node}, this node is {self.get_fully_qualified_name()}")
             pipeline = MonitorPipeline(cfg, state=saved["pipeline"])
         except (OSError, ValueError, KeyError, TypeError, PipelineError) as exc:
             reason = str(exc) if isinstance(exc, PipelineError) else f"unreadable: {type(exc).__name__}: {exc}"
