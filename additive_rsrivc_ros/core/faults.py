@@ -723,7 +723,7 @@ class FaultMonitor:
 
     def _confirm_before(self, i: int, q: int, travelling: bool, stress_since: float | None, lead: int) -> float:
         """Latest onset of a deviation of (mode ``i``, quantity ``q``) that may still be confirmed (S4-S6)."""
-        if self.joint_armed_modes[i] and self.joint_streak[i, q] == 0:
+        if self.joint_needed(i, q) and self.joint_streak[i, q] == 0:
             return -math.inf        # S6: the data do not support this deviation jointly
         if q > 0 and travelling:
             # damping and gain are confirmed once they, and the mode's frequency, hold still: while the
@@ -957,6 +957,16 @@ class FaultMonitor:
         """Some mode's deviations need the joint check's support (S6)."""
         return bool(self.joint_armed_modes.any())
 
+    def joint_needed(self, i: int, q: int) -> bool:
+        """A deviation of (mode ``i``, quantity ``q``) is confirmed only with the joint check's support (S6): the
+        mode is armed (narrow excitation, or coupled to a weakly excited mode), or -- for damping and gain -- the
+        estimator is under stress (S5): while the recursion re-converges after an abrupt change its damping and gain
+        estimates can swing the wrong way or move in a neighbouring mode, where a joint fit of the window after the
+        change does not. A natural frequency under stress keeps the recursion's faster confirmation."""
+        return bool(self.joint_armed_modes[i]) or (q > 0 and self.anomaly_since is not None
+                                                   and self.joint_reference is not None
+                                                   and bool(self.joint_reference.converged))
+
     def arm_joint(self, verdict: JointVerdict) -> None:
         """The baseline window's joint fit: arm S6 when some applicable quantity is not identifiable jointly."""
         base = self.baseline
@@ -974,7 +984,8 @@ class FaultMonitor:
         longer support. An unconverged fit judges nothing (streaks and events are kept)."""
         out = FaultUpdate()
         self.joint = verdict
-        if not (self.joint_armed and verdict.converged) or self.baseline is None or self.held:
+        needed = self.joint_armed or self.anomaly_since is not None
+        if not (needed and verdict.converged) or self.baseline is None or self.held:
             return out
         sup = verdict.supported
         same = (sup != 0) & (np.sign(self.joint_streak) == sup)
@@ -996,7 +1007,7 @@ class FaultMonitor:
                         test.reset(t)
                     continue
                 if test.state == "fault" or abs(self.joint_streak[i, q]) < 2 or not self.applicable(i, q) \
-                        or not self.joint_armed_modes[i]:     # an unarmed mode: its recursion's tests decide
+                        or not self.joint_needed(i, q):     # the recursion's tests decide
                     continue
                 sigma = math.hypot(float(verdict.std[i, q]), float(ref.std[i, q]))
                 dev = float(verdict.value[i, q] - ref.value[i, q])
@@ -1010,7 +1021,8 @@ class FaultMonitor:
     def joint_due(self, t: float, last_check: float) -> bool:
         """Whether a joint check is due (S6): every half memory while a test deviates or a joint event is open,
         else every two memory lengths."""
-        if not self.joint_armed or self.phase != "monitoring":
+        needed = self.joint_armed or (self.anomaly_since is not None and self.joint_reference is not None)
+        if not needed or self.phase != "monitoring":
             return False
         busy = any(tst.state != "ok" for row in self.tests for tst in row) or bool(np.any(self.joint_streak))
         period = (0.5 if busy else 2.0) * float(self.memory_s.max())

@@ -277,7 +277,14 @@ class JointChecker:
             return None
         since = [tst.since for row in faults.tests for tst in row if tst.state == "suspect"]
         age = t - min(since) if since else self.MIN_WINDOW * mem
-        verdict = self.verdict(t, min(max(age, self.MIN_WINDOW * mem), self.MAX_WINDOW * mem), faults)
+        window = min(max(age, self.MIN_WINDOW * mem), self.MAX_WINDOW * mem)
+        if faults.anomaly_since is not None:
+            # an abrupt change (the stress's start): a window that straddles it fits a blend of two plants; only the
+            # data after it say what changed
+            window = min(window, t - faults.anomaly_since)
+            if window < self.MIN_WINDOW * mem:
+                return None
+        verdict = self.verdict(t, window, faults)
         if verdict is None:
             return None
         self.last_t = t
