@@ -24,6 +24,8 @@ import sys
 import tempfile
 from pathlib import Path
 
+from ._version import __version__
+
 #: set in the environment by :func:`configure` so that child processes can tell an inherited automatic
 #: ``NUMBA_CACHE_DIR`` (recomputed for their own sources) from one the user set.
 AUTO_MARKER = "RSRIVC_NUMBA_CACHE_AUTO"
@@ -64,8 +66,6 @@ def default_root() -> Path:
 
 def cache_dir() -> Path:
     """The writable, source-keyed kernel cache directory (created if needed)."""
-    from . import __version__
-
     name = f"numba-{__version__}-{source_hash()}"
     for root in (default_root(), Path(tempfile.gettempdir()) / f"additive_rsrivc_ros-{os.getuid()}"):
         if _writable(root / name):

@@ -17,7 +17,7 @@ unmodelled modes do not move the modelled ones. So the test is about *relevance*
    ``var`` the FRF's complex variance (plus its resolution bias, :attr:`.frf.FRFEstimate.uncertainty`), the
    normalized misfit ``z_k = |G_k - G_m,k|^2 / var_k`` of a complex Gaussian error is exponential with mean 1:
    ``P(z > t) = exp(-t)``; a bin misfits significantly when ``z_k > ln(n_bins / alpha)`` (Bonferroni over the
-   bins, ``alpha`` = :data:`ALPHA`).
+   bins, ``alpha`` = :data:`.frf_misfit.ALPHA`).
 2. **Candidate** (where?). The resonance peaks of the residual FRF ``G - G_m`` (:func:`.modefind.find_candidates`:
    frequency, half-power damping, modal gain) that misfit significantly within two bins of the peak, are not a
    modelled mode's own residual (farther than ``max(2 resolutions, 2 zeta f)`` from every modelled frequency), and
@@ -63,11 +63,18 @@ import numpy as np
 
 from .controller import DiscreteController
 from .frf import FRFEstimate, estimate_frf, longest_finite, model_frf_on_bins
+from .frf_misfit import (
+    MIN_MISFIT_BINS,
+    MISFIT_RUN_BINS,
+    START_SCREEN_FRACTION,
+    fits_its_frf,
+    longest_misfit_run,
+    misfit,
+)
+from .modefind import OrderRow, _held_out_error, _significant_gain, find_candidates
 from .model import SubmodelStructure, theta_from_modal
 from .vocabulary import MODEL_ORDER_FLAGGED, QUANTITIES, one_line
 
-ALPHA = 0.01
-"""Probability that a model which fits (the FRF error is only noise) shows one significant misfit bin."""
 N_SIGMA = 3.0
 """Standard deviations an extra mode's gain, and a modelled quantity's change, must exceed."""
 MISFIT_FRACTION = 0.15
@@ -77,18 +84,6 @@ with a rigid body): right starts misfit at most 7.2 % of their bins (a rigid-bod
 ones 47-86 %, a wrong start cut after a NaN burst 38 %; the true models of 15 random plants 0-3.6 %. (With the
 lowest mode left out of the 14 with more than one, 7-98 %: 12 of them exceed this share, among them 6 of the 8 the
 check had called adequate.)"""
-START_SCREEN_FRACTION = 0.05
-"""Share of misfit bins of an automatic start on its own window's FRF above which the whole check runs
-(:func:`check_start`). Lower than :data:`MISFIT_FRACTION`: the check's refit can land elsewhere (a rigid-body plant's
-wrong start misfit 5-15 % as found and 83 % refitted)."""
-MIN_MISFIT_BINS = 5
-"""... and at least this many bins (a short FRF has few)."""
-MISFIT_RUN_BINS = 12
-"""Consecutive compared FRF bins that misfit significantly, above which the model is flagged (state ``misfit``) even
-when they are few of all the bins: a band the model misses, as two well-damped modes fitted as one broad lump (22 in
-a row, 8 % of the bins: ``validate_autostart.py --seed 1``, plant 21). Measured: the 139 right automatic starts of the
-four sets misfit at most 7 bins in a row on their own 20 s windows (0.49 Hz bins), the true models of the 60 random
-plants at most 5 on 120 s windows (0.12 Hz bins); a bin misfits by chance with probability ``ALPHA / n``."""
 MAX_CANDIDATES = 3
 """Unmodelled resonances refitted, largest misfit first (each refit costs one offline fit)."""
 MIN_WINDOW_S = 2.0
@@ -234,30 +229,6 @@ def _fit(u, y, rate_hz: float, r, controller, input_delay: int, structures, thet
     return res if ok and math.isfinite(res.cost) else None
 
 
-def misfit(frf: FRFEstimate, G_model: np.ndarray) -> tuple[np.ndarray, np.ndarray, float]:
-    """``(z, usable, threshold)``: normalized misfit per bin, the valid leakage-free bins, and the Bonferroni
-    threshold ``ln(n / ALPHA)`` of the exponential law of ``z`` (module docstring, step 1)."""
-    usable = frf.valid & ~(frf.leakage if frf.leakage is not None else np.zeros(frf.valid.size, dtype=bool))
-    with np.errstate(divide="ignore", invalid="ignore"):
-        z = np.abs(frf.G - G_model) ** 2 / frf.uncertainty ** 2
-    z = np.where(usable & np.isfinite(z), z, 0.0)
-    n = int(usable.sum())
-    return z, usable, math.log(max(n, 1) / ALPHA)
-
-
-def longest_misfit_run(frf: FRFEstimate, z: np.ndarray, usable: np.ndarray,
-                       threshold: float) -> tuple[int, float, float]:
-    """The longest run of consecutive compared bins that misfit (``z > threshold``): ``(count, from Hz, to Hz)``."""
-    idx = np.flatnonzero(usable)
-    mis = np.concatenate(([False], z[idx] > threshold, [False])).astype(np.int8)
-    starts, stops = np.flatnonzero(np.diff(mis) == 1), np.flatnonzero(np.diff(mis) == -1)
-    if starts.size == 0:
-        return 0, math.nan, math.nan
-    j = int(np.argmax(stops - starts))
-    f = frf.freqs_hz[idx]
-    return int(stops[j] - starts[j]), float(f[starts[j]]), float(f[stops[j] - 1])
-
-
 def _delay_check(fit_K: Any, data: tuple, structures: list[SubmodelStructure], max_iterations: int,
                  warmup: float) -> DelayCheck:
     """Step 0: refit the K modes from ``fit_K`` with the input delay one sample shorter and longer and compare the
@@ -265,7 +236,6 @@ def _delay_check(fit_K: Any, data: tuple, structures: list[SubmodelStructure], m
     input) on the window after its warm-up. A neighbour better by :data:`DELAY_ERROR_RATIO`, paired over the window,
     is :attr:`DelayCheck.better` (the lower error when both are)."""
     from .filters import ClosedLoopUnstableError
-    from .modefind import OrderRow, _held_out_error, _significant_gain
 
     u, y, rate_hz, r, controller, delay = data
     skip = min(int(round(warmup * rate_hz)), u.size // 2)
@@ -306,7 +276,6 @@ def _start_explains(thetas: Sequence[np.ndarray], cand: Any, data: tuple, struct
     at a wrong optimum (guesses 5 and 5.5 Hz on a 5 + 40 Hz loop: the delay one sample shorter "fitted 500 times
     better" because its refit escaped the split mode, and the delay was blamed)."""
     from .filters import ClosedLoopUnstableError
-    from .modefind import _significant_gain
 
     u, y, rate_hz, r, controller, delay = data
     try:
@@ -322,7 +291,6 @@ def _start_explains(thetas: Sequence[np.ndarray], cand: Any, data: tuple, struct
 def _candidates(frf: FRFEstimate, G_model: np.ndarray, z: np.ndarray, usable: np.ndarray, threshold: float,
                 modal_K: np.ndarray, structures: Sequence[SubmodelStructure], input_delay: int) -> list[Any]:
     """Resonances of the residual FRF that misfit significantly and are no modelled mode (step 2), largest first."""
-    from .modefind import find_candidates
 
     res_frf = replace(frf, G=frf.G - G_model)
     out = []
@@ -488,18 +456,6 @@ def check_model_order(thetas: Sequence[np.ndarray], structures: Sequence[Submode
     out.seconds = time.perf_counter() - c0
     out.state, out.message = _verdict(out, thresholds)
     return out
-
-
-def fits_its_frf(frf: FRFEstimate, G_model: np.ndarray) -> bool:
-    """The screen of a model (``G_model``: its FRF on the bins, :func:`.frf.model_frf_on_bins`) against the FRF of its
-    own window (milliseconds): at most :data:`START_SCREEN_FRACTION` of the valid bins (at least
-    :data:`MIN_MISFIT_BINS`) misfit significantly, fewer than :data:`MISFIT_RUN_BINS` of them in a row. Used by
-    :func:`check_start` and by the order scan (:mod:`.modefind`: one mode more than a model that passes has nothing
-    to fit but noise)."""
-    z, usable, thr = misfit(frf, G_model)
-    n_bins, n_mis = int(usable.sum()), int(np.sum(z > thr))
-    return n_mis < max(MIN_MISFIT_BINS, START_SCREEN_FRACTION * n_bins) and \
-        longest_misfit_run(frf, z, usable, thr)[0] < MISFIT_RUN_BINS
 
 
 def check_start(found: Any, r, u, y, rate_hz: float, *, controller: DiscreteController | None = None,

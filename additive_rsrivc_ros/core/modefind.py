@@ -46,9 +46,9 @@ from typing import Any
 
 import numpy as np
 
-from .adequacy import fits_its_frf
 from .estimator import MonitorSettings
 from .frf import FRFEstimate, estimate_frf, longest_finite, model_frf_on_bins
+from .frf_misfit import fits_its_frf
 from .model import TWO_PI, SubmodelStructure, guess_structure, guess_theta, modal_from_theta
 from .offline.stable import fit_usable
 
@@ -662,7 +662,7 @@ def _usable(res: Any, rate_hz: float) -> bool:
 def _evaluate(K: int, start: list[Candidate], u, y, rate_hz, r, controller, input_delay, split: int,
               max_iterations: int, to_beat: Any = None, margin: float = DEFAULT_MARGIN) -> tuple[OrderRow, Any]:
     """Fit one start on ``[:split]`` and measure its output error on both parts (a failure is a row, not a crash).
-    ``to_beat``: the smaller order's fit, when it fits its FRF (:func:`.adequacy.fits_its_frf`); while this fit's
+    ``to_beat``: the smaller order's fit, when it fits its FRF (:func:`.frf_misfit.fits_its_frf`); while this fit's
     output error on ``[:split]`` is not ``margin`` below that fit's, it ends once its output error has settled
     (``SCAN_SETTLE``: one mode too many, the usual case of the order after the right one, stops in a few iterations
     instead of running to the limit). Not when the smaller model misfits the FRF: a fit whose output error sat flat
