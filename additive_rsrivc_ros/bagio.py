@@ -1,4 +1,4 @@
-"""rosbag2 (MCAP / sqlite3) reading and writing with ``rosbags`` 0.11; bag validation (../shared/CONTRACT.md).
+"""rosbag2 (MCAP / sqlite3) reading and writing with ``rosbags`` 0.11; bag validation (docs/INTERFACE.md).
 
 Layout written by :func:`write_bag` (one message per control sample, log time = sample time in ns):
 

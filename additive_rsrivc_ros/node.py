@@ -4,9 +4,9 @@ Handles ``--help`` and argument errors before anything of ROS is imported (``--h
 imports rclpy and the node, configures and activates it (``autostart``) and spins it until SIGINT/SIGTERM. The
 signals only set a flag (:class:`.signal_stop.SignalStop`); the spin loop returns within one ``spin_once`` timeout
 and the node saves its state once. What the node subscribes, publishes and serves: :mod:`.ros.monitor_node` and the
-modules it names, ../shared/CONTRACT.md.
+modules it names, docs/INTERFACE.md.
 
-Inputs (../shared/CONTRACT.md): Float64 topics are aligned by arrival order on a nominal sample grid,
+Inputs (docs/INTERFACE.md): Float64 topics are aligned by arrival order on a nominal sample grid,
 JointState topics by header stamp (exact: unmatched or out-of-order stamps are dropped); see
 :mod:`.ros.sync` for pauses, count mismatches and resynchronization. Limitation: Float64 carries no
 sequence information, so a single message lost on one topic while all topics keep streaming is only
@@ -15,11 +15,11 @@ JointState (stamped) inputs or block input when that matters, and give the contr
 history deep enough for the longest expected stall (a KEEP_LAST writer silently overwrites unacknowledged samples;
 DDS reports no "message lost" event for that, measured).
 
-Block input (``block.topic``, issue 14): one ``Float64MultiArray`` of N rows ``index, reference, input, output``
+Block input (``block.topic``): one ``Float64MultiArray`` of N rows ``index, reference, input, output``
 per message instead of the three topics; rows are paired by the controller's index, and missing, repeated, late or
 restarted indices are handled by :mod:`.ros.blocks` (the pipeline's stream aligner is not used on them).
 
-Resources and timing (issue 13): every input queue is bounded (``sync.max_queue_s``, oldest dropped, counted per
+Resources and timing: every input queue is bounded (``sync.max_queue_s``, oldest dropped, counted per
 topic, one log line per episode). Each topic's arrival rate is compared with ``loop_rate_hz``
 (``sync.rate_window_s``, ``sync.rate_tolerance``): a mismatch is a WARN naming the topic. The node measures its own
 loop: a topic is silent (STALE) only when the executor was spinning for longer than ``stale_timeout_s`` and nothing

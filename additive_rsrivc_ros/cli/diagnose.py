@@ -3,7 +3,7 @@
 Runs the same :class:`..core.pipeline.MonitorPipeline` as the node (``rsrivc_monitor``), configured by
 the node's own params file, over the samples of a bag read by :func:`..bagio.read_signals` (which
 checks topics, types, counts, sample spacing and reports NaNs). Writes into DIR (default
-``./rsrivc_out/<bag name>``), as specified in ../shared/CONTRACT.md "Offline results":
+``./rsrivc_out/<bag name>``), as specified in docs/INTERFACE.md "Offline results":
 
 * ``estimates.csv``: one row per mode per output instant at which an estimate exists;
 * ``events.csv``: one row per structural fault event (empty clear time while open);
@@ -163,7 +163,7 @@ def run_pipeline(sig: Signals, cfg: MonitorConfig, *, chunk_s: float = 1.0, prog
 
 
 def write_estimates_csv(path: Path, reports: Sequence[Report]) -> int:
-    """CONTRACT estimates.csv; one row per mode per report with an estimate. Returns the row count."""
+    """estimates.csv (docs/INTERFACE.md); one row per mode per report with an estimate. Returns the row count."""
     import numpy as np
 
     rows = 0
@@ -190,7 +190,7 @@ def event_dict(e: FaultEvent) -> dict[str, Any]:
 
 
 def write_events_csv(path: Path, events: Sequence[FaultEvent]) -> None:
-    """CONTRACT events.csv (empty clear time while open)."""
+    """events.csv (docs/INTERFACE.md) (empty clear time while open)."""
     with path.open("w", newline="", encoding="utf-8") as fh:
         w = csv.writer(fh, lineterminator="\n")
         w.writerow(EVENTS_HEADER)
@@ -426,7 +426,7 @@ def diagnose_bag(bag: str | Path, params_file: str | Path, out_dir: str | Path, 
 
 
 def identifiability_timeline(reports: list[Report]) -> list[dict[str, Any]]:
-    """summary.json ``identifiability``: every joint check (S6, core/joint_check.py) once: its time, whether it armed
+    """summary.json ``identifiability``: every joint check (core/joint_check.py) once: its time, whether it armed
     the joint confirmation, what the excitation did not identify jointly and the resonance-peak changes it saw."""
     out: list[dict[str, Any]] = []
     for rep in reports:

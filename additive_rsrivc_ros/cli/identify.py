@@ -1,8 +1,8 @@
-"""``rsrivc_identify BAG --params-file YAML --out FILE.json [--method NAME]`` (../shared/CONTRACT.md).
+"""``rsrivc_identify BAG --params-file YAML --out FILE.json [--method NAME]`` (docs/INTERFACE.md).
 
 Offline (non-recursive) identification of the whole bag with the node's params file: the modes' guesses
 (``modes.*``), the controller, the input delay and ``closed_loop`` come from the YAML. Writes one JSON object:
-``method``, ``converged``, ``iterations``, ``modes`` (per mode ``theta``, ``theta_std`` in 000 eq. 7 order,
+``method``, ``converged``, ``iterations``, ``modes`` (per mode ``theta``, ``theta_std`` in [RA-SRIVC] eq. 7 order,
 ``natural_frequency_hz``, ``damping_ratio``, ``gain`` and their ``_std``), ``residual_variance`` (plus
 ``cost``, ``cond``, ``projections``, ``message``, ``n_samples``). Exit status 0 on success (also when the
 estimator did not converge: see ``converged``/``message``), 2 with a one-line reason on bad input.

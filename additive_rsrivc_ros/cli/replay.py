@@ -1,7 +1,7 @@
 """``rsrivc_replay BAG [--rate X] [--clock [HZ]] [--loop] [--topics ...] [--stats]``.
 
 Publishes a rosbag2 (MCAP or sqlite3, read with ``rosbags``) over DDS at its recorded timing: a
-stand-in for ``ros2 bag play``, which is not available from PyPI (../shared/NOTES.md). Messages are
+stand-in for ``ros2 bag play``, which is not available from PyPI. Messages are
 forwarded as the raw CDR stored in the bag (``Publisher.publish`` accepts ``bytes`` in Jazzy and calls
 ``publish_raw``), so no (de)serialization happens in Python and 4096 Hz x 3 topics are easy to keep up
 with. Timing: every message has an absolute deadline ``start + (log_time - bag_start) / rate`` on the
@@ -12,9 +12,9 @@ deadline (at least ``--min-sleep``), so sleep overshoot never accumulates into d
 with ``use_sim_time`` follow the bag. With ``--loop`` the bag time keeps increasing over passes (the
 clock never jumps back); message contents (e.g. header stamps) are replayed unchanged.
 
-``--block N`` (issue 14): instead of the recorded messages, publish the bag's r, u, y as
+``--block N``: instead of the recorded messages, publish the bag's r, u, y as
 ``std_msgs/msg/Float64MultiArray`` blocks of N rows on ``--block-topic`` in the monitor's block-input layout
-(../shared/CONTRACT.md: dim[0] ``sample``, dim[1] ``signal`` = 4, columns ``index, reference, input, output``). The
+(docs/INTERFACE.md: dim[0] ``sample``, dim[1] ``signal`` = 4, columns ``index, reference, input, output``). The
 samples are read and paired like ``rsrivc_diagnose`` reads them (:func:`..bagio.read_signals`: by order, or by log
 time when a topic lost a message, which leaves NaN on the kept grid); ``index`` is the sample's position on the bag's
 sample grid, ``round(t / h)`` with ``h`` the mean sample spacing, so a pause in the recording is an index gap. Each

@@ -1,4 +1,4 @@
-"""``rsrivc_simulate``: write a simulated rosbag2 with known truth (../shared/CONTRACT.md, issue 5).
+"""``rsrivc_simulate``: write a simulated rosbag2 with known truth (docs/INTERFACE.md).
 
     rsrivc_simulate --scenario beam_fault --out /tmp/beam_fault [--duration 30] [--seed 0] [--storage mcap]
     rsrivc_simulate --list
@@ -29,7 +29,7 @@ class _Parser(argparse.ArgumentParser):
 
 
 def _parser() -> argparse.ArgumentParser:
-    p = _Parser(prog="rsrivc_simulate", description="Write a simulated rosbag2 with known truth (issue 5).")
+    p = _Parser(prog="rsrivc_simulate", description="Write a simulated rosbag2 with known truth.")
     p.add_argument("--scenario", help="scenario name (see --list)")
     p.add_argument("--out", help="bag directory to create (must not exist)")
     p.add_argument("--duration", type=float, default=None, help="duration in s (default: the scenario's)")

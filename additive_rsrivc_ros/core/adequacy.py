@@ -1,9 +1,9 @@
-"""Is the model order high enough for what we report? (issue 12 item 4, "K one too few").
+"""Is the model order high enough for what we report?
 
 A model with one mode too few can be confidently wrong: the estimator fits the modelled modes to the data as well as
-they can, which biases them, and nothing in the recursion (000 Algorithm 2) or in the health checks sees it. A
-deliberately reduced model (the beam's 2 of 4 modes, 000 §6) misfits the data just as significantly, but there the
-unmodelled modes do not move the modelled ones. So the test is about *relevance*, not misfit:
+they can, which biases them, and nothing in the recursion ([RA-SRIVC] Algorithm 2) or in the health checks sees it. A
+deliberately reduced model (the beam's 2 of 4 modes, [RA-SRIVC] §6) misfits the data just as significantly, but there
+the unmodelled modes do not move the modelled ones. So the test is about *relevance*, not misfit:
 
 0. **Input delay** (is the configured loop delay the data's?). The K modes are refitted with one sample of input
    delay more and fewer; a neighbour whose simulated output error is significantly lower (:data:`DELAY_ERROR_RATIO`)
@@ -11,7 +11,7 @@ unmodelled modes do not move the modelled ones. So the test is about *relevance*
    be read below as unmodelled resonances (a delay of 0 instead of 4 samples on the beam was reported as "add a mode
    near 50 Hz").
 1. **Misfit** (is anything unmodelled?). On a window of data, the K modelled modes are refitted offline by the
-   additive (CL)SRIVC (001 eq. 29; closed loop through the reference, 001 eq. 20), started from the current
+   additive (CL)SRIVC ([A-SRIVC] eq. 29; closed loop through the reference, [A-SRIVC] eq. 20), started from the current
    estimate, and its discrete frequency response :func:`.frf.discrete_model_frf` is compared with the nonparametric
    FRF :func:`.frf.estimate_frf` (indirect ``S_yr / S_ur`` in closed loop) on its valid, leakage-free bins. With
    ``var`` the FRF's complex variance (plus its resolution bias, :attr:`.frf.FRFEstimate.uncertainty`), the
@@ -22,9 +22,9 @@ unmodelled modes do not move the modelled ones. So the test is about *relevance*
    frequency, half-power damping, modal gain) that misfit significantly within two bins of the peak, are not a
    modelled mode's own residual (farther than ``max(2 resolutions, 2 zeta f)`` from every modelled frequency), and
    rank by their misfit: the first :data:`MAX_CANDIDATES`.
-3. **Refit with K + 1** (001 eq. 29 again, the candidate as the extra submodel). The extra mode is *real* when the
-   fit is finite with a positive ``a1, a2``, lowers the output-error cost (002 eq. 8), lies in the valid band, and
-   its gain is :data:`N_SIGMA` standard deviations from zero (001 Theorem 1 covariance, delta method). A later
+3. **Refit with K + 1** ([A-SRIVC] eq. 29 again, the candidate as the extra submodel). The extra mode is *real* when the
+   fit is finite with a positive ``a1, a2``, lowers the output-error cost ([BCD-SRIVC] eq. 8), lies in the valid band,
+   and its gain is :data:`N_SIGMA` standard deviations from zero ([A-SRIVC] Theorem 1 covariance, delta method). A later
    candidate that a real extra mode's K + 1 model already fits (no significant misfit within 2.5 bins of it: the
    skirt of the resonance found, as the 137.5 Hz peak next to the beam's 172 Hz mode) is not refitted
    (``candidates_explained_hz``): its refit only wandered back onto the resonance found (19 iterations, 40 % of
@@ -34,7 +34,7 @@ unmodelled modes do not move the modelled ones. So the test is about *relevance*
    (or still settling) that the refit left: state ``misfit``. When no real extra mode was found but more than
    :data:`MISFIT_FRACTION` of the bins (and at least :data:`MIN_MISFIT_BINS`) misfit significantly, the model is
    not describing the data -- a wrong optimum (a start cut from a running loop, modes merged or split) or modes
-   missing where no residual peak shows them: state ``misfit``, health WARN (issue 12 item 4: a wrong optimum is
+   missing where no residual peak shows them: state ``misfit``, health WARN (a wrong optimum is
    reported on health, never as structural faults). A correct model misfits a few bins at most (measured above).
    The refit is only the check's tool: when it misfits (it did not converge from a start that fits, e.g. a
    well-damped mode near a fifth of the loop rate on a 15 s window) while the estimate checked fits the FRF (fewer
@@ -210,9 +210,9 @@ def warmup_s(thetas: Sequence[np.ndarray], structures: Sequence[SubmodelStructur
 
 def _fit(u, y, rate_hz: float, r, controller, input_delay: int, structures, thetas, max_iterations: int,
          warmup: float):
-    """Offline additive (CL)SRIVC (001 eq. 29) from ``thetas``, the first ``warmup`` s only warming up the filters;
-    ``None`` if it fails or is not finite. Raises :class:`.filters.ClosedLoopUnstableError` when the controller does
-    not stabilize the start."""
+    """Offline additive (CL)SRIVC ([A-SRIVC] eq. 29) from ``thetas``, the first ``warmup`` s only warming up the
+    filters; ``None`` if it fails or is not finite. Raises :class:`.filters.ClosedLoopUnstableError` when the controller
+    does not stabilize the start."""
     from .filters import ClosedLoopUnstableError
     from .offline import identify
 

@@ -1,9 +1,9 @@
 """Verified stream alignment from the closed-loop controller invariant (ROS-free).
 
-In closed loop with the known discrete controller ``C_d(q) = N(q^-1)/D(q^-1)`` (000 eq. 10, ascending powers
+In closed loop with the known discrete controller ``C_d(q) = N(q^-1)/D(q^-1)`` ([RA-SRIVC] eq. 10, ascending powers
 of ``q^-1``) aligned data satisfy, sample by sample,
 
-    D(q^-1) u(t_k) = N(q^-1) (r(t_k) - y(t_k))                                   (000 eq. 10 rearranged)
+    D(q^-1) u(t_k) = N(q^-1) (r(t_k) - y(t_k))                                   ([RA-SRIVC] eq. 10 rearranged)
 
 an FIR identity with no state: its residual at ``t_k`` depends only on the last ``order + 1`` samples. If one
 stream lost or repeated a message, the k-th samples of ``r``, ``u`` and ``y`` no longer belong to the same
@@ -96,7 +96,7 @@ class _Paired(NamedTuple):
 
 def invariant_residual(den: np.ndarray, num: np.ndarray, r: np.ndarray, u: np.ndarray,
                        y: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-    """Residual ``D(q^-1) u - N(q^-1)(r - y)`` (000 eq. 10) and the size of its terms, from sample ``order`` on."""
+    """Residual ``D(q^-1) u - N(q^-1)(r - y)`` ([RA-SRIVC] eq. 10) and the size of its terms from sample ``order``."""
     p = max(den.size, num.size) - 1
     d, nn = np.zeros(p + 1), np.zeros(p + 1)
     d[:den.size], nn[:num.size] = den, num
@@ -112,7 +112,7 @@ def reconstruct_missing(den: np.ndarray, num: np.ndarray, r: np.ndarray, u: np.n
     Only for samples that a lost message left empty: a NaN *value* is a sensor problem the controller saw too.
 
     ``u_k = N(q^-1)(r - y)_k - sum_{i>=1} d_i u_{k-i}`` and ``(r - y)_k = (D(q^-1) u_k - sum_{i>=1} n_i
-    (r - y)_{k-i}) / n_0`` (000 eq. 10 with d_0 = 1), only where the other two streams and the whole window are
+    (r - y)_{k-i}) / n_0`` ([RA-SRIVC] eq. 10 with d_0 = 1), only where the other two streams and the whole window are
     finite, so that a reconstructed value is what the controller computed (use only on a verified invariant).
     """
     p = max(den.size, num.size) - 1

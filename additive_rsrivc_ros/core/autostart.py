@@ -1,11 +1,11 @@
-"""The automatic start of :class:`.pipeline.MonitorPipeline` when the params give no mode guesses (issue 12 item 6).
+"""The automatic start of :class:`.pipeline.MonitorPipeline` when the params give no mode guesses.
 
 :class:`ModeSearch` collects the first ``max(init_duration_s, 2 s)`` of samples that passed the pipeline's stamp,
 alignment and value checks (invalid samples kept on the grid, as NaN outputs), runs
-:func:`.modefind.autostart_config` on them (nonparametric FRF peaks refined by the offline additive (CL)SRIVC, 001
+:func:`.modefind.autostart_config` on them (nonparametric FRF peaks refined by the offline additive (CL)SRIVC, [A-SRIVC]
 eq. 29, K by held-out output error) and hands the pipeline the configuration with the modes found plus the buffered
 samples, which the pipeline then gives to the estimator exactly as the guess path would have: the first
-``init_duration_s`` to the offline initialization (000 Algorithm 2 step 1), the rest to the recursion.
+``init_duration_s`` to the offline initialization ([RA-SRIVC] Algorithm 2 step 1), the rest to the recursion.
 
 A window without usable excitation (constant reference or input, no resonance in the valid FRF band, no order that
 fits) or with less than :data:`MIN_CONTIGUOUS_S` of contiguous valid samples is a failed attempt: one line says why,

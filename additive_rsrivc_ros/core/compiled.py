@@ -1,4 +1,4 @@
-"""The package's numba kernels, served ahead of time when possible, by numba's JIT otherwise (issue 16).
+"""The package's numba kernels, served ahead of time when possible, by numba's JIT otherwise.
 
 Every kernel is declared with :func:`kernel` (instead of ``numba.njit(cache=True)``). ``rsrivc_warmup`` runs
 the tools' code paths under the JIT and then compiles every signature they met into one C extension

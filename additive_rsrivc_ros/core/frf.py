@@ -1,4 +1,4 @@
-"""Nonparametric plant frequency response (FRF) from recorded r, u, y with its uncertainty (issue 12 item 1).
+"""Nonparametric plant frequency response (FRF) from recorded r, u, y with its uncertainty.
 
 Welch-type averaging: the record is cut into ``n_d`` Hann-windowed segments with 50 % overlap (mean removed per
 segment); auto- and cross-spectra are averaged over the segments.

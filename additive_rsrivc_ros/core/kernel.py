@@ -1,4 +1,4 @@
-"""Compiled per-sample kernel of the recursive additive SRIVC / CLSRIVC estimator (000 Algorithm 2).
+"""Compiled per-sample kernel of the recursive additive SRIVC / CLSRIVC estimator ([RA-SRIVC] Algorithm 2).
 
 One source of truth: :func:`run_block` is plain Python compiled by numba (``@kernel``, :mod:`.compiled`: ahead of time
 after ``rsrivc_warmup``, else ``njit(cache=True)``); with
@@ -6,7 +6,7 @@ after ``rsrivc_warmup``, else ``njit(cache=True)``); with
 in flat float64/int64 arrays (see :class:`KernelState` in ``core/recursive.py``), so snapshot/restore is a
 copy of arrays and continuation is bit-identical.
 
-Per mode i (000 eqs. 26-28, 33-35) four filter banks share the ZOH discretization of ``1/A_i(p)``
+Per mode i ([RA-SRIVC] eqs. 26-28, 33-35) four filter banks share the ZOH discretization of ``1/A_i(p)``
 (``core/zoh.second_order_zoh``; for a rigid-body mode ``b0/p^l`` the constant integrator chain):
 
 * bank Y on the residual output ``y~_i``: ``y~_f = 1/A y~``, ``-p/A y~``, ``-p^2/A y~`` (eq. 26-27);
@@ -14,7 +14,7 @@ Per mode i (000 eqs. 26-28, 33-35) four filter banks share the ZOH discretizatio
   ``x_i = b0/A u`` used in the other modes' residual outputs (eq. 22);
 * bank Z on the delayed instrument input ``z``: ``1/A z`` (eq. 33); closed loop ``z = S_uo(q, t_k) r``
   is generated recursively from the noise-free closed loop of the current model, ``z_k = C_d(q)(r_k -
-  sum_i b0_i w_z,i(k))`` (NOTES erratum 3); open loop ``z = u`` and bank U is used instead;
+  sum_i b0_i w_z,i(k))`` (erratum 3 in docs/DESIGN.md); open loop ``z = u`` and bank U is used instead;
 * bank X on the sampled auxiliary output ``x^_i(t_k) = b0 w_z,i(t_k)`` (model of t_{k-1}, eq. 28/33):
   ``-p/A x^``, ``-p^2/A x^``.
 
@@ -27,28 +27,28 @@ lightly damped beam mode with a memory below its decay time ``1/(zeta omega)`` t
 few periods of the mode removes that loop while keeping the same fixed point (``A_f = A`` in steady state).
 
 Filter states are physical ``[w, w']``; ``p^2/A v`` at ``t_k`` is the direct term ``(v_k - w - a1 w')/a2``.
-States are carried across coefficient changes (000 Remark 4.4). Within a sample (NOTES, "Ordering")
+States are carried across coefficient changes ([RA-SRIVC] Remark 4.4). Within a sample (docs/DESIGN.md, "Conventions")
 every bank is propagated from its ``t_{k-1}`` state to ``t_k`` with the *latest iterate* of its mode
 (block-coordinate order of Algorithm 2: modes ``j < i`` are already updated); the ``t_{k-1}`` states are
 replaced only after all modes have been updated. Started at the true parameters with noise-free
 ZOH-exact data the regression residual ``y~_f - phi^T theta`` is exactly zero.
 
-IV-RLS (Algorithm 2 lines 7-9, Appendix B eqs. B.5-B.7; NOTES erratum 2, no factor 1/2)::
+IV-RLS (Algorithm 2 lines 7-9, Appendix B eqs. B.5-B.7; erratum 2 in docs/DESIGN.md, no factor 1/2)::
 
     K = P phi^ / (lam + phi^T P phi^),  theta = theta_bar + K (y~_f - phi^T theta_bar),
     P = (P_bar - K phi^T P_bar) / lam
 
 every iterate (sweep l, refinement s) restarts from ``theta_bar(t_{k-1})``, ``P_bar(t_{k-1})``.
 
-IV sandwich accumulator (issue 17 item 4, ``core/recursive.py`` ``covariances``): per mode
+IV sandwich accumulator (``core/recursive.py`` ``covariances``): per mode
 ``S = lam^2 S + zeta zeta^T`` with the instrument ``zeta = phi^`` of the accepted iterate, i.e.
 ``S_i(t_N) = sum_k lam^(2(N-k)) zeta_i zeta_i^T`` (+ the decayed ``S_i(0)``). With ``P_bar = (sum_k lam^(N-k)
 zeta phi^T)^-1`` the first-order error of the IV-RLS estimate is ``P_bar sum_k lam^(N-k) zeta_k v_k``, so its
 covariance for white ``v`` is ``sigma^2 P_bar S P_bar^T``. Updated only when ``P_bar`` is (same ``lam``; a
 capped update uses ``lam = 1`` for both).
-Stability projection (000 §4.7) reflects right-half-plane roots of ``A_i`` in closed form.
+Stability projection ([RA-SRIVC] §4.7) reflects right-half-plane roots of ``A_i`` in closed form.
 
-Free response of a rigid body (issue 17 item 1; the papers start every filter from rest): the integrator chain
+Free response of a rigid body (the papers start every filter from rest): the integrator chain
 ``b0/p^l`` never forgets the plant's position and velocity at the sample its filters started from rest, so the
 simulated output ``b0 w`` (``w = 1/p^l u`` from rest) would miss ``c0 + c1 t`` for ever (``l = 1``: ``c0``), in the
 rigid body's and in every other mode's residual output, and ``w`` would carry the ramp of the controller's reaction to
@@ -114,7 +114,7 @@ N_CFGF = 4
 
 @kernel
 def project_second_order(a1: float, a2: float) -> tuple[float, float, bool]:
-    """Reflect right-half-plane roots of ``A(p) = 1 + a1 p + a2 p^2`` into the LHP (000 §4.7).
+    """Reflect right-half-plane roots of ``A(p) = 1 + a1 p + a2 p^2`` into the LHP ([RA-SRIVC] §4.7).
 
     ``a2 > 0, a1 < 0``: both roots in the RHP, reflection maps ``a1 -> -a1``. ``a2 < 0``: real roots of
     opposite sign ``r- < 0 < r+``; reflecting ``r+`` gives ``a2 -> -a2`` and
@@ -131,7 +131,7 @@ def project_second_order(a1: float, a2: float) -> tuple[float, float, bool]:
 
 @kernel
 def discretize_mode(kind: int, a1: float, a2: float, h: float, phi: np.ndarray, gam: np.ndarray) -> None:
-    """``Phi, Gamma`` of ``1/A(p)`` (kind 0, closed form) or of ``1/p^kind`` (rigid body, 000 §4.6)."""
+    """``Phi, Gamma`` of ``1/A(p)`` (kind 0, closed form) or of ``1/p^kind`` (rigid body, [RA-SRIVC] §4.6)."""
     if kind == 0:
         second_order_zoh(a1, a2, h, phi, gam)
     else:
@@ -142,9 +142,9 @@ def discretize_mode(kind: int, a1: float, a2: float, h: float, phi: np.ndarray, 
 
 @kernel(inline=True)
 def iv_denominator_ok(den: float, den_abs: float, lam: float) -> bool:
-    """IV-RLS denominator ``den = lam + phi^T P phi^`` usable (000 eq. 31 / B.5): ``den >= DEN_FLOOR lam`` (ordinary
-    RLS has ``den >= lam``; a smaller one multiplies the step by ``lam/den``) and ``den >= DEN_ROUNDOFF den_abs``
-    (``den_abs = lam + sum |phi_a P_ac phi^_c|``: below that its value is round-off), all finite."""
+    """IV-RLS denominator ``den = lam + phi^T P phi^`` usable ([RA-SRIVC] eq. 31 / B.5): ``den >= DEN_FLOOR lam``
+    (ordinary RLS has ``den >= lam``; a smaller one multiplies the step by ``lam/den``) and ``den >= DEN_ROUNDOFF
+    den_abs`` (``den_abs = lam + sum |phi_a P_ac phi^_c|``: below that its value is round-off), all finite."""
     return math.isfinite(den) and math.isfinite(den_abs) and den >= DEN_FLOOR * lam and den >= DEN_ROUNDOFF * den_abs
 
 
@@ -304,7 +304,7 @@ def run_block(  # noqa: C901 - one compiled per-sample loop (test/test_code_shap
               gam: np.ndarray, ubuf: np.ndarray, zbuf: np.ndarray, ce: np.ndarray, cz: np.ndarray,
               ist: np.ndarray, fst: np.ndarray, proj: np.ndarray, rej: np.ndarray, rejr: np.ndarray,
               trace: np.ndarray) -> None:
-    """Process a block of samples in place: 000 Algorithm 2 lines 2-16 for each sample.
+    """Process a block of samples in place: [RA-SRIVC] Algorithm 2 lines 2-16 for each sample.
 
     ``allow_update=False`` only filters (priming, Algorithm 2 step 1). ``trace`` (n, K, 3) receives
     theta after every sample when it has n rows (pass a (0, K, 3) array to skip).
@@ -457,7 +457,7 @@ def run_block(  # noqa: C901 - one compiled per-sample loop (test/test_code_shap
                     lam_i = lam[i]
                     mu_f = muf[i]
                     for _s in range(refine + 1):
-                        # residual output with the other modes' latest iterates (000 eq. 22)
+                        # residual output with the other modes' latest iterates ([RA-SRIVC] eq. 22)
                         yt = yk
                         for j in range(K):
                             if j != i:
@@ -618,7 +618,7 @@ def run_block(  # noqa: C901 - one compiled per-sample loop (test/test_code_shap
             for i in range(K):
                 ytil[i] = yk - (ysim - xu[i])
 
-        # the t_k states replace the t_{k-1} states only now (NOTES, "Ordering")
+        # the t_k states replace the t_{k-1} states only now (docs/DESIGN.md, "Conventions")
         for i in range(K):
             for b in range(N_BANKS):
                 xs[i, b, 0] = T[i, b, 0]
@@ -630,7 +630,7 @@ def run_block(  # noqa: C901 - one compiled per-sample loop (test/test_code_shap
                     free_response_step(i, lam[i], yk - ysim, theta, P)
                 fold_free_response(i, h, theta, thf, xs, P, S)
 
-        # closed-loop instrument input z_k = C_d(q) (r_k - y^_k), 000 eq. 33 (NOTES erratum 3)
+        # closed-loop instrument input z_k = C_d(q) (r_k - y^_k), [RA-SRIVC] eq. 33 (erratum 3 in docs/DESIGN.md)
         if closed:
             ek = rk - yhat
             zk = cnum[0] * ek

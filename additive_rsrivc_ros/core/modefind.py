@@ -1,4 +1,4 @@
-"""Modes and model order from the data (issue 12 item 2): FRF peaks refined by the offline additive (CL)SRIVC.
+"""Modes and model order from the data: FRF peaks refined by the offline additive (CL)SRIVC.
 
 1. :func:`find_candidates`: on the valid part of the nonparametric FRF (:mod:`core.frf`), with the input delay and
    the zero-order hold's half sample removed from the phase,
@@ -22,9 +22,9 @@
    FRF with the most output power, :func:`_residual_start`, or, in closed loop without a rigid-body candidate,
    plus a rigid body, :func:`_rigid_start`; each start is also tried refined on the FRF first,
    :func:`refine_on_frf`) the offline additive CLSRIVC
-   (closed loop, 001 eq. 20/29) or SRIVC (open loop) is fitted on the first ``1 - validation_fraction`` of the
+   (closed loop, [A-SRIVC] eq. 20/29) or SRIVC (open loop) is fitted on the first ``1 - validation_fraction`` of the
    record and judged by the mean squared *output error on the rest* (held-out data): in closed loop the model's
-   noise-free closed-loop output ``T_o r`` (001 eq. 20), in open loop ``G u``. **Order rule:** starting from the
+   noise-free closed-loop output ``T_o r`` ([A-SRIVC] eq. 20), in open loop ``G u``. **Order rule:** starting from the
    smallest K that fitted, a larger K replaces the current choice only if its held-out error is below
    ``(1 - margin)`` times the current one (``margin`` = 2 %) and the gain holds throughout the held-out data
    (paired test over batches, :func:`_significant_gain`); the scan builds each order on the best model by the
@@ -392,8 +392,8 @@ def _start(candidates: list[Candidate], K: int) -> list[Candidate] | None:
 
 
 def _stabilized(start: list[Candidate], rate_hz: float, controller, input_delay: int) -> list[Candidate]:
-    """A start the controller stabilizes (the closed-loop instrument, 001 eq. 20, needs one): peak-picked damping is
-    resolution-limited and the gain follows from it, so a start may destabilize a loop with a small margin; the
+    """A start the controller stabilizes (the closed-loop instrument, [A-SRIVC] eq. 20, needs one): peak-picked damping
+    is resolution-limited and the gain follows from it, so a start may destabilize a loop with a small margin; the
     damping of every resonant candidate is doubled (at most 0.7) until it is stable, then the gains are halved."""
     if controller is None:
         return start
@@ -909,7 +909,7 @@ def find_modes(u, y, rate_hz: float, *, r=None, controller=None, input_delay: in
 
 def autostart_config(cfg: MonitorSettings, r, u, y, count: int | None = None,
                      refit_tol: float = FINAL_TOL) -> tuple[MonitorSettings, ModeFindResult]:
-    """The automatic start of a :class:`config.MonitorConfig` without guesses (issue 12): modes found on the given
+    """The automatic start of a :class:`config.MonitorConfig` without guesses: modes found on the given
     data (the longest finite stretch; ``count`` None: ``modes.count``), returned as the configuration with those
     modes as guesses, and the evidence. ``refit_tol``: see :func:`find_modes` (the pipeline passes
     :data:`SCAN_TOL`: its estimator's offline initialization refines the start on the same samples right after).

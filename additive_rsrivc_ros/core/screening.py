@@ -1,7 +1,7 @@
 """Screening of a whole record before a batch (non-recursive) fit: which samples are garbage, and which
 stretch of evenly spaced valid samples is left.
 
-The batch estimators (001, :func:`.offline.identify`) filter the data with continuous-time filters discretized
+The batch estimators ([A-SRIVC], :func:`.offline.identify`) filter the data with continuous-time filters discretized
 on a uniform grid, so a fit needs contiguous, evenly spaced, valid samples. The rules mirror the monitor
 pipeline's sample validation (:mod:`.pipeline`), so the offline tools and the node call the same things bad:
 

@@ -10,7 +10,7 @@ and quantity ``q`` (natural frequency, damping ratio, gain):
 
 * level ``m = median(q_k)`` over the ``n`` monitored output instants;
 * one-estimate scatter ``s = max(1.4826 MAD(q_k), median(sigma_k))``: the estimate's own spread, never below
-  the published delta-method std ``sigma_k`` (000 eq. 32 scaled by the residual variance);
+  the published delta-method std ``sigma_k`` ([RA-SRIVC] eq. 32 scaled by the residual variance);
 * standard error ``se = sqrt(pi/2) s / sqrt(n_eff)`` (median of ``n_eff`` independent values), with
   ``n_eff = max(1, T / (2 T_m))``: ``T`` the monitored time, ``T_m`` the mode's forgetting memory
   (``memory_s``). Estimates with forgetting factor ``lambda`` are AR(1)-like with correlation ``lambda`` per

@@ -1,6 +1,6 @@
 """Block input: r, u, y rows of the controller, paired by its sample counter (ROS-free, used by the monitor node).
 
-Contract (../shared/CONTRACT.md "Signals in"): one ``std_msgs/msg/Float64MultiArray`` per block on ``block.topic``,
+Contract (docs/INTERFACE.md "Signals in"): one ``std_msgs/msg/Float64MultiArray`` per block on ``block.topic``,
 layout dim[0] label ``sample`` (N rows), dim[1] label ``signal`` size 4, row-major columns ``index, reference,
 input, output``; ``index`` is the controller's sample counter (an integer, exact in float64). The layout is checked
 by :func:`..ros.convert.block_rows`; this module checks the index and turns rows into samples for the pipeline.
@@ -27,7 +27,7 @@ by :func:`..ros.convert.block_rows`; this module checks the index and turns rows
   estimator is re-primed; counted (``block_restarts``) and logged. Estimation continues on the new run.
 * **Malformed** blocks (layout, length, non-finite, non-integer or non-increasing index): dropped, counted
   (``block_malformed``) and logged at most once per ``LOG_EVERY_S`` (with the count since the last line).
-* **Consistency (closed loop)**: the controller invariant ``u = C_d(q)(r - y)`` (000 eq. 10,
+* **Consistency (closed loop)**: the controller invariant ``u = C_d(q)(r - y)`` ([RA-SRIVC] eq. 10,
   :func:`..core.alignment.invariant_residual`) is evaluated on consecutive released rows (one block per
   ``INVARIANT_EVERY_S`` of data); a median relative residual above ``INVARIANT_WARN`` (rounding gives ~1e-16) is a
   lasting warning naming the controller parameters and the column order. It never re-pairs rows.
@@ -395,7 +395,7 @@ class BlockSync(InputSync):
         self._hold(k, vals, arrival_ns)
 
     def _check_invariant(self, k: np.ndarray, vals: np.ndarray) -> None:
-        """Closed loop: relative residual of ``D(q^-1) u = N(q^-1)(r - y)`` (000 eq. 10) over consecutive rows."""
+        """Closed loop: relative residual of ``D(q^-1) u = N(q^-1)(r - y)`` ([RA-SRIVC] eq. 10) over adjacent rows."""
         p = self._order
         if self._den is None:
             return

@@ -1,6 +1,6 @@
 """Inputs of the monitor node: topic names, the input stage, subscriptions and their callbacks, the type check.
 
-Names (issue 14): the input topics are relative by default (``reference``, ``plant_input``, ``plant_output``),
+Names: the input topics are relative by default (``reference``, ``plant_input``, ``plant_output``),
 resolved in the node's namespace and remapped by ``-r from:=to``; every check and message (wrong type, silence,
 rates, queues) names the resolved topic.
 

@@ -1,6 +1,6 @@
 """Alignment of the r, u, y input streams into samples (ROS-free, used by the monitor node).
 
-Two modes (../shared/CONTRACT.md "Signals in"):
+Two modes (docs/INTERFACE.md "Signals in"):
 
 * **order** (``std_msgs/Float64``, no stamps): the k-th message of every topic is sample k. Sample
   times are synthesized on the nominal grid ``t_k = t_anchor + (k - k_anchor) / loop_rate_hz``; arrival
