@@ -44,6 +44,7 @@ from ..core.vocabulary import (
     one_line,
 )
 from ..process_exit import console_entry
+from .parser import OneLineParser
 
 if TYPE_CHECKING:
     from ..bagio import Signals
@@ -55,14 +56,8 @@ if TYPE_CHECKING:
 PROG = "rsrivc_diagnose"
 
 
-class _Parser(argparse.ArgumentParser):
-    def error(self, message: str) -> None:  # one line instead of a usage dump
-        print(f"{PROG}: error: {message}", file=sys.stderr)
-        raise SystemExit(2)
-
-
 def _parser() -> argparse.ArgumentParser:
-    p = _Parser(prog=PROG, description="Diagnose a rosbag2 offline with the monitor's estimator and fault logic.")
+    p = OneLineParser(prog=PROG, description="Diagnose a rosbag2 offline with the monitor's estimator and fault logic.")
     p.add_argument("bag", help="rosbag2 directory (mcap or sqlite3)")
     p.add_argument("--params-file", required=True, help="the node's params YAML (additive_rsrivc_monitor: ...)")
     p.add_argument("--out", help="output directory (default: ./rsrivc_out/<bag name>)")

@@ -20,16 +20,11 @@ from pathlib import Path
 from typing import Any
 
 from ..process_exit import console_entry
-
-
-class _Parser(argparse.ArgumentParser):
-    def error(self, message: str) -> None:  # one line, no usage dump
-        print(f"rsrivc_simulate: error: {message}", file=sys.stderr)
-        raise SystemExit(2)
+from .parser import OneLineParser
 
 
 def _parser() -> argparse.ArgumentParser:
-    p = _Parser(prog="rsrivc_simulate", description="Write a simulated rosbag2 with known truth.")
+    p = OneLineParser(prog="rsrivc_simulate", description="Write a simulated rosbag2 with known truth.")
     p.add_argument("--scenario", help="scenario name (see --list)")
     p.add_argument("--out", help="bag directory to create (must not exist)")
     p.add_argument("--duration", type=float, default=None, help="duration in s (default: the scenario's)")
