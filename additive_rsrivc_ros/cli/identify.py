@@ -1,7 +1,8 @@
 """Offline (batch) identification of a rosbag2's modes with the monitor's params file (docs/INTERFACE.md).
 
-``rsrivc_identify BAG --params-file YAML --out FILE.json [--method NAME]``: offline (non-recursive) identification of the whole bag with the node's params file: the modes' guesses
-(``modes.*``), the controller, the input delay and ``closed_loop`` come from the YAML. Writes one JSON object:
+``rsrivc_identify BAG --params-file YAML --out FILE.json [--method NAME]``: offline (non-recursive) identification of
+the whole bag with the node's params file: the modes' guesses (``modes.*``), the controller, the input delay and
+``closed_loop`` come from the YAML. Writes one JSON object:
 ``method``, ``converged``, ``iterations``, ``modes`` (per mode ``theta``, ``theta_std`` in [RA-SRIVC] eq. 7 order,
 ``natural_frequency_hz``, ``damping_ratio``, ``gain`` and their ``_std``), ``residual_variance`` (plus
 ``cost``, ``cond``, ``projections``, ``message``, ``n_samples``). Exit status 0 on success (also when the
