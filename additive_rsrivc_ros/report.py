@@ -1,19 +1,11 @@
-"""Human report of an offline diagnosis: one self-contained HTML file with inline SVG figures.
+"""Human report of an offline diagnosis: one self-contained HTML file with inline SVG figures (:mod:`.svgplot`).
 
-Used by ``rsrivc_diagnose`` (``DIR/report.html`` and ``DIR/modes.svg``). Contents, top to bottom:
-
-* a verdict line (:mod:`.verdict`: structural faults found or not, and for how many seconds the fault tests
-  actually ran), where and why the tests were blind, and a per-mode summary table;
-* per mode, natural frequency (Hz), damping ratio and gain over time with +-2 sigma bands (sigma from
-  ``sigma^2 P_bar`` by the delta method, [RA-SRIVC] eq. 32 and :func:`.core.model.modal_std`), the learned
-  baseline, the truth when the bag has ``/truth/modes``, and the fault intervals shaded;
-* a fault timeline (detected events, the bag's ``/truth/fault`` schedule, estimator health);
-* the model's frequency response at the start and at the end of the bag over a nonparametric estimate
-  from the data (as in [RA-SRIVC] Figs. 7 and 12): closed loop ``G = S_ry / S_ru`` (cross-spectra with the
-  reference, which is uncorrelated with the noise), open loop ``G = S_uy / S_uu``;
-* the estimator health over time and the parameters used.
-
-The figures are SVG from :mod:`.svgplot` (milliseconds; matplotlib took 2.6 s of a 6 s diagnosis).
+``rsrivc_diagnose`` writes it as ``DIR/report.html`` (and ``DIR/modes.svg``). Top to bottom: the verdict line
+(:mod:`.verdict`: faults found or not, how long the tests ran, where and why they were blind) and a per-mode table; per
+mode the frequency, damping and gain over time with ±2σ bands (delta method, :func:`.core.model.modal_std`), the
+baseline, the truth when the bag has ``/truth/modes`` and the fault intervals; a fault timeline with the estimator's
+health; the model's frequency response at the start and the end over the nonparametric estimate (as in [RA-SRIVC] Figs.
+7 and 12: closed loop ``S_ry / S_ru``, open loop ``S_uy / S_uu``); the health over time and the parameters.
 """
 
 from __future__ import annotations

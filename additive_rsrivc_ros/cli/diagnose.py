@@ -1,21 +1,12 @@
 """``rsrivc_diagnose BAG --params-file YAML [--out DIR]``: offline diagnosis of a rosbag2 (MCAP or sqlite3).
 
-Runs the same :class:`..core.pipeline.MonitorPipeline` as the node (``rsrivc_monitor``), configured by
-the node's own params file, over the samples of a bag read by :func:`..bagio.read_signals` (which
-checks topics, types, counts, sample spacing and reports NaNs). Writes into DIR (default
-``./rsrivc_out/<bag name>``), as specified in docs/INTERFACE.md "Offline results":
-
-* ``estimates.csv``: one row per mode per output instant at which an estimate exists;
-* ``events.csv``: one row per structural fault event (empty clear time while open);
-* ``summary.json``: verdict (:mod:`..verdict`: ``verdict`` OK | FAULT | DEGRADED | NO ESTIMATE, ``monitored_s``,
-  ``blind_intervals``), per-mode final values, events, timings, health and parameters;
-* ``report.html`` (self-contained, :mod:`..report`) and ``modes.svg`` (the modal-estimates figure).
-
-DIR is written all-or-nothing (:class:`.atomic.AtomicDir`): the files go to a temporary sibling folder that
-replaces DIR (an older run's folder is replaced whole) only when complete. Prints a verdict and a per-mode
-summary table to stdout. Bad input (params file, bag) gives one line on stderr and exit status 2;
-``--fail-on-fault`` makes a detected fault exit with status 3; SIGINT/SIGTERM give one line, exit status
-130/143 and DIR as it was.
+Runs the node's :class:`..core.pipeline.MonitorPipeline`, configured by the node's params file, over the samples of a
+bag read and checked by :func:`..bagio.read_signals`. Writes ``estimates.csv``, ``events.csv``, ``summary.json``
+(verdict from :mod:`..verdict`), ``report.html`` (:mod:`..report`) and ``modes.svg`` into DIR (default
+``./rsrivc_out/<bag name>``; formats in docs/INTERFACE.md "Offline results"). DIR is written all-or-nothing
+(:class:`.atomic.AtomicDir`): a temporary sibling folder replaces it only when complete. Prints the verdict and a
+per-mode table. Exit status 2 with one line on bad input, 3 for a fault with ``--fail-on-fault``, 130/143 on
+SIGINT/SIGTERM (DIR left as it was).
 """
 
 from __future__ import annotations

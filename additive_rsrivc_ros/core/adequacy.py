@@ -1,54 +1,16 @@
-"""Is the model order high enough for what we report?
+"""Is the model order high enough for what we report? The model-order check (health WARN, never a fault).
 
-A model with one mode too few can be confidently wrong: the estimator fits the modelled modes to the data as well as
-they can, which biases them, and nothing in the recursion ([RA-SRIVC] Algorithm 2) or in the health checks sees it. A
-deliberately reduced model (the beam's 2 of 4 modes, [RA-SRIVC] §6) misfits the data just as significantly, but there
-the unmodelled modes do not move the modelled ones. So the test is about *relevance*, not misfit:
-
-0. **Input delay** (is the configured loop delay the data's?). The K modes are refitted with one sample of input
-   delay more and fewer; a neighbour whose simulated output error is significantly lower (:data:`DELAY_ERROR_RATIO`)
-   flags the configured delay (state ``misfit``, health WARN): a wrong delay biases every mode and would otherwise
-   be read below as unmodelled resonances (a delay of 0 instead of 4 samples on the beam was reported as "add a mode
-   near 50 Hz").
-1. **Misfit** (is anything unmodelled?). On a window of data, the K modelled modes are refitted offline by the
-   additive (CL)SRIVC ([A-SRIVC] eq. 29; closed loop through the reference, [A-SRIVC] eq. 20), started from the current
-   estimate, and its discrete frequency response :func:`.frf.discrete_model_frf` is compared with the nonparametric
-   FRF :func:`.frf.estimate_frf` (indirect ``S_yr / S_ur`` in closed loop) on its valid, leakage-free bins. With
-   ``var`` the FRF's complex variance (plus its resolution bias, :attr:`.frf.FRFEstimate.uncertainty`), the
-   normalized misfit ``z_k = |G_k - G_m,k|^2 / var_k`` of a complex Gaussian error is exponential with mean 1:
-   ``P(z > t) = exp(-t)``; a bin misfits significantly when ``z_k > ln(n_bins / alpha)`` (Bonferroni over the
-   bins, ``alpha`` = :data:`.frf_misfit.ALPHA`).
-2. **Candidate** (where?). The resonance peaks of the residual FRF ``G - G_m`` (:func:`.modefind.find_candidates`:
-   frequency, half-power damping, modal gain) that misfit significantly within two bins of the peak, are not a
-   modelled mode's own residual (farther than ``max(2 resolutions, 2 zeta f)`` from every modelled frequency), and
-   rank by their misfit: the first :data:`MAX_CANDIDATES`.
-3. **Refit with K + 1** ([A-SRIVC] eq. 29 again, the candidate as the extra submodel). The extra mode is *real* when the
-   fit is finite with a positive ``a1, a2``, lowers the output-error cost ([BCD-SRIVC] eq. 8), lies in the valid band,
-   and its gain is :data:`N_SIGMA` standard deviations from zero ([A-SRIVC] Theorem 1 covariance, delta method). A later
-   candidate that a real extra mode's K + 1 model already fits (no significant misfit within 2.5 bins of it: the
-   skirt of the resonance found, as the 137.5 Hz peak next to the beam's 172 Hz mode) is not refitted
-   (``candidates_explained_hz``): its refit only wandered back onto the resonance found (19 iterations, 40 % of
-   the check on the beam).
-4. **Gross misfit** (is the model the data's at all?). When the estimate checked misfits more than
-   :data:`MISFIT_FRACTION` of the bins while its refit on the window does not, the estimate is a wrong optimum
-   (or still settling) that the refit left: state ``misfit``. When no real extra mode was found but more than
-   :data:`MISFIT_FRACTION` of the bins (and at least :data:`MIN_MISFIT_BINS`) misfit significantly, the model is
-   not describing the data -- a wrong optimum (a start cut from a running loop, modes merged or split) or modes
-   missing where no residual peak shows them: state ``misfit``, health WARN (a wrong optimum is
-   reported on health, never as structural faults). A correct model misfits a few bins at most (measured above).
-   The refit is only the check's tool: when it misfits (it did not converge from a start that fits, e.g. a
-   well-damped mode near a fifth of the loop rate on a 15 s window) while the estimate checked fits the FRF (fewer
-   misfit bins than the start screen's :data:`START_SCREEN_FRACTION`, no run of :data:`MISFIT_RUN_BINS`), the model
-   is not flagged.
-5. **Relevance** (does it matter?). A modelled quantity ``q`` of mode ``i`` (natural frequency, damping, gain) is
-   *moved* when ``|q_K+1 - q_K| > relevance * faults.min_change.q * |q_K|`` and ``> N_SIGMA`` standard deviations
-   of the K + 1 estimate. A real extra mode that moves a modelled quantity means the order is too low *for the
-   quantities we report*: health WARN (never a structural fault), with the frequency of the unmodelled resonance
-   and the change. A real extra mode that moves nothing is recorded (``significant_unmodelled_hz``) and not flagged.
-
-:class:`ModelOrderCheck` is the pipeline's part: it collects ``estimator.order_check_memory_lengths`` x the longest
-memory of contiguous data after the initialization, runs :func:`check_model_order` once per run, and puts the
-finding on health.
+A mode too few biases the modelled ones and nothing in the recursion sees it; a deliberately reduced model (the beam's 2
+of 4 modes, [RA-SRIVC] §6) misfits as much but its unmodelled modes move nothing. So the check is about relevance. On a
+window the K modes are refitted by the offline additive (CL)SRIVC ([A-SRIVC] eq. 29) and compared with the nonparametric
+FRF bin by bin (:mod:`.frf_misfit`): 0. a refit with one sample of input delay more or fewer that predicts significantly
+better (:data:`DELAY_ERROR_RATIO`) flags the delay; 1.-3. the resonances of the residual FRF ``G - G_m`` that misfit
+(:func:`.modefind.find_candidates`, at most :data:`MAX_CANDIDATES`) are refitted as mode K + 1, which is real when it
+lowers the output-error cost ([BCD-SRIVC] eq. 8), lies in the valid band and its gain is :data:`N_SIGMA` stds from zero
+([A-SRIVC] Theorem 1); 4. more than :data:`MISFIT_FRACTION` of the bins (or :data:`MISFIT_RUN_BINS` in a row) misfitting
+with no real extra mode, or an estimate that misfits where its refit does not, is state ``misfit``; 5. a real extra mode
+that moves a modelled quantity by more than ``relevance x faults.min_change`` and ``N_SIGMA`` stds is state ``too_low``.
+:class:`ModelOrderCheck` runs it once per run in the pipeline.
 """
 
 from __future__ import annotations

@@ -1,21 +1,11 @@
 """ZOH-exact discrete state-variable filters for the offline SRIVC family ([A-SRIVC] eqs. 10, 20, 24, 31-32).
 
-Every continuous-time filter is realized in state space and discretized exactly for a zero-order-held
-input (``x_{k+1} = Phi x_k + Gamma v_k``, ``y_k = C x_k + D v_k``; ``Phi``/``Gamma`` from the matrix
-exponential of the augmented matrix, :func:`core.zoh.zoh_matrices`). Tustin biased the closed-loop estimates
-by 1-4 standard deviations; ZOH does not. No high-order transfer-function polynomial is ever formed:
-
-* the state-variable filter ``p^j / (p^l A(p))``, j = 0..n+l, is a *scaled* companion realization
-  (states ``p^j v / s^j`` with ``s = |a_n|^(-1/(n+l))``, so that a 183 Hz mode at 4096 Hz has entries of
-  order omega instead of omega^2 and ``expm`` works on ``||A h|| ~ omega h``);
-* the instrument filters ``p^j B / (p^l A^2)`` ([A-SRIVC] eqs. 10, 20, 31) are ONE cascade ``B/(p^l A)`` then
-  ``1/A`` of the held input, so the instrument is exact for a held input (no re-interpolation of the
-  simulated output);
-* the total model of the closed loop ([A-SRIVC] eq. 20, ``S_uo = C_d / (1 + C_d G_d)``, erratum 3 in docs/DESIGN.md) is
-  the block-diagonal (parallel) sum of the submodels, never one polynomial.
-
-Long signals run through numba-compiled loops (``@kernel``, :mod:`.compiled`): 240k samples of a 4-state
-filter take about 4 ms (about 1 ms for the 2-state filter of one mode).
+Every continuous-time filter is realized in state space and discretized exactly for a held input (``Phi, Gamma`` from
+the matrix exponential, :func:`.zoh.zoh_matrices`; Tustin biased the closed-loop estimates by 1-4 stds). No high-order
+polynomial is formed: ``p^j / (p^l A(p))`` is a *scaled* companion realization (``expm`` works on ``||A h|| ~ omega
+h``); the instrument filters ``p^j B / (p^l A^2)`` (eqs. 10, 20, 31) are one cascade ``B/(p^l A)`` then ``1/A``, exact
+for a held input; the closed loop's total model (eq. 20, ``S_uo = C_d / (1 + C_d G_d)``, erratum 3 in docs/DESIGN.md) is
+the parallel sum of the submodels. Long signals run through compiled loops (:mod:`.compiled`).
 """
 
 from __future__ import annotations

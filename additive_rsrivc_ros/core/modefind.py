@@ -1,41 +1,17 @@
 """Modes and model order from the data: FRF peaks refined by the offline additive (CL)SRIVC.
 
-1. :func:`find_candidates`: on the valid part of the nonparametric FRF (:mod:`core.frf`), with the input delay and
-   the zero-order hold's half sample removed from the phase,
+1. :func:`find_candidates`: on the valid part of the nonparametric FRF (:mod:`.frf`, delay and half-sample hold removed
+from the phase), resonance peaks of the 5-bin mean of ``log10 |G|`` (prominence above ``MIN_PROMINENCE_DECADES`` and 3
+noise stds): frequency by a parabola, damping by the half-power width ``zeta = (f2 - f1) / (2 f_peak)`` (never below the
+resolution), gain from ``G(j omega_n) = -j b0 / (2 zeta)``; a rigid body ``b0/p^l`` from a ``-20 l`` dB/decade low band
+where ``G (j omega)^l`` is real; :func:`finer_candidates` the same on finer FRFs.
 
-   * resonance peaks of ``|G|`` (:func:`peak_prominences`, as ``scipy.signal.find_peaks``, on ``log10 |G|``
-     averaged over 5 bins, the Hann main lobe, with a prominence above ``MIN_PROMINENCE_DECADES`` and above three
-     relative noise standard deviations of the averaged estimate, and at least 3 valid bins in the average),
-     located at the raw maximum within two bins: frequency by a parabola through the three log-magnitudes around
-     the peak, damping by the half-power width
-     ``zeta = (f2 - f1) / (2 f_peak)`` (one side doubled when the other leaves the valid band; never below the
-     window's resolution ``Delta f / (2 f_peak)``), modal gain of ``b0/(a2 p^2 + a1 p + 1)`` from the peak value
-     ``G(j omega_n) = -j b0 / (2 zeta)``, i.e. ``b0 = -2 zeta Im G`` (its sign is the mode's);
-   * a rigid body ``b0/p^l`` when the lowest valid decade falls with slope ``-20 l`` dB/decade (l = 1, 2; slope
-     within 0.25 of -l decades/decade over at least five bins) and ``G (j omega)^l`` is real there (median
-     ``|Im|/|.|`` below ``RIGID_REALNESS``; a damped mode's roll-off turns it by 90 degrees), ``b0`` its median;
-   * :func:`finer_candidates`: the same below ``FINER_BAND_BINS`` default bins on FRFs with finer resolution.
-
-2. :func:`find_modes`: for ``K = 1 .. K_max`` (the rigid body, if any, counts as one submodel and is always kept;
-   the first order starts from the most prominent peaks, each larger one from the best smaller model plus the
-   most prominent peak not near one of its modes, or the next ones, up to three, or the resonance of its residual
-   FRF with the most output power, :func:`_residual_start`, or, in closed loop without a rigid-body candidate,
-   plus a rigid body, :func:`_rigid_start`; each start is also tried refined on the FRF first,
-   :func:`refine_on_frf`) the offline additive CLSRIVC
-   (closed loop, [A-SRIVC] eq. 20/29) or SRIVC (open loop) is fitted on the first ``1 - validation_fraction`` of the
-   record and judged by the mean squared *output error on the rest* (held-out data): in closed loop the model's
-   noise-free closed-loop output ``T_o r`` ([A-SRIVC] eq. 20), in open loop ``G u``. **Order rule:** starting from the
-   smallest K that fitted, a larger K replaces the current choice only if its held-out error is below
-   ``(1 - margin)`` times the current one (``margin`` = 2 %) and the gain holds throughout the held-out data
-   (paired test over batches, :func:`_significant_gain`); the scan builds each order on the best model by the
-   margin alone and stops after two orders in a row without such a gain. **Backward check**
-   (:func:`_check_relevance`): an order's gain must come from its added mode; when the fit without its least
-   relevant submodel predicts as well (no significant gain over it), the order is redundant, and that
-   reduction replaces the smaller order's model if it predicts better (a smaller order's scan fit that stopped
-   early, e.g. the beam's K = 4 beside a K = 5 with a negligible 239 Hz mode). The scan's fits stop early
-   (``SCAN_TOL``, ``SCAN_MAX_ITERATIONS``; after an order that fits its FRF, a fit no better than it once its
-   output error has settled, ``SCAN_SETTLE``); the chosen model is then refitted on the whole record. Modes whose
-   frequency lies outside the band where the FRF is valid are reported as not identifiable.
+2. :func:`find_modes`: for K = 1, 2, ... a start (the best smaller model plus a peak, its residual FRF's strongest
+resonance, or a rigid body; each also refined on the FRF, :func:`refine_on_frf`) is fitted by the offline additive
+CLSRIVC ([A-SRIVC] eq. 20/29; open loop SRIVC) on the first part of the record and judged by its output error on the
+rest (closed loop ``T_o r``, open loop ``G u``). A larger K wins only if that error drops by more than ``margin`` (2 %)
+and the gain holds throughout the held-out data (:func:`_significant_gain`), and only if the gain comes from the added
+mode (:func:`_check_relevance`); the chosen model is refitted on the whole record.
 """
 
 from __future__ import annotations

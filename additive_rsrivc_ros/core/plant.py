@@ -1,17 +1,10 @@
 """Exact ZOH response of the additive modal plant (ROS-free; numba per-sample loop).
 
-The plant is the additive continuous-time model of [RA-SRIVC] eq. (5) / [A-SRIVC] eq. (2)
-
-    x(t) = sum_i x_i(t),   p^l_i (a_i2 p^2 + a_i1 p + 1) x_i = b_i0 u(t - d h)     (flexible / with integrators)
-                           p^l_i x_i = b_i0 u(t - d h)                              (rigid body, n = 0)
-
-with ``u`` held between samples and a known input delay of ``d`` samples. :func:`simulate_kernel` advances it
-sample by sample with parameters that may change at every sample (the simulator of
-:mod:`additive_rsrivc_ros.sim.simulate` drives it, with measurement corruptions given as arrays);
-:func:`open_loop_output` is the response of a fixed model to a given input (used by ``core.modefind``);
-:func:`discrete_plant`, :func:`closed_loop_poles` and :func:`loop_margins` analyse the frozen loop.
-The ZOH transition of each mode is exact: :func:`core.zoh.second_order_zoh` for flexible modes,
-:func:`core.zoh.integrator_chain_zoh` for rigid-body modes and a compiled scaling-and-squaring matrix exponential
+The plant of [RA-SRIVC] eq. 5 / [A-SRIVC] eq. 2 (:mod:`..sim.simulate`), ``u`` held between samples and delayed ``d``
+samples. :func:`simulate_kernel` advances it sample by sample with parameters that may change at every sample;
+:func:`open_loop_output` is a fixed model's response to a given input (``core.modefind``); :func:`discrete_plant`,
+:func:`closed_loop_poles` and :func:`loop_margins` analyse the frozen loop. Each mode's transition is exact:
+:func:`.zoh.second_order_zoh`, :func:`.zoh.integrator_chain_zoh`, and a compiled scaling-and-squaring matrix exponential
 for ``b0/(p^l A(p))`` with ``l > 0``.
 """
 

@@ -1,23 +1,13 @@
 """Streaming recursive additive SRIVC / CLSRIVC estimator ([RA-SRIVC] Algorithm 2, §4.5-4.7).
 
-:class:`RecursiveAdditiveSRIVC` wraps the compiled kernel (:mod:`core.kernel`) with
-
-* a robust start: offline initialization on the first data (``core.offline.identify``,
-  [A-SRIVC] eqs. 20-29) when available, then filter priming ([RA-SRIVC] Algorithm 2 step 1: the filters run over the
-  initialization data with the initial model, no parameter updates), and ``P_i(0)`` scaled per parameter
-  (``diag(rho_a^2 a1^2, rho_a^2 a2^2, rho_b^2 b0^2)``);
-* a streaming API: :meth:`update` takes any number of samples; :attr:`thetas`, :attr:`covariances`
-  (``sigma^2 P_bar``), :meth:`modal` (delta method), :attr:`health`;
-* snapshot/restore (:meth:`get_state`/:meth:`set_state`, :meth:`save`/:meth:`load`): all state lives in
-  numpy arrays, so a restored estimator continues bit-identically;
-* bad input handling: a non-finite or masked sample is skipped (counted), :meth:`mark_gap` re-primes the
-  filters after a gap, non-finite filter states re-prime automatically; theta and P never take a
-  non-finite value.
-
-Forgetting factors are per *update*: ``lambda_i = 1 - subsampling / (memory_s_i * rate)`` (lambda
-must scale with the rate), so that the memory in seconds does not depend on the output subsampling.
-Supported submodels: second-order modes ``b0/(a2 p^2 + a1 p + 1)`` and rigid-body modes ``b0/p^l``
-(l = 1, 2; [RA-SRIVC] §4.6 eqs. 34-35). Other orders raise ``ValueError``.
+:class:`RecursiveAdditiveSRIVC` wraps the compiled kernel (:mod:`.kernel`) with a robust start (the offline
+additive (CL)SRIVC, [A-SRIVC] eqs. 20-29, on the first data, then filter priming, Algorithm 2 step 1), a streaming
+API (:meth:`~RecursiveAdditiveSRIVC.update` takes any number of samples; ``thetas``, ``covariances``, ``modal``,
+``health``), snapshot and restore (all state in numpy arrays: a restored estimator continues bit-identically) and
+bad-input handling (a non-finite or masked sample is skipped and counted, a gap re-primes the filters; theta and P
+never become non-finite). Forgetting is per *update*: ``lambda_i = 1 - subsampling / (memory_s_i * rate)``, so the
+memory in seconds depends neither on the rate nor on the subsampling. Submodels: second-order modes
+``b0/(a2 p^2 + a1 p + 1)`` and rigid bodies ``b0/p^l``, l = 1, 2 (§4.6 eqs. 34-35).
 """
 
 from __future__ import annotations
@@ -198,60 +188,17 @@ class _ReportBlocks(NamedTuple):
 class RecursiveAdditiveSRIVC:
     """Recursive additive (CL)SRIVC estimator, [RA-SRIVC] Algorithm 2 with the closed-loop instrument eq. 33.
 
-    Parameters
-    ----------
-    structures, theta0:
-        Submodel structures and initial parameter vectors ``[a1, a2, b0]`` (or ``[b0]`` rigid body).
-    rate_hz:
-        Sample rate of r, u, y.
-    forgetting:
-        ``lambda_i`` per mode, per update (see module docstring).
-    controller:
-        Known ``C_d`` for the closed-loop instrument ``z = S_uo(q, t_k) r`` ([RA-SRIVC] eq. 33); ``None`` = open
-        loop (``z = u``, eq. 28).
-    input_delay:
-        Known input delay in samples.
-    block_sweeps, refinements:
-        ``M_l`` and ``M_s`` of Algorithm 2.
-    projection:
-        Reflect right-half-plane roots of ``A_i`` ([RA-SRIVC] §4.7).
-    subsampling:
-        Update every n-th sample; all inputs are still filtered ([RA-SRIVC] §4.7).
-    p0_relative:
-        ``(rho_a^2, rho_b^2)`` of ``P_i(0)``.
-    p0_policy:
-        ``"information"`` (default): after an accepted offline initialization, ``P_i(0)`` is the information of
-        the initialization record as the recursion would weigh it (:func:`p0_from_information`), so the reported
-        uncertainty and the adaptation gain start at their steady level; otherwise, and with ``"relative"``,
-        the parameter-scaled diagonal of ``p0_relative``.
-    max_step:
-        Reject an update that moves a parameter by more than this fraction of its value (0, the default,
-        disables it: on the beam a wound-up P made every update exceed any fixed bound and the estimator
-        locked).
-    p_cap:
-        Stop dividing by lambda once a diagonal of P exceeds ``p_cap`` times its P(0) (wind-up guard; off by
-        default: 1e4-1e8 slowed the tracking of the [RA-SRIVC] §5 and beam scenarios).
-    filter_memory_s:
-        Time constant (s, scalar or per mode) of the *filter model* ``A_f,i`` that builds the prefilters
-        ``1/A_i`` of eqs. 26-28/33 (and the other modes' simulated outputs, eq. 22): ``a_f <- mu_f a_f + (1 -
-        mu_f) a`` per update, ``mu_f = 1 - subsampling/(filter_memory_s rate)``; ``b0`` follows the estimate.
-        ``None``: ``FILTER_PERIODS`` periods ``2 pi sqrt(a2)`` of each mode's current model, set again on
-        :meth:`reset`/:meth:`initialize` (recommended when a memory is shorter than the mode's decay time
-        ``1/(zeta omega)``, e.g. the beam's mode 2). 0 (default) = [RA-SRIVC] Algorithm 2 as printed (the filters follow
-        the latest estimate): the filter lag cost 1 of 10 divergences on the [RA-SRIVC] §5 open-loop 10-20 % far start,
-        so it is not the default. ``inf`` freezes the filters (fixed-prefilter IV-RLS). See
-        :meth:`set_filter_memory`.
-    reprime_s:
-        Samples (in s) without updates after a gap or a filter reset; default 5 slowest time constants.
-    init_warmup_s:
-        Seconds of the initialization record that only warm up the offline filters (``None``: automatic, see
-        ``core.offline.warmup_samples``).
-    init_method, init_max_iterations, init_samples:
-        Offline initialization used by :meth:`initialize` (``"none"`` keeps the guesses).
-    guess_spread:
-        Relative std of the guesses as a prior of the offline initialization (:meth:`_with_guess_prior`; 0: none).
-    filter_policy:
-        ``"auto"``, ``"on"`` or ``"off"`` (:meth:`set_filter_policy`); overrides ``filter_memory_s`` when given.
+    ``structures, theta0``: submodels and their ``[a1, a2, b0]`` (rigid body ``[b0]``); ``forgetting``: ``lambda_i`` per
+    mode and update; ``controller``: ``C_d`` of the instrument ``z = S_uo(q, t_k) r`` (None: open loop, ``z = u``, eq.
+    28); ``input_delay`` in samples; ``block_sweeps, refinements``: ``M_l, M_s``; ``projection`` and ``subsampling``:
+    §4.7. ``p0_*``, ``init_*``, ``guess_spread`` and ``filter_policy`` mean what the ``estimator.*`` parameters of
+    :mod:`.params` say. ``p0_policy`` ``"information"`` starts ``P_i(0)`` at the offline fit's information weighted like
+    the recursion (:func:`p0_from_information`), else the diagonal of ``p0_relative``; ``max_step`` (0: off) and
+    ``p_cap`` (inf: off) guard parameter steps and wind-up; ``filter_memory_s`` (or ``filter_policy``) sets the filter
+    model ``a_f <- mu_f a_f + (1 - mu_f) a`` that builds the prefilters (0: Algorithm 2 as printed; ``None``:
+    ``FILTER_PERIODS`` periods of the mode, needed when a memory is below the mode's decay time; ``inf``: fixed
+    prefilters); ``reprime_s``: seconds without updates after a gap or a filter reset (default: 5 slowest time
+    constants).
     """
 
     def __init__(self, structures: Sequence[SubmodelStructure], theta0: Sequence[np.ndarray], rate_hz: float, *,
@@ -450,22 +397,12 @@ class RecursiveAdditiveSRIVC:
     def covariances(self) -> list[np.ndarray]:
         """Covariance of ``theta_bar_i`` per mode: the IV sandwich ``sigma^2 P_bar_i S_i P_bar_i^T``.
 
-        [RA-SRIVC] eqs. 30-32 give ``theta_bar(t_N) - theta = P_bar(t_N) [lam^N P_bar(0)^-1 (theta_bar(0) - theta) +
-        sum_k lam^(N-k) zeta_k v_k]`` to first order (``P_bar^-1 = sum lam^(N-k) zeta phi^T``, the regression error
-        ``v`` white with variance ``sigma^2``), hence ``Cov = sigma^2 P_bar S P_bar^T`` with ``S = sum_k lam^(2(N-k))
-        zeta zeta^T + lam^(2N) S(0)`` (kernel accumulator; [RA-SRIVC] §4.2 calls ``P_bar`` "an approximate covariance",
-        which this replaces). It differs from ``sigma^2 P_bar`` by (i) the forgetting factor: for stationary signals
-        ``P_bar ~ (1 - lam) Rbar^-1`` and ``S ~ Rbar_zz/(1 - lam^2)``, so ``Cov ~ sigma^2 P_bar/(1 + lam)`` (``sigma^2
-        P_bar`` overstated the variance twice, the std by ``sqrt 2``); (ii) the IV sandwich ``Rbar^-1 Rbar_zz Rbar^-T``:
-        it collapses to ``Rbar^-1`` only when the instrument is the noise-free part of the regressor (refined/optimal
-        IV with a white OE error, [RA-SRIVC] §4.5); (iii) non-stationary excitation, the start (``S(0)``, exact sums).
-
-        Cross-mode coupling: the block-coordinate recursion updates mode i with the block-diagonal gain ``G_i =
-        P_bar_i ~ (1 - lam_i) Rbar_ii^-1``; its error obeys ``d_k = (I - G zeta psi^T) d_(k-1) + G zeta v``, whose
-        stationary covariance solves ``G Rbar C + C Rbar G = sigma^2 G Rbar G`` to first order in ``1 - lam``, i.e.
-        ``C = sigma^2 G/2`` -- block-diagonal. The coupling of the modes slows the recursion in the weakly
-        excited joint directions instead of inflating its stationary variance, so no cross term is added (it
-        matters in transients only: the offline start's coupled covariance enters through ``S(0)``).
+        Linearizing [RA-SRIVC] eqs. 30-32, ``theta_bar - theta = P_bar sum_k lam^(N-k) zeta_k v_k`` (``v`` white,
+        variance ``sigma^2``), so ``Cov = sigma^2 P_bar S P_bar^T`` with ``S = sum_k lam^(2(N-k)) zeta zeta^T +
+        lam^(2N) S(0)`` (kernel accumulator). For stationary signals ``Cov ~ sigma^2 P_bar/(1 + lam)``: the
+        "approximate covariance" ``sigma^2 P_bar`` of §4.2 overstates the std by ``sqrt 2``. No cross-mode term: the
+        block-coordinate recursion's stationary error covariance is ``sigma^2 G/2`` with the block-diagonal gain
+        ``G`` (first order in ``1 - lam``); the offline start's coupled covariance enters through ``S(0)``.
         """
         return [c.copy() for c in self._blocks().covariances]
 

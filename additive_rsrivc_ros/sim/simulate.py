@@ -1,22 +1,12 @@
 """Time-varying additive modal plant in closed or open loop, exact ZOH (the loop: ``core.plant.simulate_kernel``).
 
-The plant is the additive continuous-time model of [RA-SRIVC] eq. (5) / [A-SRIVC] eq. (2)
-
-    x(t) = sum_i x_i(t),   p^l_i (a_i2 p^2 + a_i1 p + 1) x_i = b_i0 u(t - d h)     (flexible / with integrators)
-                           p^l_i x_i = b_i0 u(t - d h)                              (rigid body, n = 0)
-
-with ``u`` held constant between samples (zero-order hold, docs/DESIGN.md "Conventions") and a known input
-delay of ``d`` samples. Parameters may change at every sample: ``theta_i(t_k)`` holds on ``[t_k, t_k+1)`` and the
-physical state of each mode ``[x_i, x_i', ...]`` (output coordinates) is carried across changes, so a gain change
-changes the forcing, never the position (the slow-variation setting of [RA-SRIVC] Remark 4.4).
-
-Sampling and causality ([RA-SRIVC] eq. 10, §5): ``y(t_k) = x(t_k) + v(t_k)`` and in closed loop
-``u(t_k) = C_d(q) (r - y)(t_k)``; ``x(t_k)`` depends on ``u`` up to ``t_{k-1-d}``. The ZOH transition of each mode
-is exact (see :mod:`additive_rsrivc_ros.core.plant`, which also holds the frozen-loop analysis).
-
-Sensor faults act on the measured output (the sensor feeds the controller too): additive bias/drift, a stuck
-value, dropped samples (the last received value is held by the receiver) and NaN samples (the controller holds
-its last finite measurement; the recorded ``y`` is NaN).
+The plant of [RA-SRIVC] eq. 5 / [A-SRIVC] eq. 2: ``x = sum_i x_i`` with ``p^l_i (a_i2 p^2 + a_i1 p + 1) x_i = b_i0 u(t -
+d h)`` (rigid body: ``p^l_i x_i = b_i0 u(t - d h)``), ``u`` held between samples and delayed ``d`` samples.
+``theta_i(t_k)`` holds on ``[t_k, t_k+1)`` and each mode's physical state is carried across changes (the slow-variation
+setting of Remark 4.4). ``y(t_k) = x(t_k) + v(t_k)``, in closed loop ``u(t_k) = C_d(q) (r - y)(t_k)`` ([RA-SRIVC] eq.
+10); the transition is exact (:mod:`..core.plant`). Sensor faults act on the measured output, which feeds the controller
+too: bias or drift, a stuck value, dropped samples (the receiver holds the last value) and NaN samples (the controller
+holds its last finite measurement).
 """
 
 from __future__ import annotations

@@ -1,22 +1,16 @@
 """Offline continuous-time identification: LSSVF, SRIVC, CLSRIVC, additive SRIVC/CLSRIVC, BCD ([A-SRIVC], [BCD-SRIVC]).
 
-All estimators return one :class:`IdentificationResult`. The single entry point :func:`identify` is used
-by the recursive engine ([RA-SRIVC] Algorithm 2 step 1) and by ``rsrivc_identify``.
+Every estimator returns an :class:`IdentificationResult`; :func:`identify` is the one entry point (the recursive
+estimator's start, [RA-SRIVC] Algorithm 2 step 1, and ``rsrivc_identify``). Conventions of ``core/model.py``; the input
+is held between samples and delayed ``input_delay`` samples; all filtering is ZOH-exact (``core/filters.py``).
+Integrators ([A-SRIVC] Remark 6, eqs. 31-32) are part of every method.
 
-Conventions (``core/model.py``): submodel ``B_i(p)/(p^l_i A_i(p))``, ``theta_i = [a_i1..a_in, b_i0..b_im]``
-([RA-SRIVC] eq. 7); the input is held (ZOH) between samples and reaches the plant ``input_delay`` samples late.
-All filtering is ZOH-exact (``core/filters.py``).
-
-Methods
--------
-``additive-clsrivc``  [A-SRIVC] eq. 29 with the closed-loop instrument [A-SRIVC] eq. 20 (``z = S_uo(q) r``)
-``additive-srivc``    [A-SRIVC] eq. 29 with the open-loop instrument [A-SRIVC] eq. 10 (``z = u``)
-``bcd-srivc``         [BCD-SRIVC] Algorithm 2 (SRIVC inner iterations per block, descent test on V_N)
-``srivc``/``clsrivc`` unfactored ``B/(p^l A)`` ([A-SRIVC] eq. 30, K = 1), split back into the additive form
-``lssvf``             one least-squares step with the fixed filter of the initial guess ([UNS-SRIVC] §3)
-``*-uns``             unstable plants ([UNS-SRIVC] §4-§6), see ``core/offline/unstable.py``
-
-Marginally stable submodels (integrators, [A-SRIVC] Remark 6 eqs. 31-32) are part of every method here.
+* ``additive-clsrivc`` / ``additive-srivc``: [A-SRIVC] eq. 29 with the closed-loop instrument of eq. 20 (``z = S_uo(q)
+  r``) / the open-loop one of eq. 10 (``z = u``).
+* ``bcd-srivc``: [BCD-SRIVC] Algorithm 2 (SRIVC iterations per block, descent test on ``V_N``).
+* ``srivc`` / ``clsrivc``: unfactored ``B/(p^l A)`` ([A-SRIVC] eq. 30, K = 1), split back into the additive form;
+  ``lssvf``: one least-squares step with the guess's fixed filter ([UNS-SRIVC] §3); ``*-uns``:
+  ``core/offline/unstable.py``.
 """
 
 from __future__ import annotations

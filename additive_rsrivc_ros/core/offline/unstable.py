@@ -1,23 +1,15 @@
 """Unstable plants and integral action: LSSVF-uns, SRIVC-uns, CLSRIVC-uns ([UNS-SRIVC] §4-§6), K = 1.
 
-The filtered signals of the SRIVC family need ``1/A(p)``, which is unstable for an unstable model. [UNS-SRIVC] §4
-multiplies every filtered signal by the discrete all-pass ``A_da(q)/Abar_da(q)`` ([UNS-SRIVC] eqs. 15-16) whose
-zeros are the unstable poles ``lambda`` of the ZOH equivalent ``A_d(q)`` ([UNS-SRIVC] eq. 12) and whose poles are
-their reflections ``1/lambda``. The product is realized directly as the stable filter
-``N_j(q) / (A_ds(q) Abar_da(q))`` (exact cancellation). Both all-pass polynomials are monic in q^-1 as in
-[UNS-SRIVC] eq. 16 (gain ``prod |lambda|``): that keeps (17) a proper predictor, which the PEM interpretation of
-the fixed point ([UNS-SRIVC] Lemma 4.3) needs; the reported residual variance is divided by ``prod |lambda|^2``.
-Models here are of low order (the [UNS-SRIVC] examples have n = 2), so the discrete numerators come from the small
-state-space realizations of ``core/filters.py``.
+``1/A(p)`` is unstable for an unstable model, so every filtered signal is multiplied by the discrete all-pass
+``A_da(q)/Abar_da(q)`` (eqs. 15-16) whose zeros are the unstable poles of the ZOH equivalent ``A_d(q)`` (eq. 12),
+realized as the stable filter ``N_j(q) / (A_ds(q) Abar_da(q))``. Both all-pass polynomials are monic in ``q^-1``, which
+keeps (17) a proper predictor (Lemma 4.3); the residual variance is divided by ``prod |lambda|^2``.
 
-* ``lssvf-uns``: one LS step of [UNS-SRIVC] eq. 24 with the fixed (possibly unstable) filter of the guess (Remark 2).
-* ``srivc-uns``: [UNS-SRIVC] eq. 25 with the instrument of [UNS-SRIVC] eq. 26, the gradient of the stable predictor
-  (17), computed by central differences of the prefiltered residual ``eps = AP (y - G u)`` ([UNS-SRIVC] §7.1).
-* ``clsrivc-uns``: [UNS-SRIVC] eq. 25 with the instrument [UNS-SRIVC] eq. 29: ``AP [-p^j/A T_o r, p^j/(p^l A) S_uo r]``.
-* integral action ([UNS-SRIVC] §6): solution 2 forces the pole(s) at 0: a structure with ``integrators > 0``
-  (the integrator poles at q = 1 are not cancelled, [UNS-SRIVC] §4.1 (b)); solution 1 (``*-uns-monic``) uses the
-  monic denominator ``A = a_0 + a_1 p + .. + p^n`` with ``theta = [a_0..a_(n-1), b_0..b_m]`` so that a_0
-  can go to zero.
+* ``lssvf-uns``: one LS step of eq. 24 with the fixed filter of the guess (Remark 2).
+* ``srivc-uns``: eq. 25 with the instrument of eq. 26 (the stable predictor's gradient, by central differences, §7.1).
+* ``clsrivc-uns``: eq. 25 with the instrument of eq. 29, ``AP [-p^j/A T_o r, p^j/(p^l A) S_uo r]``.
+* integral action (§6): ``integrators > 0`` forces the poles at 0 (solution 2); ``*-uns-monic`` uses the monic ``A = a_0
+  + .. + p^n`` so ``a_0`` can go to zero (solution 1).
 """
 
 from __future__ import annotations
