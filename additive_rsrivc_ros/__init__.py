@@ -4,9 +4,8 @@ The numerics live in the ROS-free :mod:`additive_rsrivc_ros.core`; the ROS 2 nod
 the command-line programs are thin shells around it.
 """
 
-__version__ = "0.1.0"
-
 from . import numba_cache as _numba_cache
+from ._version import __version__ as __version__
 
 #: where this process caches compiled kernels (see :mod:`additive_rsrivc_ros.numba_cache`)
 NUMBA_CACHE_DIR = _numba_cache.configure()

@@ -1,22 +1,12 @@
-"""rosbag2 (MCAP / sqlite3) reading and writing with ``rosbags`` 0.11; bag validation (../shared/CONTRACT.md).
+"""rosbag2 (MCAP / sqlite3) reading and writing with ``rosbags`` 0.11; bag validation (docs/INTERFACE.md).
 
-Layout written by :func:`write_bag` (one message per control sample, log time = sample time in ns):
-
-* ``/reference`` (closed loop only), ``/plant_input``, ``/plant_output``: ``std_msgs/msg/Float64``.
-* ``/truth/modes``: ``std_msgs/msg/Float64MultiArray`` in the layout of ``~/modes`` (dim[0] ``mode`` size K,
-  dim[1] ``field`` size 6: natural_frequency_hz, damping_ratio, gain, and three zero standard deviations),
-  published at ``truth_rate_hz``. The rows are the plant's modes; scenarios list the estimated modes first.
-* ``/truth/fault``: ``std_msgs/msg/String`` holding one JSON object per change of the fault state, e.g.
-  ``{"time_s": 12.0, "event": "onset", "fault": {...}, "active": [{...}, ...]}`` (keys sorted). ``fault`` describes
-  the fault that started (``event = "onset"``), finished ramping (``"complete"``) or ended (``"end"``);
-  ``active`` lists every fault active after the change. A first message at t = 0 (``event = "start"``) gives the
-  initial state.
-
-MCAP files carry the summary, chunk and message indexes Jazzy's rosbag2 needs (chunks zstd-compressed by
-default); the metadata lists offered QoS profiles (reliable; keep_last with a depth for the signals, keep_all +
-transient_local for the truth). No wall-clock time enters the files: the same input gives the same bytes.
-
-:func:`read_signals` checks a bag before use and raises :class:`BagError` with a one-line reason.
+:func:`write_bag` writes one message per control sample, log time = sample time: ``/reference`` (closed loop),
+``/plant_input``, ``/plant_output`` (``std_msgs/msg/Float64``); ``/truth/modes`` (``Float64MultiArray`` in the
+``~/modes`` layout, std columns 0, the plant's modes with the estimated ones first) at ``truth_rate_hz``;
+``/truth/fault`` (``std_msgs/msg/String``, one JSON object per change of the fault state: ``time_s``, ``event`` of
+``start``, ``onset``, ``complete``, ``end``, ``fault``, ``active``). MCAP files carry the indexes Jazzy's rosbag2 needs;
+no wall-clock time enters the files, so the same input gives the same bytes. :func:`read_signals` checks a bag before
+use and raises :class:`BagError` with a one-line reason.
 """
 
 from __future__ import annotations

@@ -1,6 +1,6 @@
 """Parameters of the monitor: one declarative table shared by the ROS node and the offline tools.
 
-The same params YAML (``additive_rsrivc_monitor: ros__parameters: ...``, ../shared/CONTRACT.md) drives
+The same params YAML (``additive_rsrivc_monitor: ros__parameters: ...``, docs/INTERFACE.md) drives
 ``rsrivc_monitor``, ``rsrivc_diagnose`` and ``rsrivc_identify``. Every parameter is declared once, as a
 :class:`Param` row (name, type, default, description, range, choices, read-only): the node declares each with a
 descriptor built from it; :func:`load_params_file` and :func:`validate_params` apply the same types, ranges and
@@ -37,7 +37,7 @@ class ParamError(ValueError):
 
 CORE_PARAMS: list[Param] = [
     Param("loop_rate_hz", "double", 0.0, "Sample rate of r, u, y in Hz (required).", 0.1, 1e6, True),
-    Param("closed_loop", "bool", True, "Closed-loop instrument z = S_uo(q) r (000 eq. 33); false: z = u.",
+    Param("closed_loop", "bool", True, "Closed-loop instrument z = S_uo(q) r ([RA-SRIVC] eq. 33); false: z = u.",
           read_only=True),
     Param("controller.numerator", "double[]", [], "Discrete controller C_d numerator, ascending powers of q^-1.",
           read_only=True),
@@ -60,7 +60,7 @@ CORE_PARAMS: list[Param] = [
     Param("modes.frequency_range_hz", "double[]", [], "Search band [low, high] (Hz) for finding modes from the "
           "data; empty: the whole band the data excite.", 0.0, None, True),
     Param("init_duration_s", "double", 5.0, "Data used for the offline initialization before the recursion "
-          "starts (000 Algorithm 2 step 1).", 0.0, 1e5, True),
+          "starts ([RA-SRIVC] Algorithm 2 step 1).", 0.0, 1e5, True),
     Param("publish_rate_hz", "double", 10.0, "Rate of the estimates on ~/modes (reports, in the data's time; "
           "/diagnostics: diagnostics_period_s). At most 100 Hz: a report costs the pipeline ~1.3 ms (measured), so "
           "1000 Hz would need more than a core and stop the consumption of 4096 Hz inputs "
@@ -325,7 +325,7 @@ class MonitorConfig:
 
     @property
     def forgetting_factors(self) -> np.ndarray:
-        """``lambda_i = 1 - 1/(memory_s_i * loop_rate_hz)`` (../shared/NOTES.md)."""
+        """``lambda_i = 1 - 1/(memory_s_i * loop_rate_hz)``."""
         return np.array([1.0 - 1.0 / (m.memory_s * self.loop_rate_hz) for m in self.modes])
 
     @classmethod
@@ -338,7 +338,7 @@ class MonitorConfig:
         modes = _modes_from_params(p, rate)
         auto = _auto_mode_settings(p, len(modes))
         if sum(m.integrators > 0 for m in modes) > 1:
-            raise ParamError("at most one mode may have integrators (000 §4.6)")
+            raise ParamError("at most one mode may have integrators ([RA-SRIVC] §4.6)")
         controller = None
         if p["closed_loop"]:
             if not p["controller.numerator"]:
@@ -575,7 +575,7 @@ TEMPLATE_EXAMPLE: dict[str, Any] = {
 TEMPLATE_COMMENTED_EXAMPLE: dict[str, Any] = {"modes.frequency_range_hz": [1.0, 400.0]}
 # Comment lines above a group of the template.
 TEMPLATE_GROUP_NOTES: dict[str, str] = {
-    "block": "Block input instead of the three topics above (issue 14). Rows are paired by index (the sample time "
+    "block": "Block input instead of the three topics above. Rows are paired by index (the sample time "
              "is index / loop_rate_hz): missing indices are data gaps, repeated ones are dropped, an index that goes "
              "back (controller restart) re-primes the estimator. Set stale_timeout_s above the time one block covers.",
     "faults.baseline": "A given baseline (every entry below is optional; uncomment to give a baseline):",

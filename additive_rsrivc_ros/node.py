@@ -1,29 +1,14 @@
 """``rsrivc_monitor``: entry point of the ROS 2 lifecycle node (:class:`.ros.monitor_node.MonitorNode`).
 
-Handles ``--help`` and argument errors before anything of ROS is imported (``--help`` works without ROS), then
-imports rclpy and the node, configures and activates it (``autostart``) and spins it until SIGINT/SIGTERM. The
-signals only set a flag (:class:`.signal_stop.SignalStop`); the spin loop returns within one ``spin_once`` timeout
-and the node saves its state once. What the node subscribes, publishes and serves: :mod:`.ros.monitor_node` and the
-modules it names, ../shared/CONTRACT.md.
-
-Inputs (../shared/CONTRACT.md): Float64 topics are aligned by arrival order on a nominal sample grid,
-JointState topics by header stamp (exact: unmatched or out-of-order stamps are dropped); see
-:mod:`.ros.sync` for pauses, count mismatches and resynchronization. Limitation: Float64 carries no
-sequence information, so a single message lost on one topic while all topics keep streaming is only
-detected at the next moment all topics go quiet (``sync.quiet_s``) or when the imbalance lasts; use
-JointState (stamped) inputs or block input when that matters, and give the controller's publishers a RELIABLE
-history deep enough for the longest expected stall (a KEEP_LAST writer silently overwrites unacknowledged samples;
-DDS reports no "message lost" event for that, measured).
-
-Block input (``block.topic``, issue 14): one ``Float64MultiArray`` of N rows ``index, reference, input, output``
-per message instead of the three topics; rows are paired by the controller's index, and missing, repeated, late or
-restarted indices are handled by :mod:`.ros.blocks` (the pipeline's stream aligner is not used on them).
-
-Resources and timing (issue 13): every input queue is bounded (``sync.max_queue_s``, oldest dropped, counted per
-topic, one log line per episode). Each topic's arrival rate is compared with ``loop_rate_hz``
-(``sync.rate_window_s``, ``sync.rate_tolerance``): a mismatch is a WARN naming the topic. The node measures its own
-loop: a topic is silent (STALE) only when the executor was spinning for longer than ``stale_timeout_s`` and nothing
-arrived; a late burst caused by the node's own stall (start-up, GC, a busy worker) is not an input pause.
+Handles ``--help`` and argument errors before anything of ROS is imported, then configures and activates the node
+(``autostart``) and spins it until SIGINT/SIGTERM, whose handlers only set a flag (:class:`.signal_stop.SignalStop`):
+the spin loop returns within one ``spin_once`` timeout and the node saves its state once. Topics, parameters and
+services: docs/INTERFACE.md. Float64 topics are paired by arrival order (:mod:`.ros.sync`; in closed loop verified by
+the controller invariant in the pipeline), JointState topics by header stamp, block input by the controller's index
+(:mod:`.ros.blocks`). Float64 carries no sequence number: in open loop a message lost on one topic while all keep
+streaming shows only when the topics go quiet, so use stamped or block input there, and give the controller's publishers
+a RELIABLE history deep enough for the longest stall. Input queues are bounded, arrival rates checked against
+``loop_rate_hz``, and the node's own stalls are told from input pauses.
 """
 
 from __future__ import annotations

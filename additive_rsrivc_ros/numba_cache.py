@@ -1,19 +1,12 @@
 """Where the compiled numba kernels are cached, and why there.
 
-Numba's ``cache=True`` keys a cached kernel on its *own* source file's timestamp only: when an ``@njit``
-callee in another module changes, the caller's stale machine code is still loaded (this hid a change of
-``core/zoh.py`` once). The package therefore caches in a directory keyed on a hash of every numba module's
-source, so a changed kernel anywhere means a fresh directory, never a stale load:
-
-    ``$RSRIVC_CACHE_DIR`` (default ``$XDG_CACHE_HOME/additive_rsrivc_ros``, i.e. ``~/.cache/...``)
-    ``/numba-<package version>-<source hash>/``
-
-It is user-writable, so read-only installs (``colcon build``, ``pip install``) cache too; when no candidate is
-writable the system temporary directory is used. The same directory holds the kernels compiled ahead of time
-(``core/compiled.py``), checked against the sources again when loaded. A ``NUMBA_CACHE_DIR`` set by the user is
-respected as is (then invalidation of the JIT cache is the user's). :func:`configure` runs once, from the
-package's ``__init__``, before any kernel module is imported; ``rsrivc_warmup`` (``python -m
-additive_rsrivc_ros.warmup``) fills the cache.
+Numba's ``cache=True`` keys a kernel on its own source file only, so a changed ``@njit`` callee in another module leaves
+the caller's stale machine code loaded. The package therefore caches in a directory keyed on a hash of every kernel
+module's source, ``$RSRIVC_CACHE_DIR/numba-<version>-<source hash>/`` (default root
+``$XDG_CACHE_HOME/additive_rsrivc_ros`` or ``~/.cache/additive_rsrivc_ros``; the system temporary directory when none is
+writable), which also holds the kernels compiled ahead of time (``core/compiled.py``). A ``NUMBA_CACHE_DIR`` set by the
+user is respected as is. :func:`configure` runs once, from the package's ``__init__``, before any kernel module is
+imported; ``rsrivc_warmup`` fills the cache.
 """
 
 from __future__ import annotations
@@ -23,6 +16,8 @@ import os
 import sys
 import tempfile
 from pathlib import Path
+
+from ._version import __version__
 
 #: set in the environment by :func:`configure` so that child processes can tell an inherited automatic
 #: ``NUMBA_CACHE_DIR`` (recomputed for their own sources) from one the user set.
@@ -64,8 +59,6 @@ def default_root() -> Path:
 
 def cache_dir() -> Path:
     """The writable, source-keyed kernel cache directory (created if needed)."""
-    from . import __version__
-
     name = f"numba-{__version__}-{source_hash()}"
     for root in (default_root(), Path(tempfile.gettempdir()) / f"additive_rsrivc_ros-{os.getuid()}"):
         if _writable(root / name):

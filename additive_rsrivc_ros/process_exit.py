@@ -2,7 +2,7 @@
 
 At exit CPython collects every container object once more. After numba has loaded its kernels, its type system and
 LLVM wrappers are hundreds of thousands of objects, and that last collection took 0.55-0.65 s of a 4-5 s
-``rsrivc_diagnose`` run on the bundled bag (``gc.freeze()`` before exit: 0.08 s; measured 2026-11-27). By then the
+``rsrivc_diagnose`` run on the bundled bag (``gc.freeze()`` before exit: 0.08 s measured). By then the
 work is done and every output is closed, so :func:`console_entry` moves all objects to the permanent generation
 (``gc.freeze``) when ``main`` ran as a console script (``argv is None``). atexit handlers, the flushing of the standard
 streams and module teardown still run; only objects in reference cycles are left to the operating system. A ``main``

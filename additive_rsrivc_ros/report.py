@@ -1,19 +1,11 @@
-"""Human report of an offline diagnosis: one self-contained HTML file with inline SVG figures.
+"""Human report of an offline diagnosis: one self-contained HTML file with inline SVG figures (:mod:`.svgplot`).
 
-Used by ``rsrivc_diagnose`` (``DIR/report.html`` and ``DIR/modes.svg``). Contents, top to bottom:
-
-* a verdict line (:mod:`.verdict`: structural faults found or not, and for how many seconds the fault tests
-  actually ran), where and why the tests were blind, and a per-mode summary table;
-* per mode, natural frequency (Hz), damping ratio and gain over time with +-2 sigma bands (sigma from
-  ``sigma^2 P_bar`` by the delta method, 000 eq. 32 and :func:`.core.model.modal_std`), the learned
-  baseline, the truth when the bag has ``/truth/modes``, and the fault intervals shaded;
-* a fault timeline (detected events, the bag's ``/truth/fault`` schedule, estimator health);
-* the model's frequency response at the start and at the end of the bag over a nonparametric estimate
-  from the data (as in 000 Figs. 7 and 12): closed loop ``G = S_ry / S_ru`` (cross-spectra with the
-  reference, which is uncorrelated with the noise), open loop ``G = S_uy / S_uu``;
-* the estimator health over time and the parameters used.
-
-The figures are SVG from :mod:`.svgplot` (milliseconds; matplotlib took 2.6 s of a 6 s diagnosis, issue 16).
+``rsrivc_diagnose`` writes it as ``DIR/report.html`` (and ``DIR/modes.svg``). Top to bottom: the verdict line
+(:mod:`.verdict`: faults found or not, how long the tests ran, where and why they were blind) and a per-mode table; per
+mode the frequency, damping and gain over time with ±2σ bands (delta method, :func:`.core.model.modal_std`), the
+baseline, the truth when the bag has ``/truth/modes`` and the fault intervals; a fault timeline with the estimator's
+health; the model's frequency response at the start and the end over the nonparametric estimate (as in [RA-SRIVC] Figs.
+7 and 12: closed loop ``S_ry / S_ru``, open loop ``S_uy / S_uu``); the health over time and the parameters.
 """
 
 from __future__ import annotations
@@ -203,7 +195,7 @@ class ReportInput:
 
 # ------------------------------------------------------------------------------------------------- numerics
 def thetas_from_modal(modal: np.ndarray, structures: Sequence[SubmodelStructure]) -> list[np.ndarray] | None:
-    """Rebuild theta (000 eq. 7) from ``[f, zeta, gain]`` per mode; None if a mode is not representable."""
+    """Rebuild theta ([RA-SRIVC] eq. 7) from ``[f, zeta, gain]`` per mode; None if a mode is not representable."""
     out = []
     for row, s in zip(np.asarray(modal, float), structures, strict=True):
         f, z, g = (float(v) for v in row[:3])
@@ -224,7 +216,7 @@ def model_frf(thetas: Sequence[np.ndarray], structures: Sequence[SubmodelStructu
               rate_hz: float, delay_samples: int = 0) -> np.ndarray:
     """Frequency response of the sampled additive model ``sum_i ZOH{B_i/(p^l_i A_i)}(e^{jwh}) q^-d``: the exact
     ZOH discretization of :func:`..core.frf.discrete_model_frf`, which is what a nonparametric estimate from
-    sampled data measures (../shared/NOTES.md)."""
+    sampled data measures."""
     from .core.frf import discrete_model_frf
 
     return discrete_model_frf(thetas, structures, rate_hz, np.asarray(freqs_hz, float), delay_samples)
@@ -410,7 +402,7 @@ def _fmt_rel(e: Mapping[str, Any]) -> str:
 
 
 def frf_figure(inp: ReportInput) -> Figure | None:
-    """Bode plot: model at the start and at the end over the nonparametric estimates (000 Figs. 7, 12)."""
+    """Bode plot: model at the start and at the end over the nonparametric estimates ([RA-SRIVC] Figs. 7, 12)."""
     s = inp.series
     i0, i1 = s.first_estimate(), s.last_estimate()
     if i0 is None:

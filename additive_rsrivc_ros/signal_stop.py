@@ -2,7 +2,7 @@
 
 ``threading.Event.set`` takes the event's internal lock. A Python signal handler runs in the main thread between two
 bytecodes, so when the signal lands while the main thread is inside ``Event.wait`` holding that same lock, the
-handler's ``set`` waits for the lock forever. Measured 2026-11-27: ``rsrivc_replay --loop`` hung on SIGTERM in about
+handler's ``set`` waits for the lock forever. Measured: ``rsrivc_replay --loop`` hung on SIGTERM in about
 1 of 20 runs, stack ``handler -> Event.set -> Condition.__enter__`` on top of ``Event.wait -> Condition.__enter__``
 (a CI failure of ``test_sigterm_stops_cleanly``).
 

@@ -1,7 +1,7 @@
 """Small SVG figures for the reports: lines, bands, spans, bars, markers and text on linear or log axes.
 
 The reports (:mod:`.report`, :mod:`.fleet_report`) need a few plot types, drawn once per run. matplotlib drew them
-in 2.6 s of a 6 s diagnosis, half of it importing itself and rasterizing text (issue 16); the same figures as SVG
+in 2.6 s of a 6 s diagnosis, half of it importing itself and rasterizing text; the same figures as SVG
 take milliseconds, stay sharp at any zoom, and embed in the HTML as text. The API follows matplotlib's object API
 where it overlaps (``Figure.subplots``, ``Axes.plot``, ``fill_between``, ``axvspan``, ``set_ylim`` ...), so the
 figure code reads the same. Sizes are in inches at :data:`PX_PER_IN`, line widths and fonts in points.

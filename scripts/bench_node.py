@@ -1,5 +1,5 @@
 #!/usr/bin/env python3
-"""Benchmark of rsrivc_monitor over DDS (issue 6): the 4096 Hz beam replayed for 60 s with K = 2.
+"""Benchmark of rsrivc_monitor over DDS: the 4096 Hz beam replayed for 60 s with K = 2.
 
 Prints: messages published / received per topic, samples lost and misaligned, node CPU (from
 /proc/<pid>/stat, in cores), the median / p95 delay from a sample's arrival to the estimate that includes
@@ -7,13 +7,13 @@ it (measured inside the node: arrival of the sample's last message -> return of 
 updated the estimator with it), the estimator's real-time factor, the final estimate vs the truth, and, with
 ``--speedups``, the highest loop rate sustained without loss (the bag replayed faster than recorded).
 
-Issue 13 options: ``--hog N`` runs N busy-loop subprocesses beside the node (CPU contention) and says whether the
+Options: ``--hog N`` runs N busy-loop subprocesses beside the node (CPU contention) and says whether the
 node reported every loss (never misaligned or lost in silence); ``--publish-rate HZ`` sets publish_rate_hz (does
 publishing keep up with 4096 Hz x 3 inputs?); ``--rss-absent SECONDS`` instead replays only /plant_input and
 /plant_output (looped; /reference absent) and prints the node's RSS every ``--rss-every`` seconds with the growth
 rate extrapolated to one hour.
 
-Issue 14 item 7: ``--block N`` (default 100; 0 skips it) then replays the same bag as block input (``rsrivc_replay
+``--block N`` (default 100; 0 skips it) then replays the same bag as block input (``rsrivc_replay
 --block N``, node ``block.topic``) into a fresh node and prints its samples lost, gaps and node CPU next to the
 per-sample Float64 figure of the same run. Node CPU is process CPU time over wall time while the bag plays (from
 /proc, sampled every 0.1 s; the replay's own start-up, reading the bag, is left out).
@@ -255,7 +255,7 @@ def rss_absent(bag: Path, domain: int, env: dict, extra: list[str], seconds: flo
 
 
 def report_block(bag: Path, n: int, domain: int, env: dict, extra: list[str], args: Any, per_sample: dict) -> None:
-    """Block input (issue 14 item 7): the same bag as blocks of ``args.block`` rows into a fresh node."""
+    """Block input: the same bag as blocks of ``args.block`` rows into a fresh node."""
     b = run_once(bag, 1.0, domain, env, extra, args.hog, block=args.block)
     e = b["est"]
     aligned = int(e.get("samples_aligned", 0))
@@ -285,7 +285,7 @@ def main() -> int:
                     "highest loss-free loop rate, e.g. 2 4 8")
     ap.add_argument("--speedup-duration", type=float, default=10.0, help="seconds of bag per speed-up run")
     ap.add_argument("--hog", type=int, default=0, help="busy-loop subprocesses running beside the node")
-    ap.add_argument("--block", type=int, default=100, help="rows per block message of the block-input run (issue 14; "
+    ap.add_argument("--block", type=int, default=100, help="rows per block message of the block-input run ("
                     "default 100; 0: no block run)")
     ap.add_argument("--publish-rate", type=float, default=0.0, help="publish_rate_hz of the node (default: the "
                     "params file's)")

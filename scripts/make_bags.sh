@@ -1,5 +1,5 @@
 #!/usr/bin/env bash
-# Regenerate the bundled recordings in bags/ (issue 5). Deterministic: the same code gives the same bytes
+# Regenerate the bundled recordings in bags/. Deterministic: the same code gives the same bytes
 # (checked against bags/SHA256SUMS with --check). Total size ~13 MB (MCAP message indexes are ~60 % of it).
 #   bash scripts/make_bags.sh            # rewrite bags/beam and bags/beam_fault
 #   bash scripts/make_bags.sh --check    # regenerate into a temp dir and compare with bags/SHA256SUMS

@@ -1,5 +1,5 @@
 #!/usr/bin/env python
-"""Issue 13 catalogue: data problems on the bundled bag ``bags/beam_fault`` and what the fault logic makes of them.
+"""Catalogue of data problems on the bundled bag ``bags/beam_fault`` and what the fault logic makes of them.
 
 The bag: 4096 Hz closed loop, mode 2's natural frequency -5 % at 20 s, baseline window about 11-17 s. Each case
 damages the recorded stream (one lost output sample, 40 NaNs, a 2 s pause, one y = 1e300) at 12.2 s (baseline

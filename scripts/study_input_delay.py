@@ -2,8 +2,8 @@
 """A wrong ``input_delay_samples`` on the bundled beam bag (true delay 4 samples at 4096 Hz): what the data say and
 what the monitor says (model-order check, step 0: ``core/adequacy.py``).
 
-1. The offline fit (additive CLSRIVC, 001 eq. 29) of the K = 2 modes on the first 70 % of 15 s at each delay 0-8, and
-   its simulated output error on the held-out rest (``modefind._held_out_error``): how sharply the delay shows.
+1. The offline fit (additive CLSRIVC, [A-SRIVC] eq. 29) of the K = 2 modes on the first 70 % of 15 s at each delay 0-8,
+   and its simulated output error on the held-out rest (``modefind._held_out_error``): how sharply the delay shows.
 2. The whole pipeline (``MonitorPipeline``, as ``rsrivc_diagnose`` runs it) with the configured delay set to 0, 2, 4
    and 8: the model-order check's state, its step-0 finding (the better neighbour and its error ratio), the
    structural events and the end of the health line.

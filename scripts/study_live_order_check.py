@@ -1,5 +1,5 @@
 #!/usr/bin/env python3
-"""The live model-order check on healthy plants: does it cry wolf? (issue 12 item 4, the misfit-run rule)
+"""The live model-order check on healthy plants: does it cry wolf? (the misfit-run rule)
 
 The pipeline checks the model once per run on a window of ``estimator.order_check_memory_lengths`` memory lengths
 after the initialization (``adequacy.ModelOrderCheck``), against the current estimate. A healthy plant whose modes

@@ -1,5 +1,5 @@
 #!/usr/bin/env python
-"""Issue 12 verification: misleading guesses on a HEALTHY plant never raise a structural alarm.
+"""Misleading guesses on a HEALTHY plant never raise a structural alarm.
 
 The plant: the beam (``beam_healthy`` scenario: 4096 Hz closed loop, 4-sample delay, square-wave setpoint; truth
 3.2487 Hz / 0.2348 / 11.81 and 32.972 Hz / 0.01709 / 0.159, two more unmodelled modes at 172 and 183 Hz), constant

@@ -1,13 +1,13 @@
 #!/usr/bin/env python3
-"""Faults on narrow excitation (issue 17 item 3): the 000 §5 loop, four reference lines plus a weak dither.
+"""Faults on narrow excitation: the [RA-SRIVC] §5 loop, four reference lines plus a weak dither.
 
 For each injected change (gain -20 % on mode 1, gain -20 % on mode 2, damping -30 % on mode 2, and no change) and
-each seed, the monitor (``core/pipeline.py`` with the joint confirmation S6 of ``core/joint_check.py``) runs on
-``--duration`` s with the change at ``--change-at`` s. Printed per run: whether S6 was armed and what the baseline's
-joint fit found not identifiable, every event (``ok`` on the changed mode and quantity, ``WRONG`` otherwise), the
-first resonance-peak report on health (``ok``/``WRONG`` by mode and direction), and the delays in memory lengths.
-The totals line counts wrong events and wrong peak reports (the target is 0) and changes detected on the right mode
-by an event or by their resonance peak.
+each seed, the monitor (``core/pipeline.py`` with the joint confirmation of ``core/joint_check.py``) runs on
+``--duration`` s with the change at ``--change-at`` s. Printed per run: whether the joint confirmation was armed and
+what the baseline's joint fit found not identifiable, every event (``ok`` on the changed mode and quantity, ``WRONG``
+otherwise), the first resonance-peak report on health (``ok``/``WRONG`` by mode and direction), and the delays in memory
+lengths. The totals line counts wrong events and wrong peak reports (the target is 0) and changes detected on the right
+mode by an event or by their resonance peak.
 
     python scripts/study_narrow_excitation.py [--seeds 5] [--duration 1200] [--change-at 700]
 """
@@ -27,7 +27,7 @@ MEMORY_S = 50.0
 
 
 def run(change: tuple[int, str, float] | None, seed: int, duration: float, start: float) -> dict:
-    """One run: S6 state, events and resonance-peak reports."""
+    """One run: joint-confirmation state, events and resonance-peak reports."""
     mode, quantity, rel = change if change is not None else (0, "gain", 0.0)
     data = simulate_case(Case("narrow", "paper_example", duration, seed, paper_change=(mode, quantity, rel, start)))
     pipe = MonitorPipeline(data.config)

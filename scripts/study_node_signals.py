@@ -1,5 +1,5 @@
 #!/usr/bin/env python3
-"""SIGINT / SIGTERM at a random moment of rsrivc_monitor's life (issue 13): start, configure, activate, numba
+"""SIGINT / SIGTERM at a random moment of rsrivc_monitor's life: start, configure, activate, numba
 compilation, the offline initialization, steady estimation. A replay of the bundled 4096 Hz beam bag runs (looped)
 the whole time; every trial starts the node with config/beam.yaml and a copy of a valid state file, sends SIGINT or
 SIGTERM after a uniformly random delay and checks the exit: exit code, a traceback in the output, and the state

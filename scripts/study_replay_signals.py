@@ -4,7 +4,7 @@ additive_rsrivc_ros.signal_stop). Each trial plays a 0.5 s, 1 kHz, three-topic b
 signal after a uniformly random 1-3 s and waits up to 15 s for the exit. A hang is aborted with SIGABRT so that
 ``-X faulthandler`` prints every thread's stack. Prints one row per outcome and the stop latency.
 
-Before the fix (``threading.Event.set`` in the handler) about 1 trial in 20 hung; measured 2026-11-27.
+Before the fix (``threading.Event.set`` in the handler) about 1 trial in 20 hung.
 
     python scripts/study_replay_signals.py [--trials 120] [--seed 0]
 """

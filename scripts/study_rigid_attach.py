@@ -1,5 +1,5 @@
 #!/usr/bin/env python3
-"""Attach to a moving rigid body (issue 17 item 1): the monitor starts at many phases of the ``rigid_body`` scenario.
+"""Attach to a moving rigid body: the monitor starts at many phases of the ``rigid_body`` scenario.
 
 The plant ``1/p^2`` + 8 Hz + 25 Hz modes under PD control follows a 0.5 Hz square-wave setpoint, so at any attach
 time its position and velocity are not zero. For each attach time the estimator (offline initialization over

@@ -1,7 +1,7 @@
 #!/usr/bin/env python
 """Other CPUs' rounding, emulated: the misleading-guess cases of ``study_misleading_guesses.py`` (healthy beam) run
 from guesses scaled by ``1 + j 1e-12`` (j = 0..N-1), each a different rounding path through the same data, as
-another machine's arithmetic would take (a test that passed here failed on another CPU for that reason, session 17).
+another machine's arithmetic would take (a test that passed here failed on another CPU for that reason).
 
 Per case and path, over every report (not only the end): the seconds of reports with health OK while the estimate is
 wrong (a modelled mode more than 5 % off the nearest true mode, a damping ratio of 1 or more, or a non-finite

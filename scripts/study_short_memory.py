@@ -1,5 +1,5 @@
 #!/usr/bin/env python
-"""Why the beam's mode-2 estimate breaks down at the paper's short memory (000 §6: lambda2 = 0.999 at 4096 Hz).
+"""Why the beam's mode-2 estimate breaks down at the paper's short memory ([RA-SRIVC] §6: lambda2 = 0.999 at 4096 Hz).
 
 Scenario ``sim.scenarios.build("beam", seed)``: 4096 Hz, closed loop, 4-sample delay, K = 2 of 4 plant modes,
 2 Hz square-wave setpoint, mode 2 (33 Hz, zeta 0.017) frequency down 10 % and back over [40, 100] s. Memories
@@ -9,13 +9,13 @@ Subcommands
 -----------
 ``summary MEM2 [--refine R] [--seeds N] [--kernel-opts ...]``
     per seed: RMS relative error (f, zeta, gain) of both modes, max |f error|, fraction of time with |f2 error|
-    > 2 %, the 000 §6 target (mode 2 within 2 % from one memory after the change ends... here: the worst error
+    > 2 %, the [RA-SRIVC] §6 target (mode 2 within 2 % from one memory after the change ends... here: the worst error
     over t >= 10 s outside the change window plus one memory), projections.
 ``trace MEM2 --seed S``
     health signals on a 1/64 s grid: relative f2/zeta2 errors, projections per second, the normalized
     covariance ``D^-1 P_2 D^-1`` (``D = sqrt(P_2(0))``: trace, smallest eigenvalue of its symmetric part,
     asymmetry), the residual-variance ratio ``sigma^2/sigma_noise^2`` and the largest closed-loop pole of the
-    *estimated* model with the known controller (the loop that generates the instrument z, 000 eq. 33).
+    *estimated* model with the known controller (the loop that generates the instrument z, [RA-SRIVC] eq. 33).
     Prints the signals around the worst breakdown and the detection statistics.
 
 Usage: ``python scripts/study_short_memory.py summary 0.244 --seeds 5``.
@@ -54,7 +54,7 @@ def build_estimator(sc, mem: tuple[float, float], refine: int, **opts) -> Recurs
 def model_loop_pole(theta: np.ndarray, ctrl, h: float, delay: int) -> float:
     """Largest |eigenvalue| of the estimated model's noise-free closed loop with the known ``C_d`` and delay.
 
-    This is the loop that generates the instrument ``z = S_uo(q, t_k) r`` (000 eq. 33): modes ZOH-exact
+    This is the loop that generates the instrument ``z = S_uo(q, t_k) r`` ([RA-SRIVC] eq. 33): modes ZOH-exact
     (``x_i+ = Phi_i x_i + Gamma_i u(k - d)``, ``y^ = sum b0_i x_i,0``), a delay line, and ``C_d`` in state space.
     """
     from scipy.signal import tf2ss

@@ -1,7 +1,7 @@
 #!/usr/bin/env python
-"""Is the published std calibrated? Coverage of +-2 sigma per case and quantity (issue 17 item 4).
+"""Is the published std calibrated? Coverage of +-2 sigma per case and quantity.
 
-For every case the recursive estimator (offline start on the first ``init_s``, then 000 Algorithm 2) runs over a
+For every case the recursive estimator (offline start on the first ``init_s``, then [RA-SRIVC] Algorithm 2) runs over a
 stationary simulated plant with known truth; every ``check_s`` the published ``modal()`` (natural frequency,
 damping, gain and their std, the same numbers the node puts on /diagnostics and ~/modes and rsrivc_diagnose
 writes) is compared with the truth. Coverage = fraction of check instants at which ``|estimate - truth| <= 2
@@ -9,17 +9,17 @@ std``; a calibrated Gaussian std gives 95.4 %. The band printed next to it is 95
 ``n_eff = seeds * T / (2 memory)`` effectively independent samples (the error of a forgetting estimator decorrelates
 over about two memory lengths). A NaN std counts as not covered (and is counted). ``mean z`` (signed mean of
 ``(estimate - truth)/std``) far from 0 shows bias; ``sigma^2 P`` is the coverage of the former std
-``sqrt(sigma^2 P_bar)`` (before issue 17 item 4) for comparison.
+``sqrt(sigma^2 P_bar)`` (the former published std) for comparison.
 
 Cases (--case, default all):
 
-* ``broadband_open``: 001 §5.2 plant ``3/(0.25p^2+0.25p+1) + 1/(0.025p^2+0.01p+1)``, 20 Hz, white input var 1,
+* ``broadband_open``: [A-SRIVC] §5.2 plant ``3/(0.25p^2+0.25p+1) + 1/(0.025p^2+0.01p+1)``, 20 Hz, white input var 1,
   white output noise var 0.01, memory 25 s.
-* ``broadband_closed``: the same plant in closed loop with the corrected PID (NOTES erratum 1), white reference
-  var 1.
-* ``narrow_closed``: 000 §5 (3 modes, 4 reference lines), stationary, memory 50 s: identifiability limited by
-  the excitation (NOTES), bias expected.
-* ``beam``: 000 §6 / NOTES, K = 2 of 4 modes, 4096 Hz, 2 Hz square wave, memories 2.44 / 0.244 s (mode 2's memory
+* ``broadband_closed``: the same plant in closed loop with the corrected PID (erratum 1 in docs/DESIGN.md), white
+  reference var 1.
+* ``narrow_closed``: [RA-SRIVC] §5 (3 modes, 4 reference lines), stationary, memory 50 s: identifiability limited by
+  the excitation , bias expected.
+* ``beam``: [RA-SRIVC] §6, K = 2 of 4 modes, 4096 Hz, 2 Hz square wave, memories 2.44 / 0.244 s (mode 2's memory
   is below its decay time 1/(zeta omega) = 0.28 s, and modes 3-4 are not modelled): bias expected.
 
 Windows: ``start`` = the first memory of each mode after the recursion starts, ``steady`` = the rest.

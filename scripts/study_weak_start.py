@@ -1,8 +1,8 @@
 #!/usr/bin/env python3
-"""Good guesses on weakly excited closed-loop data (issue 12, "guesses become a prior"): does the offline
+"""Good guesses on weakly excited closed-loop data: does the offline
 initialization help or hurt the tracking?
 
-The 000 §5 loop (modes at 0.32, 0.80 and 3.18 Hz) with reference lines at 2 and 5 rad/s only -- on modes 1 and 2,
+The [RA-SRIVC] §5 loop (modes at 0.32, 0.80 and 3.18 Hz) with reference lines at 2 and 5 rad/s only -- on modes 1 and 2,
 none on mode 3 -- plus a weak white dither (std ``--dither``). Guesses are ``--offset`` off (frequency x (1 +
 offset), damping x (1 + 5 offset), gain x (1 - 3 offset)). Per seed the estimator runs on the same data with
 ``estimator.init_method`` ``auto`` with the guesses as a prior (``estimator.guess_spread``, default), ``auto`` without

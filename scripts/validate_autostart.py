@@ -1,5 +1,5 @@
 #!/usr/bin/env python3
-"""Automatic start over random closed-loop plants (issue 12 verification): no guesses, ``modes.count: 0``.
+"""Automatic start over random closed-loop plants: no guesses, ``modes.count: 0``.
 
 Each plant: 1-4 modes log-uniform in 1 Hz - 1 kHz (below a fifth of the loop rate, neighbours at least 1.3x apart),
 damping 0.005-0.3 log-uniform, DC gain 0.2-1 log-uniform; loop 1-8 kHz; input delay 0-2 samples; a PI controller
@@ -26,7 +26,7 @@ attaches to a running machine (the default records start from rest).
 
 ``--timing N``: the automatic start as the node and rsrivc_diagnose run it (``MonitorPipeline`` without guesses,
 ``init_duration_s`` 20 s) on N random plants with K = 4 at 4096 Hz, 20 s each: prints the time from the full window
-to the first estimate (issue 12 target < 2 s) and where it goes (FRF, the order scan's fits and held-out errors, the
+to the first estimate (target < 2 s) and where it goes (FRF, the order scan's fits and held-out errors, the
 check of the start, the estimator's initialization).
 """
 

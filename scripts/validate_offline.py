@@ -1,21 +1,21 @@
 #!/usr/bin/env python3
-"""Monte Carlo validation of the offline estimators (issue 3); prints tables, returns 0 if every check passes.
+"""Monte Carlo validation of the offline estimators; prints tables, returns 0 if every check passes.
 
 Cases (run all, or pick with --case):
-  cl52    001 §5.2 closed loop: h = 0.05 s, N = 10000, white r (var 1), white noise (var 0.01), corrected PID,
+  cl52    [A-SRIVC] §5.2 closed loop: h = 0.05 s, N = 10000, white r (var 1), white noise (var 0.01), corrected PID,
           start beta*(1 + U(-0.05, 0.05)), tol 1e-7. Additive CLSRIVC vs unfactored SRIVC and CLSRIVC (split
           into the additive form). Checks: all converge, |bias| <= 0.3 sigma (with the Monte Carlo error of
           the mean added), MSE within 1.3x of the reference figures, additive beats SRIVC on a12 and a22.
-          Also printed: the asymptotic variances of this experiment (optimal-instrument IV bound, 001 Theorem 1;
+          Also printed: the asymptotic variances of this experiment (optimal-instrument IV bound, [A-SRIVC] Theorem 1;
           Cramer-Rao bound of the direct approach), MSE against them, and which reference figures lie below
           the Cramer-Rao bound.
-  bcd     002 case study 1 (open loop): h = 0.005 s, N = 10000, white u (var 1), white noise (var 1), start
-          within 10 %. MSE of the equivalent unfactored parameters vs the BCD row of 002 Table 1.
-  uns     003 §7.1 unstable plant (-0.5p + 1)/(p^2 - 0.1414 p + 2) under the discrete PID, h = 0.1, N = 15000,
-          r var 1, noise var 0.05; LSSVF-uns init; SRIVC-uns and CLSRIVC-uns vs 003 Table 1.
-  int     003 §7.4 integrator plant (p - 2)/(p (p + 1)), h = 0.1, N = 15000, noise var 0.2, open loop
+  bcd     [BCD-SRIVC] case study 1 (open loop): h = 0.005 s, N = 10000, white u (var 1), white noise (var 1), start
+          within 10 %. MSE of the equivalent unfactored parameters vs the BCD row of [BCD-SRIVC] Table 1.
+  uns     [UNS-SRIVC] §7.1 unstable plant (-0.5p + 1)/(p^2 - 0.1414 p + 2) under the discrete PID, h = 0.1, N = 15000,
+          r var 1, noise var 0.05; LSSVF-uns init; SRIVC-uns and CLSRIVC-uns vs [UNS-SRIVC] Table 1.
+  int     [UNS-SRIVC] §7.4 integrator plant (p - 2)/(p (p + 1)), h = 0.1, N = 15000, noise var 0.2, open loop
           (u var 1) and closed loop (C = -0.249 - 2.07 (1 - q^-1), r var 1); solutions 1 (monic) and 2
-          (forced integrator) vs 003 Table 4.
+          (forced integrator) vs [UNS-SRIVC] Table 4.
   speed   time of a K = 2 additive CLSRIVC on N = 10000 (target < 1 s).
 
 Usage: python scripts/validate_offline.py [--runs N] [--case cl52 bcd uns int speed] [--seed S] [--paths J ...]
@@ -107,10 +107,10 @@ def case_cl52(runs: int, seed: int) -> bool:
             res = identify(u, y, 1 / h, [MODE, MODE], start, r=r, controller=ctrl, method=m, tol=1e-7)
             conv[m] += res.converged
             est[m].append(res.beta)
-    print(f"\n=== 001 §5.2 closed loop, {runs} runs, N = {N} ({time.perf_counter() - t0:.1f} s) ===")
+    print(f"\n=== [A-SRIVC] §5.2 closed loop, {runs} runs, N = {N} ({time.perf_counter() - t0:.1f} s) ===")
     ref = cl52_reference_mse()
     bound_iv, bound_cr = cl52_asymptotic_variances(h, N, ctrl_tf=(PID_NUM, PID_DEN), seed=seed + 1)
-    rows = {"truth": list(truth), "reference MSE": list(ref), "IV bound (001 Thm 1)": list(bound_iv),
+    rows = {"truth": list(truth), "reference MSE": list(ref), "IV bound ([A-SRIVC] Thm 1)": list(bound_iv),
             "Cramer-Rao (direct)": list(bound_cr), "reference/Cramer-Rao": list(ref / bound_cr)}
     for m in methods:
         e = np.array(est[m])
@@ -158,8 +158,8 @@ def case_cl52(runs: int, seed: int) -> bool:
 
 
 def cl52_asymptotic_variances(h: float, N: int, ctrl_tf, seed: int, n_long: int = 200_000):
-    """Asymptotic variances at N samples of [a11, a12, b10, a21, a22, b20] for the 001 §5.2 experiment: the
-    optimal-instrument IV bound (001 Theorem 1 / Corollary 1; gradients driven by S_uo r) and the Cramer-Rao bound
+    """Asymptotic variances at N samples of [a11, a12, b10, a21, a22, b20] for the [A-SRIVC] §5.2 experiment: the
+    optimal-instrument IV bound ([A-SRIVC] Theorem 1 / Corollary 1; gradients driven by S_uo r) and the Cramer-Rao bound
     of the direct approach (gradients driven by the measured input, fed-back noise included)."""
     rng = np.random.default_rng(seed)
     r = rng.standard_normal(n_long)
@@ -175,7 +175,7 @@ def case_bcd(runs: int, seed: int) -> bool:
     truth = [np.array([0.25, 0.25, 3.0]), np.array([0.01, 0.0025, 1.0])]
     h, N = 0.005, 10000
     tu, su = to_unfactored(truth, [MODE, MODE])
-    # 002 Table 1 order: a1..a4, b0, b1, b2 (b3 = 0 by structure)
+    # [BCD-SRIVC] Table 1 order: a1..a4, b0, b1, b2 (b3 = 0 by structure)
     ref = np.array([3.41e-4, 3.45e-5, 1.62e-8, 2.16e-10, 2.41e-2, 4.45e-3, 9.04e-5])
     rng = np.random.default_rng(seed)
     est, conv = [], 0
@@ -191,22 +191,22 @@ def case_bcd(runs: int, seed: int) -> bool:
     e = np.array(est)
     mse = ((e - tu) ** 2).mean(0)
     cr = _bcd_cramer_rao(truth, h, N, seed + 1)
-    print(f"\n=== 002 case study 1 (BCD, open loop), {runs} runs ({time.perf_counter() - t0:.1f} s), "
+    print(f"\n=== [BCD-SRIVC] case study 1 (BCD, open loop), {runs} runs ({time.perf_counter() - t0:.1f} s), "
           f"converged {conv}/{runs} ===")
     _table("equivalent unfactored parameters", ["a1", "a2", "a3", "a4", "b0", "b1", "b2"],
-           {"truth": list(tu), "002 Table 1 BCD MSE": list(ref), "Cramer-Rao": list(cr),
+           {"truth": list(tu), "[BCD-SRIVC] Table 1 BCD MSE": list(ref), "Cramer-Rao": list(cr),
             "Table 1/Cramer-Rao": list(ref / cr), "MSE": list(mse), "MSE/ref": list(mse / ref),
             "MSE/Cramer-Rao": list(mse / cr)})
     ok = np.all(mse <= 1.3 * ref)
     mc = np.all(mse <= 1.3 * ref * (1 + 2 * np.sqrt(2 / runs)))
-    print(f"checks: MSE <= 1.3 x 002 Table 1 (BCD) {ok} (worst ratio {np.max(mse / ref):.2f}); within 1.3 x plus "
+    print(f"checks: MSE <= 1.3 x [BCD-SRIVC] Table 1 {ok} (worst ratio {np.max(mse / ref):.2f}); within 1.3 x plus "
           f"two Monte Carlo standard errors of a {runs}-run MSE (x{1 + 2 * np.sqrt(2 / runs):.2f}): {mc}")
     return bool(ok and conv == runs)
 
 
 def _bcd_cramer_rao(truth, h: float, N: int, seed: int) -> np.ndarray:
-    """Cramer-Rao bound at N samples of the equivalent unfactored parameters [a1..a4, b0..b2] of 002 case study 1
-    (white input and noise of unit variance): the additive bound mapped by the Jacobian of ``to_unfactored``."""
+    """Cramer-Rao bound at N samples of the equivalent unfactored parameters [a1..a4, b0..b2] of [BCD-SRIVC] case study
+    1 (white input and noise of unit variance): the additive bound mapped by the Jacobian of ``to_unfactored``."""
     u = np.random.default_rng(seed).standard_normal(400_000)
     cov = second_order_gradient_covariance(truth, h, u, 1.0, skip=4000) / N
     x0 = np.concatenate(truth)
@@ -255,7 +255,7 @@ def case_uns(runs: int, seed: int) -> bool:
             conv[m] += res.converged
             if res.converged:
                 est[m].append(res.beta)
-    print(f"\n=== 003 §7.1 unstable plant, {runs} runs ({time.perf_counter() - t0:.1f} s) ===")
+    print(f"\n=== [UNS-SRIVC] §7.1 unstable plant, {runs} runs ({time.perf_counter() - t0:.1f} s) ===")
     ref_sd = {"srivc-uns": np.array([1.49e-3, 1.00e-3, 3.82e-3, 1.17e-3]),
               "clsrivc-uns": np.array([1.53e-3, 1.12e-3, 3.96e-3, 2.10e-3])}
     # the paper's a2 = 0.5 etc. are for the monic-denominator scaling (p^2 + ...); Table 1 lists
@@ -315,7 +315,7 @@ def case_int(runs: int, seed: int) -> bool:
             conv[(loop, 2)] += res2.converged
             a1p, bp = res2.beta[0], res2.beta[1:]          # B'/(p (1 + a1' p)) = (B'/a1') / (p^2 + p/a1')
             out[(loop, 2)].append(np.concatenate(([0.0, 1.0 / a1p], bp / a1p)))   # monic [a0 = 0, a1, b0, b1]
-    print(f"\n=== 003 §7.4 integrator plant, {runs} runs ({time.perf_counter() - t0:.1f} s) ===")
+    print(f"\n=== [UNS-SRIVC] §7.4 integrator plant, {runs} runs ({time.perf_counter() - t0:.1f} s) ===")
     ref = {("open", 1): ([4.43e-4, 1.08e-4, 4.30e-4, 5.08e-4], 2.31e-12),
            ("open", 2): ([1.65e-4, 1.10e-4, 4.37e-4, 5.04e-4], 0.0),
            ("closed", 1): ([-3.73e-3, 1.50e-3, 3.27e-3, 1.35e-3], 7.28e-7),

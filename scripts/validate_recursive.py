@@ -1,22 +1,22 @@
 #!/usr/bin/env python
-"""Monte Carlo validation of the recursive additive RSRIVC engine (issue 4, "Verification").
+"""Monte Carlo validation of the recursive additive RSRIVC engine.
 
-Prints, for the 000 §5 scenario (../shared/NOTES.md: 3 modes, 20 Hz, corrected PID, noise var 0.01,
+Prints, for the [RA-SRIVC] §5 scenario (3 modes, 20 Hz, corrected PID, noise var 0.01,
 raised-cosine ramps: omega1 -20 % and zeta2 -50 % over [100, 300] s, omega3 -15 % and zeta3 -30 % over
 [500, 800] s), the RMS relative error over [50, 1000] s of (omega, zeta, gain) in % per mode, averaged
 over seeds, with the issue's limits and the divergence counts:
 
-* closed loop (instrument 000 eq. 33), lambda = 0.999, start +-2 %;
+* closed loop (instrument [RA-SRIVC] eq. 33), lambda = 0.999, start +-2 %;
 * open loop (white input, var 1), start +-2 % and start 10-20 % off;
 
-and for the flexible beam (000 §6 / NOTES: K = 2 of 4 plant modes, 4096 Hz, delay 4, memories 2.44 s
+and for the flexible beam ([RA-SRIVC] §6: K = 2 of 4 plant modes, 4096 Hz, delay 4, memories 2.44 s
 and 0.244 s, second mode's stiffness changed over [40, 100] s): the worst relative frequency errors of
 mode 2 after one memory length past the change and of mode 1.
 
 Usage: ``python scripts/validate_recursive.py [--seeds 10] [--duration 1000] [--beam-duration 130]
 [--filter-policy auto|on|off] [--p0-policy information|relative]`` (``auto``, the product default: the
 prefilter denominator is smoothed over one period only for modes whose memory is shorter than 3 decay times,
-RecursiveAdditiveSRIVC.set_filter_policy; ``off``: 000 Algorithm 2 exactly as printed).
+RecursiveAdditiveSRIVC.set_filter_policy; ``off``: [RA-SRIVC] Algorithm 2 exactly as printed).
 """
 
 from __future__ import annotations
@@ -43,7 +43,7 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--filter-policy", choices=("auto", "on", "off"), default="auto",
                     help="prefilter smoothing (RecursiveAdditiveSRIVC.set_filter_policy); off = Algorithm 2 as printed")
     ap.add_argument("--p0-policy", choices=("information", "relative"), default="information",
-                    help="P(0) after the offline init (beam case; the 000 §5 cases start from primed guesses)")
+                    help="P(0) after the offline init (beam case; the [RA-SRIVC] §5 cases start from primed guesses)")
     args = ap.parse_args(argv)
     fm = args.filter_policy
     print(f"filter policy: {fm}")
@@ -59,7 +59,7 @@ def main(argv: list[str] | None = None) -> int:
         errs = np.array([r["err"] for r in runs if not r["diverged"]])
         ndiv = sum(r["diverged"] for r in runs)
         mean = errs.mean(axis=0) if errs.size else np.full((3, 3), np.nan)
-        print(f"\n000 §5, {name}: {ndiv} of {args.seeds} seeds diverged  ({time.perf_counter() - t0:.1f} s)")
+        print(f"\n[RA-SRIVC] §5, {name}: {ndiv} of {args.seeds} seeds diverged  ({time.perf_counter() - t0:.1f} s)")
         print(f"RMS relative error over {list(window)} s, % (mean over seeds; limit in brackets)")
         print(f"{'mode':>5} {'omega':>16} {'zeta':>16} {'gain':>16}")
         for i in range(3):

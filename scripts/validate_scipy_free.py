@@ -3,8 +3,8 @@
 ``python scripts/validate_scipy_free.py`` prints the largest relative difference of
 ``core.distributions.f_quantile`` from ``scipy.special.fdtri`` over probabilities 1e-6 .. 1 - 1e-6 and degrees of
 freedom 0.5 .. 100000, and of ``core.matrix_exponential.expm`` from ``scipy.linalg.expm`` on the augmented ZOH
-matrices of the offline instrument filters (001 eqs. 10, 20, 31: modes 0.5-400 Hz, damping 0.002-0.7, gains 1e-4 to
-1e4, at 20, 1000 and 4096 Hz) and on random matrices of 1-norm 1e-6 to 300.
+matrices of the offline instrument filters ([A-SRIVC] eqs. 10, 20, 31: modes 0.5-400 Hz, damping 0.002-0.7, gains 1e-4
+to 1e4, at 20, 1000 and 4096 Hz) and on random matrices of 1-norm 1e-6 to 300.
 """
 
 from __future__ import annotations

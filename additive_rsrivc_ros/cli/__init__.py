@@ -1,1 +1,1 @@
-"""Command-line programs (console scripts listed in ../shared/CONTRACT.md)."""
+"""Command-line programs (console scripts listed in docs/INTERFACE.md)."""

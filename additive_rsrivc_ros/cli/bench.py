@@ -1,15 +1,15 @@
-"""``rsrivc_bench [--json]``: speed of the recursive estimator core (issue 4 item 5, CONTRACT "Benchmark").
+"""``rsrivc_bench [--json]``: speed of the recursive estimator core (docs/INTERFACE.md "Benchmark").
 
-Cases (closed loop, instrument 000 eq. 33): K = 3 at 20 Hz (000 §5 plant, corrected PID of NOTES
-erratum 1) with (M_l, M_s) = (1, 0); K = 4 at 4096 Hz (the beam truth of NOTES, modes at about 3, 33,
-172, 183 Hz, 4-sample delay) with (1, 0) and (3, 2). Each prints microseconds per sample and the real-time
+Cases (closed loop, instrument [RA-SRIVC] eq. 33): K = 3 at 20 Hz ([RA-SRIVC] §5 plant, corrected PID,
+erratum 1 in docs/DESIGN.md) with (M_l, M_s) = (1, 0); K = 4 at 4096 Hz (the beam truth of ``sim/plants.py``, modes at
+about 3, 33, 172, 183 Hz, 4-sample delay) with (1, 0) and (3, 2). Each prints microseconds per sample and the real-time
 factor ``(1/rate) / time per sample``. ``start_to_first_estimate_s`` is measured in a fresh Python process
 (import, build, one update) with the kernel cache the setup fills (``rsrivc_warmup``); ``cold_start`` adds the
 same with an empty cache in the same run (what a user without the cache would wait). ``diagnose_4096hz_k2``: a
-fresh ``rsrivc_diagnose`` process on a simulated 60 s beam bag, report included (issue 16).
+fresh ``rsrivc_diagnose`` process on a simulated 60 s beam bag, report included.
 ``first_estimate_after_init_s``: a fresh process (kernels loaded first, as the node does) from the batch that completes
-the init window to the first estimate (issue 16 item 1). ``autostart_4096hz_k4``: the automatic start without guesses on
-20 s of the K = 4 beam, from the full window to the first estimate (issue 12). ``--fleet`` adds the fleet throughput.
+the init window to the first estimate. ``autostart_4096hz_k4``: the automatic start without guesses on
+20 s of the K = 4 beam, from the full window to the first estimate. ``--fleet`` adds the fleet throughput.
 The text output prints each issue's target next to its figure. BLAS threads are set to 1 before numpy is imported.
 """
 
@@ -216,7 +216,7 @@ def diagnose_figure(seconds: float = 60.0, runs: int = DIAGNOSE_RUNS) -> dict[st
 
 
 def autostart_figure(seconds: float = 20.0) -> dict[str, float]:
-    """The automatic start (issue 12: no guesses, ``modes.count: 0``) as the node and ``rsrivc_diagnose`` run it
+    """The automatic start (no guesses, ``modes.count: 0``) as the node and ``rsrivc_diagnose`` run it
     (``MonitorPipeline``, ``init_duration_s`` = ``seconds``) on the K = 4 beam of the kernel cases at 4096 Hz
     (closed loop, 2 Hz square-wave setpoint): ``start_s``, the seconds from the full window to the first estimate
     (the search for the modes, the check of the start and the estimator's offline initialization; its second run in
@@ -262,7 +262,7 @@ CASES = {"k3_20hz_closed_1_0": ("k3", 1, 0), "k4_4096hz_closed_1_0": ("k4", 1, 0
 @console_entry
 def main(argv: list[str] | None = None) -> int:
     ap = argparse.ArgumentParser(prog="rsrivc_bench", description="Speed figures of the recursive estimator.")
-    ap.add_argument("--json", action="store_true", help="print one JSON object (CONTRACT)")
+    ap.add_argument("--json", action="store_true", help="print one JSON object (docs/INTERFACE.md)")
     ap.add_argument("--seconds", type=float, default=None, help="simulated seconds per case (default 1000/20)")
     ap.add_argument("--diagnose-seconds", type=float, default=60.0,
                     help="seconds of the simulated bag for the rsrivc_diagnose figure (default 60)")
@@ -291,7 +291,7 @@ def main(argv: list[str] | None = None) -> int:
     else:
         print(f"{'case':<24} {'us/sample':>10} {'x real time':>12}")
         for key in CASES:
-            target = "  (target <= 0.5 us/sample, issue 16)" if key == "k4_4096hz_closed_1_0" else ""
+            target = "  (target <= 0.5 us/sample)" if key == "k4_4096hz_closed_1_0" else ""
             print(f"{key:<24} {out[key]['us_per_sample']:10.3f} {out[key]['realtime_factor']:12.1f}{target}")
         cs, dg, st = out["cold_start"], out["diagnose_4096hz_k2"], out["autostart_4096hz_k4"]
         print("kernels: " + ("served ahead of time (rsrivc_warmup's extension)" if out["kernels"] == "ahead_of_time"
@@ -299,7 +299,7 @@ def main(argv: list[str] | None = None) -> int:
         print(f"start to first estimate: {cs['warm_cache_s']:.3f} s with the setup's kernel cache, "
               f"{cs['empty_cache_s']:.1f} s with an empty one (numba compiles)")
         print(f"first estimate after the init window: {out['first_estimate_after_init_s']:.3f} s of computation in a "
-              "fresh process with the setup's kernel cache (4096 Hz beam, K = 2); target <= 1.5 s (issue 16)")
+              "fresh process with the setup's kernel cache (4096 Hz beam, K = 2); target <= 1.5 s")
         print(f"rsrivc_diagnose of {dg['seconds_of_data']:g} s of 4096 Hz data (K = 2, report): process "
               f"{dg['process_s']:.2f} s (fastest of {dg['runs']}, median {dg['process_median_s']:.2f}; "
               f"{dg['process_jit_s']:.2f} s under numba's JIT); read {dg['read_s']:.2f}, "
@@ -308,7 +308,7 @@ def main(argv: list[str] | None = None) -> int:
         print(f"automatic start (no guesses) on {st['seconds_of_data']:g} s of the 4096 Hz beam: "
               f"{st['start_s']:.2f} s from the full window to the first estimate (search {st['search_s']:.2f} s), "
               f"{st['modes_found']} of {st['modes_true']} modes found (largest frequency error "
-              f"{100 * st['max_frequency_error']:.3g} %); target < {st['target_s']:g} s (issue 12)")
+              f"{100 * st['max_frequency_error']:.3g} %); target < {st['target_s']:g} s")
         if "fleet" in out:
             fl = out["fleet"]
             print(f"fleet: {fl['bags_per_min_1_worker']:.1f} bags/min with 1 worker, "

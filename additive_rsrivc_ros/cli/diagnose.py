@@ -1,21 +1,12 @@
 """``rsrivc_diagnose BAG --params-file YAML [--out DIR]``: offline diagnosis of a rosbag2 (MCAP or sqlite3).
 
-Runs the same :class:`..core.pipeline.MonitorPipeline` as the node (``rsrivc_monitor``), configured by
-the node's own params file, over the samples of a bag read by :func:`..bagio.read_signals` (which
-checks topics, types, counts, sample spacing and reports NaNs). Writes into DIR (default
-``./rsrivc_out/<bag name>``), as specified in ../shared/CONTRACT.md "Offline results":
-
-* ``estimates.csv``: one row per mode per output instant at which an estimate exists;
-* ``events.csv``: one row per structural fault event (empty clear time while open);
-* ``summary.json``: verdict (:mod:`..verdict`: ``verdict`` OK | FAULT | DEGRADED | NO ESTIMATE, ``monitored_s``,
-  ``blind_intervals``), per-mode final values, events, timings, health and parameters;
-* ``report.html`` (self-contained, :mod:`..report`) and ``modes.svg`` (the modal-estimates figure).
-
-DIR is written all-or-nothing (:class:`.atomic.AtomicDir`): the files go to a temporary sibling folder that
-replaces DIR (an older run's folder is replaced whole) only when complete. Prints a verdict and a per-mode
-summary table to stdout. Bad input (params file, bag) gives one line on stderr and exit status 2;
-``--fail-on-fault`` makes a detected fault exit with status 3; SIGINT/SIGTERM give one line, exit status
-130/143 and DIR as it was.
+Runs the node's :class:`..core.pipeline.MonitorPipeline`, configured by the node's params file, over the samples of a
+bag read and checked by :func:`..bagio.read_signals`. Writes ``estimates.csv``, ``events.csv``, ``summary.json``
+(verdict from :mod:`..verdict`), ``report.html`` (:mod:`..report`) and ``modes.svg`` into DIR (default
+``./rsrivc_out/<bag name>``; formats in docs/INTERFACE.md "Offline results"). DIR is written all-or-nothing
+(:class:`.atomic.AtomicDir`): a temporary sibling folder replaces it only when complete. Prints the verdict and a
+per-mode table. Exit status 2 with one line on bad input, 3 for a fault with ``--fail-on-fault``, 130/143 on
+SIGINT/SIGTERM (DIR left as it was).
 """
 
 from __future__ import annotations
@@ -44,6 +35,7 @@ from ..core.vocabulary import (
     one_line,
 )
 from ..process_exit import console_entry
+from .parser import OneLineParser
 
 if TYPE_CHECKING:
     from ..bagio import Signals
@@ -55,14 +47,8 @@ if TYPE_CHECKING:
 PROG = "rsrivc_diagnose"
 
 
-class _Parser(argparse.ArgumentParser):
-    def error(self, message: str) -> None:  # one line instead of a usage dump
-        print(f"{PROG}: error: {message}", file=sys.stderr)
-        raise SystemExit(2)
-
-
 def _parser() -> argparse.ArgumentParser:
-    p = _Parser(prog=PROG, description="Diagnose a rosbag2 offline with the monitor's estimator and fault logic.")
+    p = OneLineParser(prog=PROG, description="Diagnose a rosbag2 offline with the monitor's estimator and fault logic.")
     p.add_argument("bag", help="rosbag2 directory (mcap or sqlite3)")
     p.add_argument("--params-file", required=True, help="the node's params YAML (additive_rsrivc_monitor: ...)")
     p.add_argument("--out", help="output directory (default: ./rsrivc_out/<bag name>)")
@@ -163,7 +149,7 @@ def run_pipeline(sig: Signals, cfg: MonitorConfig, *, chunk_s: float = 1.0, prog
 
 
 def write_estimates_csv(path: Path, reports: Sequence[Report]) -> int:
-    """CONTRACT estimates.csv; one row per mode per report with an estimate. Returns the row count."""
+    """estimates.csv (docs/INTERFACE.md); one row per mode per report with an estimate. Returns the row count."""
     import numpy as np
 
     rows = 0
@@ -190,7 +176,7 @@ def event_dict(e: FaultEvent) -> dict[str, Any]:
 
 
 def write_events_csv(path: Path, events: Sequence[FaultEvent]) -> None:
-    """CONTRACT events.csv (empty clear time while open)."""
+    """events.csv (docs/INTERFACE.md) (empty clear time while open)."""
     with path.open("w", newline="", encoding="utf-8") as fh:
         w = csv.writer(fh, lineterminator="\n")
         w.writerow(EVENTS_HEADER)
@@ -426,7 +412,7 @@ def diagnose_bag(bag: str | Path, params_file: str | Path, out_dir: str | Path, 
 
 
 def identifiability_timeline(reports: list[Report]) -> list[dict[str, Any]]:
-    """summary.json ``identifiability``: every joint check (S6, core/joint_check.py) once: its time, whether it armed
+    """summary.json ``identifiability``: every joint check (core/joint_check.py) once: its time, whether it armed
     the joint confirmation, what the excitation did not identify jointly and the resonance-peak changes it saw."""
     out: list[dict[str, Any]] = []
     for rep in reports:

@@ -9,7 +9,7 @@ in 0.1 s blocks (as the node does) and scored against the injected faults:
 * **false alarms per hour** of healthy monitored data (monitoring phase, before any structural change);
 * **sensor faults**: reported as estimator/data health during their window, never as structural faults.
 
-Exit status 0 when every target of issue 7 holds, 1 otherwise; 2 on bad arguments.
+Exit status 0 when every detection target holds, 1 otherwise; 2 on bad arguments.
 """
 
 from __future__ import annotations
@@ -75,7 +75,7 @@ def quick_cases() -> list[Case]:
 
 
 def simulate_case(case: Case) -> Any:
-    """The :class:`ScenarioData` of a case (a paper-plant change is built on the 000 §5 plant and config)."""
+    """The :class:`ScenarioData` of a case (a paper-plant change is built on the [RA-SRIVC] §5 plant and config)."""
     from ..sim import scenarios as sc
 
     if case.beam_change is not None:
@@ -92,8 +92,8 @@ def simulate_case(case: Case) -> Any:
     changes = [ModalChange(mode, sim_quantity_of(quantity), rel, start)] if rel != 0.0 else []
     rng = np.random.default_rng([case.seed, 7])
     t = time_vector(cfg.loop_rate_hz, case.duration_s)
-    # the paper's four sines plus a white dither (std 1, as the 001 §5.2 reference): with the sines alone each
-    # mode is excited at one line, and a gain change cannot be told from a frequency change (NOTES)
+    # the paper's four sines plus a white dither (std 1, as the [A-SRIVC] §5.2 reference): with the sines alone each
+    # mode is excited at one line, and a gain change cannot be told from a frequency change
     r = sum_of_sines(t, [3.0, 1.0, 1.0, 1.0], [0.005, 2.0, 5.0, 17.5]) + white_noise(t.size, 1.0, rng)
     v = white_noise(t.size, 0.1, rng)
     sim = simulate_modes(plants.PAPER_MODES, cfg.loop_rate_hz, changes=changes, r=r, controller=cfg.controller,
@@ -198,7 +198,7 @@ def score(data: Any, events: list[FaultEvent], reports: list[dict[str, Any]]) ->
     first_sensor = min((f.start_s for f in data.sensor_faults), default=math.inf)
     healthy_end = min(first_change, first_sensor)
     false_alarms = [e for e in events if e.alarm_time_s < healthy_end]
-    # a resonance-peak change on health (S6) before any change is a false alarm too
+    # a resonance-peak change on health (joint confirmation) before any change is a false alarm too
     false_peaks = sorted({line.split(" resonance")[0] for rp in reports if rp["time_s"] < healthy_end
                           for line in rp.get("peaks", [])})
     misisolated = [e for j, e in enumerate(events) if first_change <= e.alarm_time_s and j not in matched]
@@ -297,7 +297,7 @@ def format_table(res: dict[str, Any]) -> str:
               f"{t['misisolated']}",
               f"sensor faults flagged as health: {t['sensor_faults_health_flagged']}/{t['sensor_faults']}, structural "
               f"alarms during sensor faults: {t['sensor_structural_alarms']}", "",
-              "targets (issue 7):"]
+              "targets:"]
     lines += [f"  {'PASS' if ok else 'FAIL'}  {name}" for name, ok in res["targets"].items()]
     lines.append("('peak': gain and damping not separately identifiable; the mode's resonance peak g/(2 zeta) was "
                  "reported on health instead of an event)")

@@ -12,7 +12,7 @@ mapping file from bag glob to params file (YAML ``{"<glob>": "<params file>", ..
 matched against the bag path as given, its absolute path and its name; relative params paths are relative to the
 mapping file). The bags of one params file, or of one glob of a mapping file, are one machine's recordings.
 
-Fleet summary (../shared/CONTRACT.md "Fleet"), recordings ordered by their first sample's time:
+Fleet summary (docs/INTERFACE.md "Fleet"), recordings ordered by their first sample's time:
 
 * ``fleet.csv``: one row per bag and mode: the mode's level in that bag (median of its estimates while the fault
   tests ran, the final estimate when they never ran; :func:`..core.trend.bag_level`), the learned baseline,
@@ -464,7 +464,7 @@ def fleet_summary(results: Sequence[dict[str, Any]], alpha: float) -> dict[str, 
 
 
 def write_fleet_csv(path: Path, results: Sequence[dict[str, Any]]) -> int:
-    """CONTRACT fleet.csv: one row per bag and mode, bags in order of their first sample's time."""
+    """fleet.csv (docs/INTERFACE.md): one row per bag and mode, bags in order of their first sample's time."""
     ok = sorted((r for r in results if r["ok"]), key=lambda r: (r["start_time_ns"], r["name"]))
     rows = 0
     with path.open("w", newline="", encoding="utf-8") as fh:

@@ -1,21 +1,13 @@
-"""``rsrivc_identify BAG --params-file YAML --out FILE.json [--method NAME]`` (../shared/CONTRACT.md).
+"""Offline (batch) identification of a rosbag2's modes with the monitor's params file (docs/INTERFACE.md).
 
-Offline (non-recursive) identification of the whole bag with the node's params file: the modes' guesses
-(``modes.*``), the controller, the input delay and ``closed_loop`` come from the YAML. Writes one JSON object:
-``method``, ``converged``, ``iterations``, ``modes`` (per mode ``theta``, ``theta_std`` in 000 eq. 7 order,
-``natural_frequency_hz``, ``damping_ratio``, ``gain`` and their ``_std``), ``residual_variance`` (plus
-``cost``, ``cond``, ``projections``, ``message``, ``n_samples``). Exit status 0 on success (also when the
-estimator did not converge: see ``converged``/``message``), 2 with a one-line reason on bad input.
-
-``--modes K|auto`` (or a params file without guesses): the modes are first found from the data
-(``core/modefind.py``: FRF peaks refined by the offline additive (CL)SRIVC, K chosen by held-out output error for
-``auto``); the JSON gains ``frf`` (FRF summary: method, resolution, valid band, peaks), ``order_selection`` (K, fit
-error, validation error, accepted) and ``mode_finding``. ``--out-params FILE.yaml`` writes a complete, commented
-params file for the node (input params + identified ``modes.*``; ``--baseline`` adds ``faults.baseline.*``).
-
-In closed loop the record first goes through the pipeline's stream aligner (``core/alignment.py``): a message lost
-or repeated on one topic is re-aligned by the controller invariant ``u = C_d(q)(r - y)`` (and reported) before the
-screening and the fit.
+``rsrivc_identify BAG --params-file YAML --out FILE.json [--method NAME]``: the guesses (``modes.*``), controller, input
+delay and ``closed_loop`` come from the params file; the JSON object (``method``, ``converged``, ``iterations``,
+``modes`` with ``theta`` in [RA-SRIVC] eq. 7 order and the modal values with their std, ``residual_variance``, ...) is
+described in docs/INTERFACE.md. Exit status 0 on success (also when not converged), 2 with one line on bad input.
+``--modes K|auto`` (or a params file without guesses) first finds the modes from the data (``core/modefind.py``; the
+JSON gains ``frf``, ``order_selection``, ``mode_finding``); ``--out-params FILE.yaml`` writes a complete params file for
+the node (``--baseline`` adds ``faults.baseline.*``). In closed loop the record first goes through the stream aligner
+(``core/alignment.py``), then the screening (``core/screening.py``).
 """
 
 from __future__ import annotations

@@ -1,27 +1,13 @@
-"""``rsrivc_replay BAG [--rate X] [--clock [HZ]] [--loop] [--topics ...] [--stats]``.
+"""``rsrivc_replay BAG [--rate X] [--clock [HZ]] [--loop] [--topics ...] [--block N] [--stats]``.
 
-Publishes a rosbag2 (MCAP or sqlite3, read with ``rosbags``) over DDS at its recorded timing: a
-stand-in for ``ros2 bag play``, which is not available from PyPI (../shared/NOTES.md). Messages are
-forwarded as the raw CDR stored in the bag (``Publisher.publish`` accepts ``bytes`` in Jazzy and calls
-``publish_raw``), so no (de)serialization happens in Python and 4096 Hz x 3 topics are easy to keep up
-with. Timing: every message has an absolute deadline ``start + (log_time - bag_start) / rate`` on the
-monotonic clock; all due messages are published as a batch and the process sleeps until the next
-deadline (at least ``--min-sleep``), so sleep overshoot never accumulates into drift.
-
-``--clock`` also publishes ``/clock`` (``rosgraph_msgs/msg/Clock``) with the bag time, so nodes run
-with ``use_sim_time`` follow the bag. With ``--loop`` the bag time keeps increasing over passes (the
-clock never jumps back); message contents (e.g. header stamps) are replayed unchanged.
-
-``--block N`` (issue 14): instead of the recorded messages, publish the bag's r, u, y as
-``std_msgs/msg/Float64MultiArray`` blocks of N rows on ``--block-topic`` in the monitor's block-input layout
-(../shared/CONTRACT.md: dim[0] ``sample``, dim[1] ``signal`` = 4, columns ``index, reference, input, output``). The
-samples are read and paired like ``rsrivc_diagnose`` reads them (:func:`..bagio.read_signals`: by order, or by log
-time when a topic lost a message, which leaves NaN on the kept grid); ``index`` is the sample's position on the bag's
-sample grid, ``round(t / h)`` with ``h`` the mean sample spacing, so a pause in the recording is an index gap. Each
-block goes out at the log time of its last row. Without ``/reference`` (open loop) the reference column is NaN. With
-``--loop`` the index keeps counting over passes (no controller restart is faked).
-
-Ctrl-C and SIGTERM stop playback cleanly (exit status 0, a one-line note on stderr).
+Publishes a rosbag2 over DDS at its recorded timing, a stand-in for ``ros2 bag play`` (not on PyPI). Messages go out as
+the raw CDR stored in the bag (no (de)serialization in Python), each at the deadline ``start + (log_time - bag_start) /
+rate`` on the monotonic clock, due messages in one batch, so sleep overshoot never accumulates. ``--clock`` also
+publishes ``/clock`` with the bag time for ``use_sim_time`` nodes; with ``--loop`` the bag time keeps increasing over
+passes. ``--block N`` publishes the bag's r, u, y instead as ``Float64MultiArray`` blocks of N rows in the monitor's
+block-input layout (docs/INTERFACE.md), read like ``rsrivc_diagnose`` reads them, ``index`` the sample's position on the
+bag's grid (a pause in the recording is an index gap). Ctrl-C and SIGTERM stop playback cleanly (exit status 0, one line
+on stderr).
 """
 
 from __future__ import annotations

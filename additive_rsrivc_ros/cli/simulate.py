@@ -1,4 +1,4 @@
-"""``rsrivc_simulate``: write a simulated rosbag2 with known truth (../shared/CONTRACT.md, issue 5).
+"""``rsrivc_simulate``: write a simulated rosbag2 with known truth (docs/INTERFACE.md).
 
     rsrivc_simulate --scenario beam_fault --out /tmp/beam_fault [--duration 30] [--seed 0] [--storage mcap]
     rsrivc_simulate --list
@@ -20,16 +20,11 @@ from pathlib import Path
 from typing import Any
 
 from ..process_exit import console_entry
-
-
-class _Parser(argparse.ArgumentParser):
-    def error(self, message: str) -> None:  # one line, no usage dump
-        print(f"rsrivc_simulate: error: {message}", file=sys.stderr)
-        raise SystemExit(2)
+from .parser import OneLineParser
 
 
 def _parser() -> argparse.ArgumentParser:
-    p = _Parser(prog="rsrivc_simulate", description="Write a simulated rosbag2 with known truth (issue 5).")
+    p = OneLineParser(prog="rsrivc_simulate", description="Write a simulated rosbag2 with known truth.")
     p.add_argument("--scenario", help="scenario name (see --list)")
     p.add_argument("--out", help="bag directory to create (must not exist)")
     p.add_argument("--duration", type=float, default=None, help="duration in s (default: the scenario's)")

@@ -1,54 +1,16 @@
-"""Is the model order high enough for what we report? (issue 12 item 4, "K one too few").
+"""Is the model order high enough for what we report? The model-order check (health WARN, never a fault).
 
-A model with one mode too few can be confidently wrong: the estimator fits the modelled modes to the data as well as
-they can, which biases them, and nothing in the recursion (000 Algorithm 2) or in the health checks sees it. A
-deliberately reduced model (the beam's 2 of 4 modes, 000 §6) misfits the data just as significantly, but there the
-unmodelled modes do not move the modelled ones. So the test is about *relevance*, not misfit:
-
-0. **Input delay** (is the configured loop delay the data's?). The K modes are refitted with one sample of input
-   delay more and fewer; a neighbour whose simulated output error is significantly lower (:data:`DELAY_ERROR_RATIO`)
-   flags the configured delay (state ``misfit``, health WARN): a wrong delay biases every mode and would otherwise
-   be read below as unmodelled resonances (a delay of 0 instead of 4 samples on the beam was reported as "add a mode
-   near 50 Hz").
-1. **Misfit** (is anything unmodelled?). On a window of data, the K modelled modes are refitted offline by the
-   additive (CL)SRIVC (001 eq. 29; closed loop through the reference, 001 eq. 20), started from the current
-   estimate, and its discrete frequency response :func:`.frf.discrete_model_frf` is compared with the nonparametric
-   FRF :func:`.frf.estimate_frf` (indirect ``S_yr / S_ur`` in closed loop) on its valid, leakage-free bins. With
-   ``var`` the FRF's complex variance (plus its resolution bias, :attr:`.frf.FRFEstimate.uncertainty`), the
-   normalized misfit ``z_k = |G_k - G_m,k|^2 / var_k`` of a complex Gaussian error is exponential with mean 1:
-   ``P(z > t) = exp(-t)``; a bin misfits significantly when ``z_k > ln(n_bins / alpha)`` (Bonferroni over the
-   bins, ``alpha`` = :data:`ALPHA`).
-2. **Candidate** (where?). The resonance peaks of the residual FRF ``G - G_m`` (:func:`.modefind.find_candidates`:
-   frequency, half-power damping, modal gain) that misfit significantly within two bins of the peak, are not a
-   modelled mode's own residual (farther than ``max(2 resolutions, 2 zeta f)`` from every modelled frequency), and
-   rank by their misfit: the first :data:`MAX_CANDIDATES`.
-3. **Refit with K + 1** (001 eq. 29 again, the candidate as the extra submodel). The extra mode is *real* when the
-   fit is finite with a positive ``a1, a2``, lowers the output-error cost (002 eq. 8), lies in the valid band, and
-   its gain is :data:`N_SIGMA` standard deviations from zero (001 Theorem 1 covariance, delta method). A later
-   candidate that a real extra mode's K + 1 model already fits (no significant misfit within 2.5 bins of it: the
-   skirt of the resonance found, as the 137.5 Hz peak next to the beam's 172 Hz mode) is not refitted
-   (``candidates_explained_hz``): its refit only wandered back onto the resonance found (19 iterations, 40 % of
-   the check on the beam).
-4. **Gross misfit** (is the model the data's at all?). When the estimate checked misfits more than
-   :data:`MISFIT_FRACTION` of the bins while its refit on the window does not, the estimate is a wrong optimum
-   (or still settling) that the refit left: state ``misfit``. When no real extra mode was found but more than
-   :data:`MISFIT_FRACTION` of the bins (and at least :data:`MIN_MISFIT_BINS`) misfit significantly, the model is
-   not describing the data -- a wrong optimum (a start cut from a running loop, modes merged or split) or modes
-   missing where no residual peak shows them: state ``misfit``, health WARN (issue 12 item 4: a wrong optimum is
-   reported on health, never as structural faults). A correct model misfits a few bins at most (measured above).
-   The refit is only the check's tool: when it misfits (it did not converge from a start that fits, e.g. a
-   well-damped mode near a fifth of the loop rate on a 15 s window) while the estimate checked fits the FRF (fewer
-   misfit bins than the start screen's :data:`START_SCREEN_FRACTION`, no run of :data:`MISFIT_RUN_BINS`), the model
-   is not flagged.
-5. **Relevance** (does it matter?). A modelled quantity ``q`` of mode ``i`` (natural frequency, damping, gain) is
-   *moved* when ``|q_K+1 - q_K| > relevance * faults.min_change.q * |q_K|`` and ``> N_SIGMA`` standard deviations
-   of the K + 1 estimate. A real extra mode that moves a modelled quantity means the order is too low *for the
-   quantities we report*: health WARN (never a structural fault), with the frequency of the unmodelled resonance
-   and the change. A real extra mode that moves nothing is recorded (``significant_unmodelled_hz``) and not flagged.
-
-:class:`ModelOrderCheck` is the pipeline's part: it collects ``estimator.order_check_memory_lengths`` x the longest
-memory of contiguous data after the initialization, runs :func:`check_model_order` once per run, and puts the
-finding on health.
+A mode too few biases the modelled ones and nothing in the recursion sees it; a deliberately reduced model (the beam's 2
+of 4 modes, [RA-SRIVC] §6) misfits as much but its unmodelled modes move nothing. So the check is about relevance. On a
+window the K modes are refitted by the offline additive (CL)SRIVC ([A-SRIVC] eq. 29) and compared with the nonparametric
+FRF bin by bin (:mod:`.frf_misfit`): 0. a refit with one sample of input delay more or fewer that predicts significantly
+better (:data:`DELAY_ERROR_RATIO`) flags the delay; 1.-3. the resonances of the residual FRF ``G - G_m`` that misfit
+(:func:`.modefind.find_candidates`, at most :data:`MAX_CANDIDATES`) are refitted as mode K + 1, which is real when it
+lowers the output-error cost ([BCD-SRIVC] eq. 8), lies in the valid band and its gain is :data:`N_SIGMA` stds from zero
+([A-SRIVC] Theorem 1); 4. more than :data:`MISFIT_FRACTION` of the bins (or :data:`MISFIT_RUN_BINS` in a row) misfitting
+with no real extra mode, or an estimate that misfits where its refit does not, is state ``misfit``; 5. a real extra mode
+that moves a modelled quantity by more than ``relevance x faults.min_change`` and ``N_SIGMA`` stds is state ``too_low``.
+:class:`ModelOrderCheck` runs it once per run in the pipeline.
 """
 
 from __future__ import annotations
@@ -63,11 +25,18 @@ import numpy as np
 
 from .controller import DiscreteController
 from .frf import FRFEstimate, estimate_frf, longest_finite, model_frf_on_bins
+from .frf_misfit import (
+    MIN_MISFIT_BINS,
+    MISFIT_RUN_BINS,
+    START_SCREEN_FRACTION,
+    fits_its_frf,
+    longest_misfit_run,
+    misfit,
+)
+from .modefind import OrderRow, _held_out_error, _significant_gain, find_candidates
 from .model import SubmodelStructure, theta_from_modal
 from .vocabulary import MODEL_ORDER_FLAGGED, QUANTITIES, one_line
 
-ALPHA = 0.01
-"""Probability that a model which fits (the FRF error is only noise) shows one significant misfit bin."""
 N_SIGMA = 3.0
 """Standard deviations an extra mode's gain, and a modelled quantity's change, must exceed."""
 MISFIT_FRACTION = 0.15
@@ -77,18 +46,6 @@ with a rigid body): right starts misfit at most 7.2 % of their bins (a rigid-bod
 ones 47-86 %, a wrong start cut after a NaN burst 38 %; the true models of 15 random plants 0-3.6 %. (With the
 lowest mode left out of the 14 with more than one, 7-98 %: 12 of them exceed this share, among them 6 of the 8 the
 check had called adequate.)"""
-START_SCREEN_FRACTION = 0.05
-"""Share of misfit bins of an automatic start on its own window's FRF above which the whole check runs
-(:func:`check_start`). Lower than :data:`MISFIT_FRACTION`: the check's refit can land elsewhere (a rigid-body plant's
-wrong start misfit 5-15 % as found and 83 % refitted)."""
-MIN_MISFIT_BINS = 5
-"""... and at least this many bins (a short FRF has few)."""
-MISFIT_RUN_BINS = 12
-"""Consecutive compared FRF bins that misfit significantly, above which the model is flagged (state ``misfit``) even
-when they are few of all the bins: a band the model misses, as two well-damped modes fitted as one broad lump (22 in
-a row, 8 % of the bins: ``validate_autostart.py --seed 1``, plant 21). Measured: the 139 right automatic starts of the
-four sets misfit at most 7 bins in a row on their own 20 s windows (0.49 Hz bins), the true models of the 60 random
-plants at most 5 on 120 s windows (0.12 Hz bins); a bin misfits by chance with probability ``ALPHA / n``."""
 MAX_CANDIDATES = 3
 """Unmodelled resonances refitted, largest misfit first (each refit costs one offline fit)."""
 MIN_WINDOW_S = 2.0
@@ -215,9 +172,9 @@ def warmup_s(thetas: Sequence[np.ndarray], structures: Sequence[SubmodelStructur
 
 def _fit(u, y, rate_hz: float, r, controller, input_delay: int, structures, thetas, max_iterations: int,
          warmup: float):
-    """Offline additive (CL)SRIVC (001 eq. 29) from ``thetas``, the first ``warmup`` s only warming up the filters;
-    ``None`` if it fails or is not finite. Raises :class:`.filters.ClosedLoopUnstableError` when the controller does
-    not stabilize the start."""
+    """Offline additive (CL)SRIVC ([A-SRIVC] eq. 29) from ``thetas``, the first ``warmup`` s only warming up the
+    filters; ``None`` if it fails or is not finite. Raises :class:`.filters.ClosedLoopUnstableError` when the controller
+    does not stabilize the start."""
     from .filters import ClosedLoopUnstableError
     from .offline import identify
 
@@ -234,30 +191,6 @@ def _fit(u, y, rate_hz: float, r, controller, input_delay: int, structures, thet
     return res if ok and math.isfinite(res.cost) else None
 
 
-def misfit(frf: FRFEstimate, G_model: np.ndarray) -> tuple[np.ndarray, np.ndarray, float]:
-    """``(z, usable, threshold)``: normalized misfit per bin, the valid leakage-free bins, and the Bonferroni
-    threshold ``ln(n / ALPHA)`` of the exponential law of ``z`` (module docstring, step 1)."""
-    usable = frf.valid & ~(frf.leakage if frf.leakage is not None else np.zeros(frf.valid.size, dtype=bool))
-    with np.errstate(divide="ignore", invalid="ignore"):
-        z = np.abs(frf.G - G_model) ** 2 / frf.uncertainty ** 2
-    z = np.where(usable & np.isfinite(z), z, 0.0)
-    n = int(usable.sum())
-    return z, usable, math.log(max(n, 1) / ALPHA)
-
-
-def longest_misfit_run(frf: FRFEstimate, z: np.ndarray, usable: np.ndarray,
-                       threshold: float) -> tuple[int, float, float]:
-    """The longest run of consecutive compared bins that misfit (``z > threshold``): ``(count, from Hz, to Hz)``."""
-    idx = np.flatnonzero(usable)
-    mis = np.concatenate(([False], z[idx] > threshold, [False])).astype(np.int8)
-    starts, stops = np.flatnonzero(np.diff(mis) == 1), np.flatnonzero(np.diff(mis) == -1)
-    if starts.size == 0:
-        return 0, math.nan, math.nan
-    j = int(np.argmax(stops - starts))
-    f = frf.freqs_hz[idx]
-    return int(stops[j] - starts[j]), float(f[starts[j]]), float(f[stops[j] - 1])
-
-
 def _delay_check(fit_K: Any, data: tuple, structures: list[SubmodelStructure], max_iterations: int,
                  warmup: float) -> DelayCheck:
     """Step 0: refit the K modes from ``fit_K`` with the input delay one sample shorter and longer and compare the
@@ -265,7 +198,6 @@ def _delay_check(fit_K: Any, data: tuple, structures: list[SubmodelStructure], m
     input) on the window after its warm-up. A neighbour better by :data:`DELAY_ERROR_RATIO`, paired over the window,
     is :attr:`DelayCheck.better` (the lower error when both are)."""
     from .filters import ClosedLoopUnstableError
-    from .modefind import OrderRow, _held_out_error, _significant_gain
 
     u, y, rate_hz, r, controller, delay = data
     skip = min(int(round(warmup * rate_hz)), u.size // 2)
@@ -306,7 +238,6 @@ def _start_explains(thetas: Sequence[np.ndarray], cand: Any, data: tuple, struct
     at a wrong optimum (guesses 5 and 5.5 Hz on a 5 + 40 Hz loop: the delay one sample shorter "fitted 500 times
     better" because its refit escaped the split mode, and the delay was blamed)."""
     from .filters import ClosedLoopUnstableError
-    from .modefind import _significant_gain
 
     u, y, rate_hz, r, controller, delay = data
     try:
@@ -322,7 +253,6 @@ def _start_explains(thetas: Sequence[np.ndarray], cand: Any, data: tuple, struct
 def _candidates(frf: FRFEstimate, G_model: np.ndarray, z: np.ndarray, usable: np.ndarray, threshold: float,
                 modal_K: np.ndarray, structures: Sequence[SubmodelStructure], input_delay: int) -> list[Any]:
     """Resonances of the residual FRF that misfit significantly and are no modelled mode (step 2), largest first."""
-    from .modefind import find_candidates
 
     res_frf = replace(frf, G=frf.G - G_model)
     out = []
@@ -488,18 +418,6 @@ def check_model_order(thetas: Sequence[np.ndarray], structures: Sequence[Submode
     out.seconds = time.perf_counter() - c0
     out.state, out.message = _verdict(out, thresholds)
     return out
-
-
-def fits_its_frf(frf: FRFEstimate, G_model: np.ndarray) -> bool:
-    """The screen of a model (``G_model``: its FRF on the bins, :func:`.frf.model_frf_on_bins`) against the FRF of its
-    own window (milliseconds): at most :data:`START_SCREEN_FRACTION` of the valid bins (at least
-    :data:`MIN_MISFIT_BINS`) misfit significantly, fewer than :data:`MISFIT_RUN_BINS` of them in a row. Used by
-    :func:`check_start` and by the order scan (:mod:`.modefind`: one mode more than a model that passes has nothing
-    to fit but noise)."""
-    z, usable, thr = misfit(frf, G_model)
-    n_bins, n_mis = int(usable.sum()), int(np.sum(z > thr))
-    return n_mis < max(MIN_MISFIT_BINS, START_SCREEN_FRACTION * n_bins) and \
-        longest_misfit_run(frf, z, usable, thr)[0] < MISFIT_RUN_BINS
 
 
 def check_start(found: Any, r, u, y, rate_hz: float, *, controller: DiscreteController | None = None,

@@ -1,31 +1,14 @@
 """Verified stream alignment from the closed-loop controller invariant (ROS-free).
 
-In closed loop with the known discrete controller ``C_d(q) = N(q^-1)/D(q^-1)`` (000 eq. 10, ascending powers
-of ``q^-1``) aligned data satisfy, sample by sample,
-
-    D(q^-1) u(t_k) = N(q^-1) (r(t_k) - y(t_k))                                   (000 eq. 10 rearranged)
-
-an FIR identity with no state: its residual at ``t_k`` depends only on the last ``order + 1`` samples. If one
-stream lost or repeated a message, the k-th samples of ``r``, ``u`` and ``y`` no longer belong to the same
-instant and the residual jumps from rounding level to the size of the signals' increments. The
-:class:`InvariantAligner` treats the invariant as *evidence*, not as an exact equation (real controllers add
-feedforward, saturation or rounding):
-
-* hypotheses are index offsets ``(a, b)`` of ``u`` and ``r`` against ``y`` (``|a|, |b| <= max_shift``);
-* each hypothesis ``s`` gets a robust per-sample cost ``c_k(s) = log(1 + (e_k(s)/sigma_k)^2)`` (Cauchy
-  negative log-likelihood), where ``sigma_k`` is the larger of the float rounding level of the terms and a
-  running robust scale of the best hypothesis' residual (feedforward/quantization);
-* a CUSUM per alternative ``s`` against the current hypothesis, with a drift of ``drift`` nats per sample
-  in favour of the current one, switches when the evidence exceeds ``switch_nats``; the switch is placed at
-  the CUSUM's last reset (the most likely change point) and the samples since are re-decided;
-* samples are released with a fixed lag, so a change detected within the lag is corrected before any
-  estimator sees it; the ``order + 1`` samples on each side of a re-alignment are released as invalid
-  (NaN: the estimator skips them and keeps its sample grid), and a missing sample of one stream becomes an
-  invalid grid sample, a surplus one is dropped.
-
-What it cannot decide is said: samples whose best alternative is not separated from the current hypothesis
-(no excitation, or an invariant that does not hold) are counted as *undecided*, and the median relative
-residual tells whether the invariant holds to rounding (``verified``) or only approximately.
+With the known discrete controller ``C_d(q) = N(q^-1)/D(q^-1)`` aligned data satisfy ``D(q^-1) u(t_k) = N(q^-1) (r(t_k)
+- y(t_k))`` ([RA-SRIVC] eq. 10), an FIR identity whose residual jumps from rounding level when one stream lost or
+repeated a message. :class:`InvariantAligner` treats it as evidence: hypotheses are offsets ``(a, b)`` of ``u`` and
+``r`` against ``y``; each has the Cauchy cost ``log(1 + (e_k/sigma_k)^2)`` (``sigma_k``: rounding level or the
+residual's robust scale); a CUSUM per alternative, with a drift of ``drift`` nats per sample towards the current one,
+switches at ``switch_nats`` and re-decides the samples since its last reset. Samples are released a fixed lag late, so a
+shift is corrected before the estimator sees it; the samples around a re-alignment are released invalid, a missing
+sample becomes an invalid grid sample, a surplus one is dropped. Undecided samples are counted, and the median relative
+residual says whether the invariant holds to rounding (``verified``).
 """
 
 from __future__ import annotations
@@ -96,7 +79,7 @@ class _Paired(NamedTuple):
 
 def invariant_residual(den: np.ndarray, num: np.ndarray, r: np.ndarray, u: np.ndarray,
                        y: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-    """Residual ``D(q^-1) u - N(q^-1)(r - y)`` (000 eq. 10) and the size of its terms, from sample ``order`` on."""
+    """Residual ``D(q^-1) u - N(q^-1)(r - y)`` ([RA-SRIVC] eq. 10) and the size of its terms from sample ``order``."""
     p = max(den.size, num.size) - 1
     d, nn = np.zeros(p + 1), np.zeros(p + 1)
     d[:den.size], nn[:num.size] = den, num
@@ -112,7 +95,7 @@ def reconstruct_missing(den: np.ndarray, num: np.ndarray, r: np.ndarray, u: np.n
     Only for samples that a lost message left empty: a NaN *value* is a sensor problem the controller saw too.
 
     ``u_k = N(q^-1)(r - y)_k - sum_{i>=1} d_i u_{k-i}`` and ``(r - y)_k = (D(q^-1) u_k - sum_{i>=1} n_i
-    (r - y)_{k-i}) / n_0`` (000 eq. 10 with d_0 = 1), only where the other two streams and the whole window are
+    (r - y)_{k-i}) / n_0`` ([RA-SRIVC] eq. 10 with d_0 = 1), only where the other two streams and the whole window are
     finite, so that a reconstructed value is what the controller computed (use only on a verified invariant).
     """
     p = max(den.size, num.size) - 1

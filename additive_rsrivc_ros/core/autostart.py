@@ -1,23 +1,13 @@
-"""The automatic start of :class:`.pipeline.MonitorPipeline` when the params give no mode guesses (issue 12 item 6).
+"""The automatic start of :class:`.pipeline.MonitorPipeline` when the params give no mode guesses.
 
-:class:`ModeSearch` collects the first ``max(init_duration_s, 2 s)`` of samples that passed the pipeline's stamp,
-alignment and value checks (invalid samples kept on the grid, as NaN outputs), runs
-:func:`.modefind.autostart_config` on them (nonparametric FRF peaks refined by the offline additive (CL)SRIVC, 001
-eq. 29, K by held-out output error) and hands the pipeline the configuration with the modes found plus the buffered
-samples, which the pipeline then gives to the estimator exactly as the guess path would have: the first
-``init_duration_s`` to the offline initialization (000 Algorithm 2 step 1), the rest to the recursion.
-
-A window without usable excitation (constant reference or input, no resonance in the valid FRF band, no order that
-fits) or with less than :data:`MIN_CONTIGUOUS_S` of contiguous valid samples is a failed attempt: one line says why,
-and the search starts again on new data. A window that was excited but showed no mode (too short to resolve a low or
-lightly excited mode, or a mode outside the band the window excites) makes the next window twice as long, up to
-:data:`MAX_GROWTH` x (where such a mode is accepted, flagged in the message), unless the window held invalid
-samples: its failure may be theirs (an FRF with gaps resolves fewer peaks), so the next window keeps the length and
-only a clean window that fails grows it. The others are retried at once
-for the first :data:`FAST_RETRIES` failures, then after waiting ``window x 2^(failures - FAST_RETRIES)`` of data, at
-most :data:`MAX_WAIT_S` (bounded cost on a loop left idle for hours; a start at most ``MAX_WAIT_S`` + one window after
-the excitation begins). Nothing is estimated meanwhile; the estimator's offline initialization always uses the first
-``init_duration_s`` of the window the modes were found on.
+:class:`ModeSearch` collects the first ``max(init_duration_s, 2 s)`` of checked samples (invalid ones kept on the grid
+as NaN), runs :func:`.modefind.autostart_config` on them (FRF peaks refined by the offline additive (CL)SRIVC, [A-SRIVC]
+eq. 29, K by held-out output error) and hands the pipeline the modes found plus the buffered samples, which go to the
+estimator as on the guess path (the first ``init_duration_s`` to the offline initialization, [RA-SRIVC] Algorithm 2 step
+1). A window without usable excitation, or with less than :data:`MIN_CONTIGUOUS_S` of contiguous valid samples, is a
+failed attempt, said in one line; an excited clean window that showed no mode makes the next one twice as long (up to
+:data:`MAX_GROWTH` x); others are retried at once :data:`FAST_RETRIES` times, then after a growing wait of at most
+:data:`MAX_WAIT_S` of data. Nothing is estimated meanwhile.
 """
 
 from __future__ import annotations

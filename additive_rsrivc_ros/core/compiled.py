@@ -1,18 +1,12 @@
-"""The package's numba kernels, served ahead of time when possible, by numba's JIT otherwise (issue 16).
+"""The package's numba kernels, served ahead of time when possible, by numba's JIT otherwise.
 
-Every kernel is declared with :func:`kernel` (instead of ``numba.njit(cache=True)``). ``rsrivc_warmup`` runs
-the tools' code paths under the JIT and then compiles every signature they met into one C extension
-(``numba.pycc``, :func:`build`) in the source-keyed cache directory (``NUMBA_CACHE_DIR``, see
-``numba_cache``), next to a manifest of the exports, of the SHA-256 of each kernel module it was built from and of
-the CPU it was built for.
-
-A process whose sources and CPU match the manifest loads the extension in about a millisecond and never imports
-numba: that import, its type registries and the cached kernels' loading cost about 1 s per process (node
-start, ``rsrivc_diagnose``, every fleet worker). Each call is checked against the exported signature
-(dtype, dimensions, layout, writability, alignment; compiled code trusts its arguments, and a wrong layout
-would be read wrongly, a wrong dtype crash). Anything the extension does not cover (another signature, an
-inner kernel called from Python, keywords, no extension, sources changed, ``RSRIVC_KERNELS=jit`` or
-``NUMBA_DISABLE_JIT=1``) goes to numba's JIT, as before: same code, same cache, same results.
+Every kernel is declared with :func:`kernel`. ``rsrivc_warmup`` runs the tools' code paths under the JIT, then compiles
+every signature they met into one C extension (``numba.pycc``, :func:`build`) in the source-keyed cache directory
+(:mod:`..numba_cache`), with a manifest of the exports, the kernel modules' SHA-256 and the CPU. A process whose sources
+and CPU match loads it in a millisecond and never imports numba (about 1 s per process). Each call is checked against
+the exported signature (compiled code trusts its arguments); anything else (another signature, keywords, no extension,
+changed sources, ``RSRIVC_KERNELS=jit``, ``NUMBA_DISABLE_JIT=1``) goes to numba's JIT: same code, same cache, same
+results.
 """
 
 from __future__ import annotations

@@ -1,8 +1,8 @@
-"""The known discrete-time feedback controller ``C_d(q)`` of the closed loop (000 eq. 10).
+"""The known discrete-time feedback controller ``C_d(q)`` of the closed loop ([RA-SRIVC] eq. 10).
 
 Coefficients are given in ascending powers of ``q^-1``:
 ``C_d(q) = (c0 + c1 q^-1 + ...) / (d0 + d1 q^-1 + ...)`` and the control law is
-``u(t_k) = C_d(q) (r(t_k) - y(t_k))``. Example (000 §5 corrected, ../shared/NOTES.md erratum 1):
+``u(t_k) = C_d(q) (r(t_k) - y(t_k))``. Example ([RA-SRIVC] §5 corrected, erratum 1 in docs/DESIGN.md):
 ``C_d = (0.02329 q^2 - 0.02058 q + 0.00454) / (q^2 - q)`` is
 ``numerator = [0.02329, -0.02058, 0.00454]``, ``denominator = [1, -1, 0]``.
 """

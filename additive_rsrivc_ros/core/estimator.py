@@ -25,7 +25,7 @@ if TYPE_CHECKING:   # annotations only: scipy.signal (controller) is slow to imp
 
 @dataclass(frozen=True)
 class EstimatorHealth:
-    """What a recursive estimator reports about itself at one instant (000 Algorithm 2 safeguards, §4.7).
+    """What a recursive estimator reports about itself at one instant ([RA-SRIVC] Algorithm 2 safeguards, §4.7).
 
     Per-mode entries are tuples of length K. An estimator that does not report an item leaves its default (empty
     tuple, ``None``): the health monitor then skips the check that needs it.
@@ -38,7 +38,7 @@ class EstimatorHealth:
     hold_remaining: int = 0            # samples until the re-prime hold ends (> 0: filters re-priming)
     reprimes: int = 0                  # filter restarts (gaps marked by the caller and automatic ones)
     capped_updates: int = 0            # updates where the wind-up cap stopped dividing P by lambda
-    projections: tuple[int, ...] = ()  # stability projections per mode (000 §4.7)
+    projections: tuple[int, ...] = ()  # stability projections per mode ([RA-SRIVC] §4.7)
     rejected_updates: tuple[int, ...] = ()
     rejected_discretization: tuple[int, ...] = ()     # filter discretization not finite
     rejected_iv_denominator: tuple[int, ...] = ()     # IV denominator below its floor
@@ -61,7 +61,7 @@ class EstimatorHealth:
 
 @runtime_checkable
 class RecursiveEstimator(Protocol):
-    """A streaming estimator of K modes as :class:`.pipeline.MonitorPipeline` drives it (000 Algorithm 2)."""
+    """A streaming estimator of K modes as :class:`.pipeline.MonitorPipeline` drives it ([RA-SRIVC] Algorithm 2)."""
 
     def initialize(self, r: np.ndarray | None, u: np.ndarray, y: np.ndarray) -> Any:
         """Start on the first data (offline initialization, then filter priming)."""

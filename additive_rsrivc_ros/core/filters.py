@@ -1,21 +1,11 @@
-"""ZOH-exact discrete state-variable filters for the offline SRIVC family (001 eqs. 10, 20, 24, 31-32).
+"""ZOH-exact discrete state-variable filters for the offline SRIVC family ([A-SRIVC] eqs. 10, 20, 24, 31-32).
 
-Every continuous-time filter is realized in state space and discretized exactly for a zero-order-held
-input (``x_{k+1} = Phi x_k + Gamma v_k``, ``y_k = C x_k + D v_k``; ``Phi``/``Gamma`` from the matrix
-exponential of the augmented matrix, :func:`core.zoh.zoh_matrices`). ../shared/NOTES.md: Tustin biases
-the estimates; ZOH does not. No high-order transfer-function polynomial is ever formed:
-
-* the state-variable filter ``p^j / (p^l A(p))``, j = 0..n+l, is a *scaled* companion realization
-  (states ``p^j v / s^j`` with ``s = |a_n|^(-1/(n+l))``, so that a 183 Hz mode at 4096 Hz has entries of
-  order omega instead of omega^2 and ``expm`` works on ``||A h|| ~ omega h``);
-* the instrument filters ``p^j B / (p^l A^2)`` (001 eqs. 10, 20, 31) are ONE cascade ``B/(p^l A)`` then
-  ``1/A`` of the held input, so the instrument is exact for a held input (no re-interpolation of the
-  simulated output);
-* the total model of the closed loop (001 eq. 20, ``S_uo = C_d / (1 + C_d G_d)``, NOTES erratum 3) is the
-  block-diagonal (parallel) sum of the submodels, never one polynomial.
-
-Long signals run through numba-compiled loops (``@kernel``, :mod:`.compiled`): 240k samples of a 4-state
-filter take about 4 ms (about 1 ms for the 2-state filter of one mode).
+Every continuous-time filter is realized in state space and discretized exactly for a held input (``Phi, Gamma`` from
+the matrix exponential, :func:`.zoh.zoh_matrices`; Tustin biased the closed-loop estimates by 1-4 stds). No high-order
+polynomial is formed: ``p^j / (p^l A(p))`` is a *scaled* companion realization (``expm`` works on ``||A h|| ~ omega
+h``); the instrument filters ``p^j B / (p^l A^2)`` (eqs. 10, 20, 31) are one cascade ``B/(p^l A)`` then ``1/A``, exact
+for a held input; the closed loop's total model (eq. 20, ``S_uo = C_d / (1 + C_d G_d)``, erratum 3 in docs/DESIGN.md) is
+the parallel sum of the submodels. Long signals run through compiled loops (:mod:`.compiled`).
 """
 
 from __future__ import annotations
@@ -139,7 +129,7 @@ def run_outputs(phi: np.ndarray, gamma: np.ndarray, c: np.ndarray, d: np.ndarray
 
 @kernel
 def _closed_loop_loop(phi, gamma, cp, dp, delay, cnum, cden, r):  # pragma: no cover - compiled
-    """Noise-free closed loop ``u = C_d (r - G_d q^-d u)`` (DF-II transposed controller, 001 eq. 6)."""
+    """Noise-free closed loop ``u = C_d (r - G_d q^-d u)`` (DF-II transposed controller, [A-SRIVC] eq. 6)."""
     n = phi.shape[0]
     nsamp = r.shape[0]
     nc = cnum.shape[0] - 1
@@ -194,7 +184,7 @@ def _scale(den: np.ndarray) -> float:
 
 
 def svf_continuous(a: np.ndarray, integrators: int = 0) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
-    """Scaled companion realization of ``p^j / (p^l A(p))``, j = 0..n+l (000 eqs. 26-28, 001 eq. 24).
+    """Scaled companion realization of ``p^j / (p^l A(p))``, j = 0..n+l ([RA-SRIVC] eqs. 26-28, [A-SRIVC] eq. 24).
 
     ``a`` ascending, ``a[0] = 1``. Returns continuous ``(A, B, C, D)`` with ``C``: (n+l+1, n+l); only the
     last output (``p^(n+l)/(p^l A)``) has a direct term.
@@ -223,7 +213,7 @@ def svf_continuous(a: np.ndarray, integrators: int = 0) -> tuple[np.ndarray, np.
 
 
 def submodel_continuous(theta: np.ndarray, st: SubmodelStructure) -> tuple[np.ndarray, ...]:
-    """Realization ``(A, B, C, D)`` of ``B(p) / (p^l A(p))`` (one output), 001 eq. 2 / Remark 6."""
+    """Realization ``(A, B, C, D)`` of ``B(p) / (p^l A(p))`` (one output), [A-SRIVC] eq. 2 / Remark 6."""
     a, b = split_theta(theta, st)
     A, Bv, C, D = svf_continuous(a, st.integrators)
     bb = np.zeros(st.n + st.integrators + 1)
@@ -232,13 +222,13 @@ def submodel_continuous(theta: np.ndarray, st: SubmodelStructure) -> tuple[np.nd
 
 
 def instrument_continuous(theta: np.ndarray, st: SubmodelStructure) -> tuple[np.ndarray, ...]:
-    """Cascade ``B/(p^l A)`` then ``1/A``: outputs ``p^j B / (p^l A^2)``, j = 0..n (001 eqs. 10, 20, 31)."""
+    """Cascade ``B/(p^l A)`` then ``1/A``: outputs ``p^j B / (p^l A^2)``, j = 0..n ([A-SRIVC] eqs. 10, 20, 31)."""
     a, b = split_theta(theta, st)
     return instrument_continuous_poly(a, b, st.integrators)
 
 
 def instrument_continuous_poly(a: np.ndarray, b: np.ndarray, integrators: int = 0) -> tuple[np.ndarray, ...]:
-    """:func:`instrument_continuous` for any denominator ``A`` (ascending; anti-monic or monic, 003 §6)."""
+    """:func:`instrument_continuous` for any denominator ``A`` (ascending; anti-monic or monic, [UNS-SRIVC] §6)."""
     a = np.asarray(a, dtype=float)
     A1, B1, C1, D1 = svf_continuous(a, integrators)
     bb = np.zeros(a.size + integrators)
@@ -285,17 +275,17 @@ def delay_signal(v: np.ndarray, delay: int) -> np.ndarray:
 
 
 def svf(a: np.ndarray, v: np.ndarray, h: float, integrators: int = 0) -> np.ndarray:
-    """ZOH-exact ``p^j / (p^l A(p)) v``, j = 0..n+l, as columns of an (N, n+l+1) array (001 eq. 24/32)."""
+    """ZOH-exact ``p^j / (p^l A(p)) v``, j = 0..n+l, as columns of an (N, n+l+1) array ([A-SRIVC] eq. 24/32)."""
     return discretize(*svf_continuous(a, integrators), h).run(v)
 
 
 def submodel_output(theta: np.ndarray, st: SubmodelStructure, v: np.ndarray, h: float) -> np.ndarray:
-    """Simulated submodel output ``B/(p^l A) v`` (ZOH-exact) from rest, 001 eq. 23."""
+    """Simulated submodel output ``B/(p^l A) v`` (ZOH-exact) from rest, [A-SRIVC] eq. 23."""
     return discretize(*submodel_continuous(theta, st), h).run(v)[:, 0]
 
 
 def instrument_filter(theta: np.ndarray, st: SubmodelStructure, v: np.ndarray, h: float) -> np.ndarray:
-    """ZOH-exact ``p^j B / (p^l A^2) v``, j = 0..n, one cascade filter of the held ``v`` (001 eqs. 10, 20, 31)."""
+    """ZOH-exact ``p^j B / (p^l A^2) v``, j = 0..n, one cascade filter of the held ``v`` ([A-SRIVC] eqs. 10, 20, 31)."""
     return discretize(*instrument_continuous(theta, st), h).run(v)
 
 
@@ -417,9 +407,9 @@ def closed_loop_radius(thetas: list[np.ndarray], structures: list[SubmodelStruct
 def closed_loop_response(thetas: list[np.ndarray], structures: list[SubmodelStructure], h: float,
                          controller: DiscreteController, r: np.ndarray, delay: int = 0,
                          check: bool = True) -> tuple[np.ndarray, np.ndarray]:
-    """Noise-free closed loop of the current model: ``z = S_uo(q) r`` and ``T_o(q) r`` (001 eq. 20).
+    """Noise-free closed loop of the current model: ``z = S_uo(q) r`` and ``T_o(q) r`` ([A-SRIVC] eq. 20).
 
-    ``S_uo = C_d / (1 + C_d G_d)`` (NOTES erratum 3) with ``G_d`` the ZOH equivalent of the whole
+    ``S_uo = C_d / (1 + C_d G_d)`` (erratum 3 in docs/DESIGN.md) with ``G_d`` the ZOH equivalent of the whole
     additive model including the input delay of ``delay`` samples. Raises
     :class:`ClosedLoopUnstableError` when ``check`` and the controller does not stabilize the model.
     Returns ``(z, y_cl)``: controller output (the plant input before the delay) and model output.

@@ -1,41 +1,14 @@
-"""Nonparametric plant frequency response (FRF) from recorded r, u, y with its uncertainty (issue 12 item 1).
+"""Nonparametric plant frequency response (FRF) from recorded r, u, y with its uncertainty.
 
-Welch-type averaging: the record is cut into ``n_d`` Hann-windowed segments with 50 % overlap (mean removed per
-segment); auto- and cross-spectra are averaged over the segments.
-
-* Closed loop (reference ``r`` given): the *indirect* estimate ``G = S_yr / S_ur`` (cross-spectra with the
-  reference). ``y`` and ``u`` both carry the noise fed back by the controller, so the direct ``S_yu / S_uu``
-  is biased towards ``-1/C`` wherever the noise dominates; ``r`` is uncorrelated with the noise, so the ratio
-  of the two cross-spectra is consistent (Pintelon & Schoukens, *System Identification*, 2nd ed., §2.6, §8.3).
-* Open loop (no reference): the H1 estimate ``G = S_yu / S_uu``.
-
-Uncertainty. With ``w = y - G u`` (in both loops ``w`` is the output disturbance ``v``: in closed loop
-``y = S v + T r`` and ``u = -C S v + S_u r`` give ``y - G u = S (1 + G C) v = v``), the first-order error of the
-indirect estimate is ``dG = S_wr / (S_rr H_ur)`` with ``H_ur = S_ur / S_rr``, whose variance over ``n_d``
-independent averages is
-
-    var(G) = S_ww S_rr / (n_d |S_ur|^2),
-
-which in open loop (``r = u``) is the standard H1 formula ``var(G) = (1 - gamma^2) / (n_d gamma^2) |G|^2`` with the
-coherence ``gamma^2 = |S_yu|^2 / (S_uu S_yy)`` (Bendat & Piersol, *Random Data*, 4th ed., eq. 9.90; the variance of
-the complex estimate, i.e. ``E|G_hat - G|^2``). ``S_ww`` is estimated from the averaged spectra and corrected for
-the fitted degree of freedom (``n_d / (n_d - 1)``). Overlapping Hann segments are not independent: the effective
-number of averages is ``n_d / (1 + 2 c^2)`` with ``c = 0.167`` the correlation of 50 %-overlapping Hann windows
-(Welch 1967).
-
-Validity: a frequency is *valid* when the excitation reaches it (the power of ``r``, or of ``u`` in open loop, is
-above ``excitation_floor`` times its maximum over the band), both ``u`` and ``y`` are significantly coherent with
-the excitation (coherence above the level that ``n_d`` averages of *uncorrelated* signals exceed with probability
-``alpha``, ``1 - alpha^(1/(n_d - 1))``, with ``alpha = min(0.01, 1/n_bins)`` so that less than one bin of the
-whole record passes by chance; where the fed-back noise dominates ``S_ur`` the ratio tends to
-``-1/C`` and the first-order variance collapses with it, so this test, not the variance, rejects such bins), and the
-estimate carries information (relative std
-below ``max_relative_std``; 0.3, not 1: the test uses the noisy ``|G_hat|``, and a loose bound would keep the bins
-where the noise happened to inflate ``G_hat``, whose errors then exceed their reported std). Elsewhere the FRF is
-reported but must not be used.
-
-The estimate is the frequency response of the *sampled* plant with the zero-order hold and the input delay
-(``G_d(e^{j w h})``); :func:`discrete_model_frf` gives the same quantity for a parametric model.
+Welch averaging over ``n_d`` Hann segments with 50 % overlap. Closed loop: the indirect estimate ``G = S_yr / S_ur``
+(``r`` is uncorrelated with the fed-back noise, so it is consistent where the direct ``S_yu / S_uu`` tends to ``-1/C``;
+Pintelon & Schoukens, *System Identification*, §2.6, §8.3); open loop the H1 estimate ``S_yu / S_uu``. With ``w = y - G
+u`` (the output disturbance in both loops) its variance is ``var(G) = S_ww S_rr / (n_d |S_ur|^2)``, the H1 formula ``(1
+- gamma^2) / (n_d gamma^2) |G|^2`` in open loop (Bendat & Piersol, *Random Data*, eq. 9.90), with ``n_d / (1 + 2 c^2)``
+effective averages for overlapping windows (Welch 1967). A bin is *valid* where the excitation reaches it, ``u`` and
+``y`` are coherent with it above chance (Bonferroni over the bins) and the relative std is below ``max_relative_std``;
+elsewhere the FRF must not be used. The estimate is the sampled plant's response with the zero-order hold and the input
+delay; :func:`discrete_model_frf` gives the same for a parametric model.
 """
 
 from __future__ import annotations

@@ -1,77 +1,17 @@
-"""Compiled per-sample kernel of the recursive additive SRIVC / CLSRIVC estimator (000 Algorithm 2).
+"""Compiled per-sample kernel of the recursive additive SRIVC / CLSRIVC estimator ([RA-SRIVC] Algorithm 2).
 
-One source of truth: :func:`run_block` is plain Python compiled by numba (``@kernel``, :mod:`.compiled`: ahead of time
-after ``rsrivc_warmup``, else ``njit(cache=True)``); with
-``NUMBA_DISABLE_JIT=1`` the very same code runs interpreted (tested to match to 1e-10). All state lives
-in flat float64/int64 arrays (see :class:`KernelState` in ``core/recursive.py``), so snapshot/restore is a
-copy of arrays and continuation is bit-identical.
-
-Per mode i (000 eqs. 26-28, 33-35) four filter banks share the ZOH discretization of ``1/A_i(p)``
-(``core/zoh.second_order_zoh``; for a rigid-body mode ``b0/p^l`` the constant integrator chain):
-
-* bank Y on the residual output ``y~_i``: ``y~_f = 1/A y~``, ``-p/A y~``, ``-p^2/A y~`` (eq. 26-27);
-* bank U on the delayed input ``u(t_k - d h)``: ``1/A u`` (regressor, eq. 27) and the simulated output
-  ``x_i = b0/A u`` used in the other modes' residual outputs (eq. 22);
-* bank Z on the delayed instrument input ``z``: ``1/A z`` (eq. 33); closed loop ``z = S_uo(q, t_k) r``
-  is generated recursively from the noise-free closed loop of the current model, ``z_k = C_d(q)(r_k -
-  sum_i b0_i w_z,i(k))`` (NOTES erratum 3); open loop ``z = u`` and bank U is used instead;
-* bank X on the sampled auxiliary output ``x^_i(t_k) = b0 w_z,i(t_k)`` (model of t_{k-1}, eq. 28/33):
-  ``-p/A x^``, ``-p^2/A x^``.
-
-Filter model (option, ``muf``): the filters are built from ``A_f,i``, an exponential average of the estimated
-``A_i`` with per-update factor ``mu_f,i`` (``a_f <- mu_f a_f + (1 - mu_f) a``); ``b0`` always follows the estimate.
-``mu_f = 0`` is Algorithm 2 as printed (``theta_f = theta``). Remark 4.4 carries the filter states across
-coefficient changes, which presumes coefficients that are nearly constant over the filters' response; on the
-lightly damped beam mode with a memory below its decay time ``1/(zeta omega)`` the estimate <-> prefilter loop
-(through ``A`` only) was found to be unstable (``scripts/study_short_memory.py``); a filter model averaged over a
-few periods of the mode removes that loop while keeping the same fixed point (``A_f = A`` in steady state).
-
-Filter states are physical ``[w, w']``; ``p^2/A v`` at ``t_k`` is the direct term ``(v_k - w - a1 w')/a2``.
-States are carried across coefficient changes (000 Remark 4.4). Within a sample (NOTES, "Ordering")
-every bank is propagated from its ``t_{k-1}`` state to ``t_k`` with the *latest iterate* of its mode
-(block-coordinate order of Algorithm 2: modes ``j < i`` are already updated); the ``t_{k-1}`` states are
-replaced only after all modes have been updated. Started at the true parameters with noise-free
-ZOH-exact data the regression residual ``y~_f - phi^T theta`` is exactly zero.
-
-IV-RLS (Algorithm 2 lines 7-9, Appendix B eqs. B.5-B.7; NOTES erratum 2, no factor 1/2)::
-
-    K = P phi^ / (lam + phi^T P phi^),  theta = theta_bar + K (y~_f - phi^T theta_bar),
-    P = (P_bar - K phi^T P_bar) / lam
-
-every iterate (sweep l, refinement s) restarts from ``theta_bar(t_{k-1})``, ``P_bar(t_{k-1})``.
-
-IV sandwich accumulator (issue 17 item 4, ``core/recursive.py`` ``covariances``): per mode
-``S = lam^2 S + zeta zeta^T`` with the instrument ``zeta = phi^`` of the accepted iterate, i.e.
-``S_i(t_N) = sum_k lam^(2(N-k)) zeta_i zeta_i^T`` (+ the decayed ``S_i(0)``). With ``P_bar = (sum_k lam^(N-k)
-zeta phi^T)^-1`` the first-order error of the IV-RLS estimate is ``P_bar sum_k lam^(N-k) zeta_k v_k``, so its
-covariance for white ``v`` is ``sigma^2 P_bar S P_bar^T``. Updated only when ``P_bar`` is (same ``lam``; a
-capped update uses ``lam = 1`` for both).
-Stability projection (000 §4.7) reflects right-half-plane roots of ``A_i`` in closed form.
-
-Free response of a rigid body (issue 17 item 1; the papers start every filter from rest): the integrator chain
-``b0/p^l`` never forgets the plant's position and velocity at the sample its filters started from rest, so the
-simulated output ``b0 w`` (``w = 1/p^l u`` from rest) would miss ``c0 + c1 t`` for ever (``l = 1``: ``c0``), in the
-rigid body's and in every other mode's residual output, and ``w`` would carry the ramp of the controller's reaction to
-that initial state, which the instrument does not (IV-RLS then breaks down). So the free response is estimated with
-``b0`` (theta slots 1, 2: regressor and instrument ``[1, 0]`` in coordinates centred at the current sample,
-re-centred every sample: ``P <- F P F^T``, ``S <- F^-T S F^-1``, ``F = [[1, h], [0, 1]]`` on ``(c0, c1)``, so the
-basis stays well conditioned however long the run) and folded into the rigid body's input filter state as
-``[c0/b0, c1/b0]`` after every sample (:func:`fold_free_response`): ``w`` then starts from the plant's state and
-stays free of the ramp. Samples without an update (priming, hold, subsampling) still estimate it alone
-(:func:`free_response_step`); whenever the filters start from rest its ``P`` restarts (:func:`restart_free_response`).
-
-Safeguards (counted, never silent): an update is rejected (theta, P, filter model and its ``Phi, Gamma`` keep the
-previous iterate of that mode only; the other modes go on updating) and counted per mode and reason in ``rejr``
-when its filter discretization is not finite (``R_DISC``), when the IV denominator ``lam + phi^T P phi^`` is below
-``DEN_FLOOR lam`` or below the round-off of its terms (``R_DEN``; ordinary RLS has ``den >= lam``, a smaller one
-amplifies the step by ``lam/den``), or when it produces a non-finite value, ``a2 = 0`` or a relative parameter
-step larger than ``max_step`` (``R_STEP``). A mode whose cached ``Phi, Gamma`` are not finite (a snapshot of an
-older version) is re-discretized from its filter model; if that fails too its filters are held at rest and
-counted (``R_DISC``) instead of re-priming every mode at every sample. A non-finite or masked sample is skipped
-(no update, output replaced by the model prediction; a non-finite input or reference is held at its last value,
-a finite one still drives the filters); non-finite filter states reset the filters and re-prime (``hold`` samples
-without updates); a non-finite closed-loop instrument sample is replaced by 0 and counted
-(``I_NONFINITE_Z``); P growth without excitation (wind-up) is stopped at ``p_cap`` times P(0).
+Per mode four filter banks share the ZOH discretization of ``1/A_i(p)`` (:func:`.zoh.second_order_zoh`, eqs.
+26-28, 33-35): Y on the residual output ``y~_i = y - sum_{j != i} x^_j``, U on the delayed input (regressor and the
+simulated output ``x_i = b0/A u``, eq. 22), Z on the instrument input (closed loop ``z = S_uo(q, t_k) r`` from the
+current model's noise-free loop, eq. 33), X on the auxiliary output ``b0 w_z`` (eq. 28). Filter states are physical
+``[w, w']``, carried across coefficient changes (Remark 4.4); within a sample modes ``j < i`` are already updated and
+the ``t_{k-1}`` states are replaced only after every mode (docs/DESIGN.md "Conventions"). IV-RLS (lines 7-9, B.5-B.7,
+erratum 2 in docs/DESIGN.md): ``K = P phi^ / (lam + phi^T P phi^)``, ``P = (P_bar - K phi^T P_bar) / lam``; the
+sandwich accumulator ``S = lam^2 S + zeta zeta^T`` gives the covariance ``sigma^2 P_bar S P_bar^T``. A rigid body's
+free response ``c0 + c1 t`` is estimated with ``b0`` and folded into its input filter (:func:`fold_free_response`).
+Every safeguard is counted, never silent: rejected updates per mode and reason (``rejr``), skipped samples, re-primes,
+P capped at ``p_cap`` x P(0). All state lives in flat arrays (``core/recursive.py``), so a snapshot is bit-identical;
+with ``NUMBA_DISABLE_JIT=1`` the same code runs interpreted.
 """
 
 from __future__ import annotations
@@ -114,7 +54,7 @@ N_CFGF = 4
 
 @kernel
 def project_second_order(a1: float, a2: float) -> tuple[float, float, bool]:
-    """Reflect right-half-plane roots of ``A(p) = 1 + a1 p + a2 p^2`` into the LHP (000 §4.7).
+    """Reflect right-half-plane roots of ``A(p) = 1 + a1 p + a2 p^2`` into the LHP ([RA-SRIVC] §4.7).
 
     ``a2 > 0, a1 < 0``: both roots in the RHP, reflection maps ``a1 -> -a1``. ``a2 < 0``: real roots of
     opposite sign ``r- < 0 < r+``; reflecting ``r+`` gives ``a2 -> -a2`` and
@@ -131,7 +71,7 @@ def project_second_order(a1: float, a2: float) -> tuple[float, float, bool]:
 
 @kernel
 def discretize_mode(kind: int, a1: float, a2: float, h: float, phi: np.ndarray, gam: np.ndarray) -> None:
-    """``Phi, Gamma`` of ``1/A(p)`` (kind 0, closed form) or of ``1/p^kind`` (rigid body, 000 §4.6)."""
+    """``Phi, Gamma`` of ``1/A(p)`` (kind 0, closed form) or of ``1/p^kind`` (rigid body, [RA-SRIVC] §4.6)."""
     if kind == 0:
         second_order_zoh(a1, a2, h, phi, gam)
     else:
@@ -142,9 +82,9 @@ def discretize_mode(kind: int, a1: float, a2: float, h: float, phi: np.ndarray, 
 
 @kernel(inline=True)
 def iv_denominator_ok(den: float, den_abs: float, lam: float) -> bool:
-    """IV-RLS denominator ``den = lam + phi^T P phi^`` usable (000 eq. 31 / B.5): ``den >= DEN_FLOOR lam`` (ordinary
-    RLS has ``den >= lam``; a smaller one multiplies the step by ``lam/den``) and ``den >= DEN_ROUNDOFF den_abs``
-    (``den_abs = lam + sum |phi_a P_ac phi^_c|``: below that its value is round-off), all finite."""
+    """IV-RLS denominator ``den = lam + phi^T P phi^`` usable ([RA-SRIVC] eq. 31 / B.5): ``den >= DEN_FLOOR lam``
+    (ordinary RLS has ``den >= lam``; a smaller one multiplies the step by ``lam/den``) and ``den >= DEN_ROUNDOFF
+    den_abs`` (``den_abs = lam + sum |phi_a P_ac phi^_c|``: below that its value is round-off), all finite."""
     return math.isfinite(den) and math.isfinite(den_abs) and den >= DEN_FLOOR * lam and den >= DEN_ROUNDOFF * den_abs
 
 
@@ -304,7 +244,7 @@ def run_block(  # noqa: C901 - one compiled per-sample loop (test/test_code_shap
               gam: np.ndarray, ubuf: np.ndarray, zbuf: np.ndarray, ce: np.ndarray, cz: np.ndarray,
               ist: np.ndarray, fst: np.ndarray, proj: np.ndarray, rej: np.ndarray, rejr: np.ndarray,
               trace: np.ndarray) -> None:
-    """Process a block of samples in place: 000 Algorithm 2 lines 2-16 for each sample.
+    """Process a block of samples in place: [RA-SRIVC] Algorithm 2 lines 2-16 for each sample.
 
     ``allow_update=False`` only filters (priming, Algorithm 2 step 1). ``trace`` (n, K, 3) receives
     theta after every sample when it has n rows (pass a (0, K, 3) array to skip).
@@ -457,7 +397,7 @@ def run_block(  # noqa: C901 - one compiled per-sample loop (test/test_code_shap
                     lam_i = lam[i]
                     mu_f = muf[i]
                     for _s in range(refine + 1):
-                        # residual output with the other modes' latest iterates (000 eq. 22)
+                        # residual output with the other modes' latest iterates ([RA-SRIVC] eq. 22)
                         yt = yk
                         for j in range(K):
                             if j != i:
@@ -618,7 +558,7 @@ def run_block(  # noqa: C901 - one compiled per-sample loop (test/test_code_shap
             for i in range(K):
                 ytil[i] = yk - (ysim - xu[i])
 
-        # the t_k states replace the t_{k-1} states only now (NOTES, "Ordering")
+        # the t_k states replace the t_{k-1} states only now (docs/DESIGN.md, "Conventions")
         for i in range(K):
             for b in range(N_BANKS):
                 xs[i, b, 0] = T[i, b, 0]
@@ -630,7 +570,7 @@ def run_block(  # noqa: C901 - one compiled per-sample loop (test/test_code_shap
                     free_response_step(i, lam[i], yk - ysim, theta, P)
                 fold_free_response(i, h, theta, thf, xs, P, S)
 
-        # closed-loop instrument input z_k = C_d(q) (r_k - y^_k), 000 eq. 33 (NOTES erratum 3)
+        # closed-loop instrument input z_k = C_d(q) (r_k - y^_k), [RA-SRIVC] eq. 33 (erratum 3 in docs/DESIGN.md)
         if closed:
             ek = rk - yhat
             zk = cnum[0] * ek

@@ -1,41 +1,17 @@
-"""Modes and model order from the data (issue 12 item 2): FRF peaks refined by the offline additive (CL)SRIVC.
+"""Modes and model order from the data: FRF peaks refined by the offline additive (CL)SRIVC.
 
-1. :func:`find_candidates`: on the valid part of the nonparametric FRF (:mod:`core.frf`), with the input delay and
-   the zero-order hold's half sample removed from the phase,
+1. :func:`find_candidates`: on the valid part of the nonparametric FRF (:mod:`.frf`, delay and half-sample hold removed
+from the phase), resonance peaks of the 5-bin mean of ``log10 |G|`` (prominence above ``MIN_PROMINENCE_DECADES`` and 3
+noise stds): frequency by a parabola, damping by the half-power width ``zeta = (f2 - f1) / (2 f_peak)`` (never below the
+resolution), gain from ``G(j omega_n) = -j b0 / (2 zeta)``; a rigid body ``b0/p^l`` from a ``-20 l`` dB/decade low band
+where ``G (j omega)^l`` is real; :func:`finer_candidates` the same on finer FRFs.
 
-   * resonance peaks of ``|G|`` (:func:`peak_prominences`, as ``scipy.signal.find_peaks``, on ``log10 |G|``
-     averaged over 5 bins, the Hann main lobe, with a prominence above ``MIN_PROMINENCE_DECADES`` and above three
-     relative noise standard deviations of the averaged estimate, and at least 3 valid bins in the average),
-     located at the raw maximum within two bins: frequency by a parabola through the three log-magnitudes around
-     the peak, damping by the half-power width
-     ``zeta = (f2 - f1) / (2 f_peak)`` (one side doubled when the other leaves the valid band; never below the
-     window's resolution ``Delta f / (2 f_peak)``), modal gain of ``b0/(a2 p^2 + a1 p + 1)`` from the peak value
-     ``G(j omega_n) = -j b0 / (2 zeta)``, i.e. ``b0 = -2 zeta Im G`` (its sign is the mode's);
-   * a rigid body ``b0/p^l`` when the lowest valid decade falls with slope ``-20 l`` dB/decade (l = 1, 2; slope
-     within 0.25 of -l decades/decade over at least five bins) and ``G (j omega)^l`` is real there (median
-     ``|Im|/|.|`` below ``RIGID_REALNESS``; a damped mode's roll-off turns it by 90 degrees), ``b0`` its median;
-   * :func:`finer_candidates`: the same below ``FINER_BAND_BINS`` default bins on FRFs with finer resolution.
-
-2. :func:`find_modes`: for ``K = 1 .. K_max`` (the rigid body, if any, counts as one submodel and is always kept;
-   the first order starts from the most prominent peaks, each larger one from the best smaller model plus the
-   most prominent peak not near one of its modes, or the next ones, up to three, or the resonance of its residual
-   FRF with the most output power, :func:`_residual_start`, or, in closed loop without a rigid-body candidate,
-   plus a rigid body, :func:`_rigid_start`; each start is also tried refined on the FRF first,
-   :func:`refine_on_frf`) the offline additive CLSRIVC
-   (closed loop, 001 eq. 20/29) or SRIVC (open loop) is fitted on the first ``1 - validation_fraction`` of the
-   record and judged by the mean squared *output error on the rest* (held-out data): in closed loop the model's
-   noise-free closed-loop output ``T_o r`` (001 eq. 20), in open loop ``G u``. **Order rule:** starting from the
-   smallest K that fitted, a larger K replaces the current choice only if its held-out error is below
-   ``(1 - margin)`` times the current one (``margin`` = 2 %) and the gain holds throughout the held-out data
-   (paired test over batches, :func:`_significant_gain`); the scan builds each order on the best model by the
-   margin alone and stops after two orders in a row without such a gain. **Backward check**
-   (:func:`_check_relevance`): an order's gain must come from its added mode; when the fit without its least
-   relevant submodel predicts as well (no significant gain over it), the order is redundant, and that
-   reduction replaces the smaller order's model if it predicts better (a smaller order's scan fit that stopped
-   early, e.g. the beam's K = 4 beside a K = 5 with a negligible 239 Hz mode). The scan's fits stop early
-   (``SCAN_TOL``, ``SCAN_MAX_ITERATIONS``; after an order that fits its FRF, a fit no better than it once its
-   output error has settled, ``SCAN_SETTLE``); the chosen model is then refitted on the whole record. Modes whose
-   frequency lies outside the band where the FRF is valid are reported as not identifiable.
+2. :func:`find_modes`: for K = 1, 2, ... a start (the best smaller model plus a peak, its residual FRF's strongest
+resonance, or a rigid body; each also refined on the FRF, :func:`refine_on_frf`) is fitted by the offline additive
+CLSRIVC ([A-SRIVC] eq. 20/29; open loop SRIVC) on the first part of the record and judged by its output error on the
+rest (closed loop ``T_o r``, open loop ``G u``). A larger K wins only if that error drops by more than ``margin`` (2 %)
+and the gain holds throughout the held-out data (:func:`_significant_gain`), and only if the gain comes from the added
+mode (:func:`_check_relevance`); the chosen model is refitted on the whole record.
 """
 
 from __future__ import annotations
@@ -46,9 +22,9 @@ from typing import Any
 
 import numpy as np
 
-from .adequacy import fits_its_frf
 from .estimator import MonitorSettings
 from .frf import FRFEstimate, estimate_frf, longest_finite, model_frf_on_bins
+from .frf_misfit import fits_its_frf
 from .model import TWO_PI, SubmodelStructure, guess_structure, guess_theta, modal_from_theta
 from .offline.stable import fit_usable
 
@@ -392,8 +368,8 @@ def _start(candidates: list[Candidate], K: int) -> list[Candidate] | None:
 
 
 def _stabilized(start: list[Candidate], rate_hz: float, controller, input_delay: int) -> list[Candidate]:
-    """A start the controller stabilizes (the closed-loop instrument, 001 eq. 20, needs one): peak-picked damping is
-    resolution-limited and the gain follows from it, so a start may destabilize a loop with a small margin; the
+    """A start the controller stabilizes (the closed-loop instrument, [A-SRIVC] eq. 20, needs one): peak-picked damping
+    is resolution-limited and the gain follows from it, so a start may destabilize a loop with a small margin; the
     damping of every resonant candidate is doubled (at most 0.7) until it is stable, then the gains are halved."""
     if controller is None:
         return start
@@ -662,7 +638,7 @@ def _usable(res: Any, rate_hz: float) -> bool:
 def _evaluate(K: int, start: list[Candidate], u, y, rate_hz, r, controller, input_delay, split: int,
               max_iterations: int, to_beat: Any = None, margin: float = DEFAULT_MARGIN) -> tuple[OrderRow, Any]:
     """Fit one start on ``[:split]`` and measure its output error on both parts (a failure is a row, not a crash).
-    ``to_beat``: the smaller order's fit, when it fits its FRF (:func:`.adequacy.fits_its_frf`); while this fit's
+    ``to_beat``: the smaller order's fit, when it fits its FRF (:func:`.frf_misfit.fits_its_frf`); while this fit's
     output error on ``[:split]`` is not ``margin`` below that fit's, it ends once its output error has settled
     (``SCAN_SETTLE``: one mode too many, the usual case of the order after the right one, stops in a few iterations
     instead of running to the limit). Not when the smaller model misfits the FRF: a fit whose output error sat flat
@@ -909,7 +885,7 @@ def find_modes(u, y, rate_hz: float, *, r=None, controller=None, input_delay: in
 
 def autostart_config(cfg: MonitorSettings, r, u, y, count: int | None = None,
                      refit_tol: float = FINAL_TOL) -> tuple[MonitorSettings, ModeFindResult]:
-    """The automatic start of a :class:`config.MonitorConfig` without guesses (issue 12): modes found on the given
+    """The automatic start of a :class:`config.MonitorConfig` without guesses: modes found on the given
     data (the longest finite stretch; ``count`` None: ``modes.count``), returned as the configuration with those
     modes as guesses, and the evidence. ``refit_tol``: see :func:`find_modes` (the pipeline passes
     :data:`SCAN_TOL`: its estimator's offline initialization refines the start on the same samples right after).

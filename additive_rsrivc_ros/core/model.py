@@ -1,14 +1,14 @@
 """Additive continuous-time model structure and modal conversions.
 
-Conventions (papers 000 eq. 5-7, 001 eq. 2-3, ../shared/NOTES.md):
+Conventions (papers [RA-SRIVC] eq. 5-7, [A-SRIVC] eq. 2-3, docs/DESIGN.md "Conventions"):
 
 * Submodel i is ``B_i(p) / (p^l_i A_i(p))`` with ``A_i(p) = 1 + a_i1 p + ... + a_in p^n`` (anti-monic)
   and ``B_i(p) = b_i0 + b_i1 p + ... + b_im p^m``; ``l_i`` poles at the origin only where declared
-  (rigid-body modes, 000 §4.6, 001 Remark 6). At most one submodel may be biproper (m = n, l = 0).
-* Parameter vector ``theta_i = [a_i1 .. a_in, b_i0 .. b_im]`` (000 eq. 7); the stacked vector over
-  all submodels is ``beta`` (000 eq. 8).
+  (rigid-body modes, [RA-SRIVC] §4.6, [A-SRIVC] Remark 6). At most one submodel may be biproper (m = n, l = 0).
+* Parameter vector ``theta_i = [a_i1 .. a_in, b_i0 .. b_im]`` ([RA-SRIVC] eq. 7); the stacked vector over
+  all submodels is ``beta`` ([RA-SRIVC] eq. 8).
 * A second-order mode ``b0 / (a2 p^2 + a1 p + 1)`` has ``omega = 1/sqrt(a2)`` rad/s,
-  ``zeta = a1 / (2 sqrt(a2))`` and DC gain ``b0`` (000 Example 3.3, eq. 16). Frequencies are published
+  ``zeta = a1 / (2 sqrt(a2))`` and DC gain ``b0`` ([RA-SRIVC] Example 3.3, eq. 16). Frequencies are published
   in Hz. A pure rigid-body mode ``b0 / p^l`` (n = 0) reports frequency 0, damping 0 and gain b0.
 """
 
@@ -38,7 +38,7 @@ class SubmodelStructure:
 
     @property
     def n_theta(self) -> int:
-        """Number of parameters ``n + m + 1`` (000 §2.2)."""
+        """Number of parameters ``n + m + 1`` ([RA-SRIVC] §2.2)."""
         return self.n + self.m + 1
 
     @property
@@ -62,7 +62,7 @@ def split_theta(theta: np.ndarray, s: SubmodelStructure) -> tuple[np.ndarray, np
 
 
 def theta_from_modal(natural_frequency_hz: float, damping_ratio: float, gain: float) -> np.ndarray:
-    """``theta = [a1, a2, b0]`` of the mode ``gain / (p^2/w^2 + 2 zeta p / w + 1)`` (000 eq. 16-17)."""
+    """``theta = [a1, a2, b0]`` of the mode ``gain / (p^2/w^2 + 2 zeta p / w + 1)`` ([RA-SRIVC] eq. 16-17)."""
     if not natural_frequency_hz > 0.0:
         raise ValueError(f"natural frequency must be > 0 Hz, got {natural_frequency_hz}")
     w = TWO_PI * natural_frequency_hz
@@ -77,7 +77,7 @@ def guess_structure(natural_frequency_hz: float, integrators: int = 0) -> Submod
 
 
 def guess_theta(natural_frequency_hz: float, damping_ratio: float, gain: float) -> np.ndarray:
-    """θ (000 eq. 7) of a modal guess; a rigid body (frequency 0) has only ``b0``."""
+    """θ ([RA-SRIVC] eq. 7) of a modal guess; a rigid body (frequency 0) has only ``b0``."""
     if natural_frequency_hz == 0.0:
         return np.array([float(gain)])
     return theta_from_modal(natural_frequency_hz, damping_ratio, gain)
@@ -125,7 +125,7 @@ def modal_jacobian(theta: np.ndarray, s: SubmodelStructure = SubmodelStructure()
 def modal_std(theta: np.ndarray, cov: np.ndarray, s: SubmodelStructure = SubmodelStructure()) -> np.ndarray:
     """Standard deviations of ``[f_hz, zeta, gain]`` by the delta method: ``sqrt(diag(J C J^T))``.
 
-    A negative variance (an indefinite ``C``) gives NaN, never a silent 0 (issue 17 item 4). For a second-order
+    A negative variance (an indefinite ``C``) gives NaN, never a silent 0. For a second-order
     mode ``J`` has ``df/da2 = -(1/(4 pi)) a2^-3/2``, ``dzeta/da1 = 1/(2 sqrt a2)``, ``dzeta/da2 = -a1/(4 a2^3/2)``,
     ``dgain/db0 = 1`` (:func:`modal_jacobian`); first order, so valid while the relative std is small.
     """
@@ -151,7 +151,7 @@ def frequency_response(
 def total_transfer_function(
     thetas: list[np.ndarray], structures: list[SubmodelStructure],
 ) -> tuple[np.ndarray, np.ndarray]:
-    """The additive model as one ``B(p)/A(p)``; coefficients in ascending powers of p (001 eq. 1)."""
+    """The additive model as one ``B(p)/A(p)``; coefficients in ascending powers of p ([A-SRIVC] eq. 1)."""
     num = np.zeros(1)
     den = np.ones(1)
     for theta, st in zip(thetas, structures, strict=True):
@@ -165,7 +165,7 @@ def total_transfer_function(
 
 def parallel_state_space(blocks: Sequence[tuple[np.ndarray, np.ndarray, np.ndarray]]
                          ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-    """The additive model (000 eq. 7: one input, the submodels' outputs summed) as one state space from each
+    """The additive model ([RA-SRIVC] eq. 7: one input, the submodels' outputs summed) as one state space from each
     submodel's ``(Phi_i, Gamma_i, c_i)``: block-diagonal ``Phi``, stacked ``Gamma`` and ``c`` (without
     ``scipy.linalg.block_diag``, 0.2 s to import)."""
     nx = sum(np.shape(phi)[0] for phi, _, _ in blocks)
@@ -181,7 +181,7 @@ def parallel_state_space(blocks: Sequence[tuple[np.ndarray, np.ndarray, np.ndarr
 
 
 def reflect_unstable(a: np.ndarray) -> tuple[np.ndarray, bool]:
-    """Reflect right-half-plane roots of an anti-monic ``A(p)`` (ascending) into the LHP (000 §4.7).
+    """Reflect right-half-plane roots of an anti-monic ``A(p)`` (ascending) into the LHP ([RA-SRIVC] §4.7).
 
     Returns the projected polynomial (still anti-monic) and whether anything was reflected.
     """

@@ -38,19 +38,19 @@ class Param:
             raise ValueError(f"{self.name}: unknown type {self.type}")
 
 
-# Recursive estimator and its offline initialization (000 Algorithm 2): fill EstimatorOptions.
+# Recursive estimator and its offline initialization ([RA-SRIVC] Algorithm 2): fill EstimatorOptions.
 ESTIMATOR_PARAMS: list[Param] = [
     Param("estimator.block_sweeps", "int", 1, "M_l: block-coordinate sweeps over the modes per sample.", 1, 20,
           True),
     Param("estimator.refinements", "int", 0, "M_s: SRIVC refinements per mode and sweep.", 0, 20, True),
-    Param("estimator.stability_projection", "bool", True, "Reflect right-half-plane roots of A_i (000 §4.7).",
+    Param("estimator.stability_projection", "bool", True, "Reflect right-half-plane roots of A_i ([RA-SRIVC] §4.7).",
           read_only=True),
     Param("estimator.output_subsampling", "int", 1, "Update the estimate every n-th sample; all inputs are "
-          "still filtered (000 §4.7).", 1, 1000, True),
+          "still filtered ([RA-SRIVC] §4.7).", 1, 1000, True),
     Param("estimator.p0_relative_a", "double", 0.016, "P(0) of a denominator coefficient relative to its "
-          "square (../shared/NOTES.md: 1e-3/0.25^2).", 1e-12, 1e3, True),
+          "square (1e-3/0.25^2: the paper's P(0) of its mode 1).", 1e-12, 1e3, True),
     Param("estimator.p0_relative_b", "double", 1.1e-6, "P(0) of a numerator coefficient relative to its "
-          "square (../shared/NOTES.md: 1e-5/3^2).", 1e-12, 1e3, True),
+          "square (1e-5/3^2: the paper's P(0) of its mode 1).", 1e-12, 1e3, True),
     Param("estimator.p0_policy", "string", "information", "P(0) after the offline initialization: 'information' "
           "(the initialization record's IV information weighted like the recursion, so the reported uncertainty and "
           "the adaptation gain start at their steady level) or 'relative' (p0_relative_a/b; also the fallback "
@@ -59,10 +59,10 @@ ESTIMATOR_PARAMS: list[Param] = [
           "loop, additive-srivc in open loop), or one of the rsrivc_identify methods, or none (use the "
           "guesses as they are).", read_only=True,
           choices=("auto", "none", "additive-clsrivc", "additive-srivc", "bcd-srivc", "srivc", "clsrivc")),
-    Param("estimator.filter_smoothing", "string", "auto", "Prefilter denominator from the estimate (off: 000 "
+    Param("estimator.filter_smoothing", "string", "auto", "Prefilter denominator from the estimate (off: [RA-SRIVC] "
           "Algorithm 2 as printed) or smoothed over one period of the mode (on); auto: only for modes whose memory is "
-          "shorter than 3 decay times 1/(zeta omega), where the carried filter states (000 Remark 4.4) otherwise make "
-          "the estimate oscillate.", read_only=True, choices=("auto", "on", "off")),
+          "shorter than 3 decay times 1/(zeta omega), where the carried filter states ([RA-SRIVC] Remark 4.4) "
+          "otherwise make the estimate oscillate.", read_only=True, choices=("auto", "on", "off")),
     Param("estimator.init_warmup_s", "double", -1.0, "Seconds at the start of the initialization data that only "
           "warm up the offline filters (left out of the fit); -1: automatic (none, unless the fit's output error "
           "starts with the plant's free response, i.e. the data start in motion: then 5 decay times of the slowest "
@@ -132,7 +132,7 @@ FAULT_PARAMS: list[Param] = [
     Param("faults.health.max_condition", "double", 1e12, "Loss of excitation when the estimator's IV condition "
           "number exceeds this.", 1.0, 1e300),
     Param("faults.health.max_projection_fraction", "double", 0.01, "Projection storm when more than this "
-          "fraction of updates needed the stability projection (000 §4.7).", 0.0, 1.0),
+          "fraction of updates needed the stability projection ([RA-SRIVC] §4.7).", 0.0, 1.0),
     Param("faults.health.residual_jump_ratio", "double", 3.0, "Residual-variance jump when the residual "
           "variance exceeds its healthy level by this factor (advisory: a fault is then confirmed only if it "
           "began together with the jump).", 1.0, 1e12),

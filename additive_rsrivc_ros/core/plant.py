@@ -1,17 +1,10 @@
 """Exact ZOH response of the additive modal plant (ROS-free; numba per-sample loop).
 
-The plant is the additive continuous-time model of 000 eq. (5) / 001 eq. (2)
-
-    x(t) = sum_i x_i(t),   p^l_i (a_i2 p^2 + a_i1 p + 1) x_i = b_i0 u(t - d h)     (flexible / with integrators)
-                           p^l_i x_i = b_i0 u(t - d h)                              (rigid body, n = 0)
-
-with ``u`` held between samples and a known input delay of ``d`` samples. :func:`simulate_kernel` advances it
-sample by sample with parameters that may change at every sample (the simulator of
-:mod:`additive_rsrivc_ros.sim.simulate` drives it, with measurement corruptions given as arrays);
-:func:`open_loop_output` is the response of a fixed model to a given input (used by ``core.modefind``);
-:func:`discrete_plant`, :func:`closed_loop_poles` and :func:`loop_margins` analyse the frozen loop.
-The ZOH transition of each mode is exact: :func:`core.zoh.second_order_zoh` for flexible modes,
-:func:`core.zoh.integrator_chain_zoh` for rigid-body modes and a compiled scaling-and-squaring matrix exponential
+The plant of [RA-SRIVC] eq. 5 / [A-SRIVC] eq. 2 (:mod:`..sim.simulate`), ``u`` held between samples and delayed ``d``
+samples. :func:`simulate_kernel` advances it sample by sample with parameters that may change at every sample;
+:func:`open_loop_output` is a fixed model's response to a given input (``core.modefind``); :func:`discrete_plant`,
+:func:`closed_loop_poles` and :func:`loop_margins` analyse the frozen loop. Each mode's transition is exact:
+:func:`.zoh.second_order_zoh`, :func:`.zoh.integrator_chain_zoh`, and a compiled scaling-and-squaring matrix exponential
 for ``b0/(p^l A(p))`` with ``l > 0``.
 """
 
@@ -95,7 +88,7 @@ def simulate_kernel(theta: np.ndarray, kinds: np.ndarray, ls: np.ndarray, h: flo
                      den: np.ndarray, add: np.ndarray, stuck: np.ndarray, stuck_val: np.ndarray,
                      hold: np.ndarray, nanmask: np.ndarray, u: np.ndarray, y: np.ndarray, x: np.ndarray,
                      e: np.ndarray) -> None:
-    """Per-sample loop (000 eq. 10 closed loop): output at t_k, control u(t_k), then advance with u(t_{k-d})."""
+    """Per-sample loop ([RA-SRIVC] eq. 10 closed loop): output at t_k, control u(t_k), then advance with u(t_{k-d})."""
     n, kmodes = theta.shape[0], theta.shape[1]
     ns_max = 5
     z = np.zeros((kmodes, ns_max))
@@ -176,7 +169,7 @@ def check_drive(drive: np.ndarray, n: int | None, rate_hz: float, input_delay: i
 def pack_thetas(thetas: Sequence[np.ndarray], structures: Sequence[SubmodelStructure],
                 n: int) -> tuple[np.ndarray, np.ndarray, np.ndarray, list[np.ndarray]]:
     """Kernel arrays ``(theta (N, K, 3), kinds, integrators, per-mode (N, n_theta) thetas)`` from ``thetas[i]``
-    of shape ``(N, n_theta_i)`` or ``(n_theta_i,)`` (constant; 000 eq. 7 order). A mode must be
+    of shape ``(N, n_theta_i)`` or ``(n_theta_i,)`` (constant; [RA-SRIVC] eq. 7 order). A mode must be
     ``b0/(p^l A)`` with deg A = 2, or a rigid body (deg A = 0, l >= 1); ValueError otherwise."""
     kmodes = len(structures)
     theta = np.zeros((n, kmodes, 3))
@@ -228,7 +221,7 @@ def open_loop_output(thetas: Sequence[np.ndarray], structures: Sequence[Submodel
 # ----------------------------------------------------------------------------------------------------------------
 def discrete_mode_blocks(thetas: Sequence[np.ndarray], structures: Sequence[SubmodelStructure],
                          rate_hz: float) -> list[tuple[np.ndarray, np.ndarray, np.ndarray]]:
-    """Per submodel the exact ZOH ``(Phi_i, Gamma_i, c_i)`` of ``B_i/(p^l A_i)`` (000 eq. 10, without the delay):
+    """Per submodel the exact ZOH ``(Phi_i, Gamma_i, c_i)`` of ``B_i/(p^l A_i)`` ([RA-SRIVC] eq. 10, without the delay):
     the blocks of :func:`discrete_plant`."""
     h = 1.0 / rate_hz
     blocks = []
@@ -248,7 +241,7 @@ def discrete_mode_blocks(thetas: Sequence[np.ndarray], structures: Sequence[Subm
 def discrete_plant(thetas: Sequence[np.ndarray], structures: Sequence[SubmodelStructure], rate_hz: float,
                    input_delay: int = 0) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """Exact ZOH state-space ``(Phi, Gamma, C)`` of the frozen plant ``sum_i B_i/(p^l A_i)`` with the delay
-    as extra shift states (000 eq. 10): ``x_{k+1} = Phi x_k + Gamma u_k``, ``y_k = C x_k``."""
+    as extra shift states ([RA-SRIVC] eq. 10): ``x_{k+1} = Phi x_k + Gamma u_k``, ``y_k = C x_k``."""
     phi, gam, c = parallel_state_space(discrete_mode_blocks(thetas, structures, rate_hz))
     nx = phi.shape[0]
     if input_delay:
@@ -266,7 +259,7 @@ def discrete_plant(thetas: Sequence[np.ndarray], structures: Sequence[SubmodelSt
 
 def closed_loop_poles(thetas: Sequence[np.ndarray], structures: Sequence[SubmodelStructure],
                       controller: DiscreteController, rate_hz: float, input_delay: int = 0) -> np.ndarray:
-    """Eigenvalues of the sampled loop ``u = C_d (r - y)`` around the frozen ZOH plant (000 eq. 10)."""
+    """Eigenvalues of the sampled loop ``u = C_d (r - y)`` around the frozen ZOH plant ([RA-SRIVC] eq. 10)."""
     from scipy import signal
 
     phi, gam, c = discrete_plant(thetas, structures, rate_hz, input_delay)

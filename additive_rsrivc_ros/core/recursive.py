@@ -1,23 +1,13 @@
-"""Streaming recursive additive SRIVC / CLSRIVC estimator (000 Algorithm 2, §4.5-4.7).
+"""Streaming recursive additive SRIVC / CLSRIVC estimator ([RA-SRIVC] Algorithm 2, §4.5-4.7).
 
-:class:`RecursiveAdditiveSRIVC` wraps the compiled kernel (:mod:`core.kernel`) with
-
-* a robust start (issue 4 item 2): offline initialization on the first data (``core.offline.identify``,
-  001 eqs. 20-29) when available, then filter priming (000 Algorithm 2 step 1: the filters run over the
-  initialization data with the initial model, no parameter updates), and ``P_i(0)`` scaled per parameter
-  (``diag(rho_a^2 a1^2, rho_a^2 a2^2, rho_b^2 b0^2)``, ../shared/NOTES.md);
-* a streaming API: :meth:`update` takes any number of samples; :attr:`thetas`, :attr:`covariances`
-  (``sigma^2 P_bar``), :meth:`modal` (delta method), :attr:`health`;
-* snapshot/restore (:meth:`get_state`/:meth:`set_state`, :meth:`save`/:meth:`load`): all state lives in
-  numpy arrays, so a restored estimator continues bit-identically;
-* bad input handling: a non-finite or masked sample is skipped (counted), :meth:`mark_gap` re-primes the
-  filters after a gap, non-finite filter states re-prime automatically; theta and P never take a
-  non-finite value.
-
-Forgetting factors are per *update*: ``lambda_i = 1 - subsampling / (memory_s_i * rate)`` (NOTES: lambda
-must scale with the rate), so that the memory in seconds does not depend on the output subsampling.
-Supported submodels: second-order modes ``b0/(a2 p^2 + a1 p + 1)`` and rigid-body modes ``b0/p^l``
-(l = 1, 2; 000 §4.6 eqs. 34-35). Other orders raise ``ValueError``.
+:class:`RecursiveAdditiveSRIVC` wraps the compiled kernel (:mod:`.kernel`) with a robust start (the offline
+additive (CL)SRIVC, [A-SRIVC] eqs. 20-29, on the first data, then filter priming, Algorithm 2 step 1), a streaming
+API (:meth:`~RecursiveAdditiveSRIVC.update` takes any number of samples; ``thetas``, ``covariances``, ``modal``,
+``health``), snapshot and restore (all state in numpy arrays: a restored estimator continues bit-identically) and
+bad-input handling (a non-finite or masked sample is skipped and counted, a gap re-primes the filters; theta and P
+never become non-finite). Forgetting is per *update*: ``lambda_i = 1 - subsampling / (memory_s_i * rate)``, so the
+memory in seconds depends neither on the rate nor on the subsampling. Submodels: second-order modes
+``b0/(a2 p^2 + a1 p + 1)`` and rigid bodies ``b0/p^l``, l = 1, 2 (§4.6 eqs. 34-35).
 """
 
 from __future__ import annotations
@@ -41,13 +31,13 @@ STATE_KEYS = ("kind", "lam", "muf", "cnum", "cden", "cfg_i", "cfg_f", "p0diag", 
 _INT_KEYS = ("kind", "cfg_i", "ist", "proj", "rej", "rejr")
 # 2: filter model "thf", "muf"; version-1 snapshots load with thf = theta, muf = 0 (Algorithm 2)
 # 3: rejections per reason "rejr" and the non-finite instrument counter in "ist"; older snapshots load with zeros
-# 4: IV sandwich accumulator "S" (issue 17 item 4); older snapshots load with S = P^-1 / (1 + lambda) (stationary)
-# 5: a rigid body's free response c0, c1 in slots 1, 2 of theta, P, S (issue 17 item 1); older snapshots start it
+# 4: IV sandwich accumulator "S"; older snapshots load with S = P^-1 / (1 + lambda) (stationary)
+# 5: a rigid body's free response c0, c1 in slots 1, 2 of theta, P, S; older snapshots start it
 #    unknown
 STATE_VERSION = 5
 FILTER_PERIODS = 1.0  # default filter-model time constant in periods of each mode (set_filter_memory)
 # "auto" filter policy: smooth the prefilter denominator of a mode only where the slow-variation approximation of
-# 000 Remark 4.4 fails, i.e. where the forgetting memory is shorter than this many decay times 1/(zeta omega)
+# [RA-SRIVC] Remark 4.4 fails, i.e. where the forgetting memory is shorter than this many decay times 1/(zeta omega)
 AUTO_DECAY_FACTOR = 3.0
 FILTER_POLICIES = core_param("estimator.filter_smoothing").choices  # ("auto", "on", "off")
 
@@ -71,9 +61,9 @@ DEFAULTS = EstimatorOptions()  # the estimator.* defaults (core/params.py) of th
 
 
 def p0_from_information(p_block: np.ndarray, n_samples: int, lam: float) -> np.ndarray | None:
-    """``P_i(0)`` from an offline fit: its ``(sum_k zeta_i phi_i^T)^-1`` over ``n_samples`` samples (001 eq. 33)
-    rescaled to the exponential weighting of the recursion (000 eqs. 30-32, ``P^-1 <- lambda P^-1 + zeta phi^T``):
-    the record's per-sample information times ``sum_k lambda^k = (1 - lambda^N)/(1 - lambda)``, i.e.
+    """``P_i(0)`` from an offline fit: its ``(sum_k zeta_i phi_i^T)^-1`` over ``n_samples`` samples ([A-SRIVC] eq. 33)
+    rescaled to the exponential weighting of the recursion ([RA-SRIVC] eqs. 30-32, ``P^-1 <- lambda P^-1 + zeta
+    phi^T``): the record's per-sample information times ``sum_k lambda^k = (1 - lambda^N)/(1 - lambda)``, i.e.
     ``P_i(0) = N (1 - lambda) / (1 - lambda^N) * p_block``. ``None`` if the block is not usable (non-finite or
     a non-positive diagonal)."""
     p = np.asarray(p_block, dtype=float)
@@ -84,7 +74,7 @@ def p0_from_information(p_block: np.ndarray, n_samples: int, lam: float) -> np.n
 
 
 def p0_diagonal(theta: np.ndarray, kind: int, p0_relative: tuple[float, float]) -> np.ndarray:
-    """``P_i(0)`` diagonal scaled with the parameters (NOTES): ``rho_a^2 a_j^2`` and ``rho_b^2 b0^2``."""
+    """``P_i(0)`` diagonal scaled with the parameters: ``rho_a^2 a_j^2`` and ``rho_b^2 b0^2``."""
     ra, rb = p0_relative
     out = np.zeros(kn.NT)
     th = np.abs(np.asarray(theta, dtype=float))
@@ -130,8 +120,8 @@ def stationary_sandwich(p: np.ndarray, lam: float) -> np.ndarray:
 
 def sandwich_from_offline(p0: np.ndarray, cov0: np.ndarray, sigma2_0: float) -> np.ndarray | None:
     """``S_i(0) = P_i(0)^-1 C_0 P_i(0)^-T / sigma_0^2``: the recursion starts at the offline estimate, whose error
-    covariance ``C_0`` is the offline IV sandwich (001 Theorem 1, its block of the joint matrix, so the coupling of
-    the modes in the start record is in it); with it ``sigma^2 P S P^T`` equals ``C_0`` at the start and the
+    covariance ``C_0`` is the offline IV sandwich ([A-SRIVC] Theorem 1, its block of the joint matrix, so the coupling
+    of the modes in the start record is in it); with it ``sigma^2 P S P^T`` equals ``C_0`` at the start and the
     ``lam^(2N) S(0)`` term forgets it like the recursion forgets ``theta_bar(0)``. ``None`` if not usable."""
     try:
         pinv = np.linalg.inv(np.asarray(p0, dtype=float))
@@ -149,11 +139,11 @@ def sandwich_from_offline(p0: np.ndarray, cov0: np.ndarray, sigma2_0: float) -> 
 
 def closed_loop_matrix(kinds: Sequence[int], thetas: Sequence[np.ndarray], rate_hz: float, controller: Any,
                        input_delay: int = 0) -> np.ndarray:
-    """State matrix of the noise-free sampled loop ``u = C_d(q)(r - y)`` around the frozen ZOH model (000 eq. 10).
+    """State matrix of the noise-free sampled loop ``u = C_d(q)(r - y)`` about the frozen ZOH model ([RA-SRIVC] eq. 10).
 
-    The same loop generates the closed-loop instrument ``z = S_uo r`` (000 eq. 33, NOTES erratum 3): when it is
-    unstable the instrument and its filters grow without bound and the recursion cannot run. Per mode the kernel's
-    own ZOH discretization of ``1/A_i`` (or ``1/p^l``) with output ``b0 w``; ``d`` input-delay shift states
+    The same loop generates the closed-loop instrument ``z = S_uo r`` ([RA-SRIVC] eq. 33, erratum 3 in docs/DESIGN.md):
+    when it is unstable the instrument and its filters grow without bound and the recursion cannot run. Per mode the
+    kernel's own ZOH discretization of ``1/A_i`` (or ``1/p^l``) with output ``b0 w``; ``d`` input-delay shift states
     (``x_{k+1} = Phi x_k + Gamma u_{k-d}``); ``C_d`` in transposed direct form II (``scipy.signal.lfilter``).
     """
     kind = np.asarray(kinds, dtype=np.int64)
@@ -196,62 +186,19 @@ class _ReportBlocks(NamedTuple):
 
 
 class RecursiveAdditiveSRIVC:
-    """Recursive additive (CL)SRIVC estimator, 000 Algorithm 2 with the closed-loop instrument eq. 33.
+    """Recursive additive (CL)SRIVC estimator, [RA-SRIVC] Algorithm 2 with the closed-loop instrument eq. 33.
 
-    Parameters
-    ----------
-    structures, theta0:
-        Submodel structures and initial parameter vectors ``[a1, a2, b0]`` (or ``[b0]`` rigid body).
-    rate_hz:
-        Sample rate of r, u, y.
-    forgetting:
-        ``lambda_i`` per mode, per update (see module docstring).
-    controller:
-        Known ``C_d`` for the closed-loop instrument ``z = S_uo(q, t_k) r`` (000 eq. 33); ``None`` = open
-        loop (``z = u``, eq. 28).
-    input_delay:
-        Known input delay in samples.
-    block_sweeps, refinements:
-        ``M_l`` and ``M_s`` of Algorithm 2.
-    projection:
-        Reflect right-half-plane roots of ``A_i`` (000 §4.7).
-    subsampling:
-        Update every n-th sample; all inputs are still filtered (000 §4.7).
-    p0_relative:
-        ``(rho_a^2, rho_b^2)`` of ``P_i(0)`` (NOTES).
-    p0_policy:
-        ``"information"`` (default): after an accepted offline initialization, ``P_i(0)`` is the information of
-        the initialization record as the recursion would weigh it (:func:`p0_from_information`), so the reported
-        uncertainty and the adaptation gain start at their steady level; otherwise, and with ``"relative"``,
-        the parameter-scaled diagonal of ``p0_relative``.
-    max_step:
-        Reject an update that moves a parameter by more than this fraction of its value (0, the default,
-        disables it: on the beam a wound-up P made every update exceed any fixed bound and the estimator
-        locked).
-    p_cap:
-        Stop dividing by lambda once a diagonal of P exceeds ``p_cap`` times its P(0) (wind-up guard; off by
-        default: 1e4-1e8 slowed the tracking of the 000 §5 and beam scenarios).
-    filter_memory_s:
-        Time constant (s, scalar or per mode) of the *filter model* ``A_f,i`` that builds the prefilters
-        ``1/A_i`` of eqs. 26-28/33 (and the other modes' simulated outputs, eq. 22): ``a_f <- mu_f a_f + (1 -
-        mu_f) a`` per update, ``mu_f = 1 - subsampling/(filter_memory_s rate)``; ``b0`` follows the estimate.
-        ``None``: ``FILTER_PERIODS`` periods ``2 pi sqrt(a2)`` of each mode's current model, set again on
-        :meth:`reset`/:meth:`initialize` (recommended when a memory is shorter than the mode's decay time
-        ``1/(zeta omega)``, e.g. the beam's mode 2). 0 (default) = 000 Algorithm 2 as printed (the filters follow
-        the latest estimate): the filter lag cost 1 of 10 divergences on the 000 §5 open-loop 10-20 % far start,
-        so it is not the default. ``inf`` freezes the filters (fixed-prefilter IV-RLS). See
-        :meth:`set_filter_memory`.
-    reprime_s:
-        Samples (in s) without updates after a gap or a filter reset; default 5 slowest time constants.
-    init_warmup_s:
-        Seconds of the initialization record that only warm up the offline filters (``None``: automatic, see
-        ``core.offline.warmup_samples``).
-    init_method, init_max_iterations, init_samples:
-        Offline initialization used by :meth:`initialize` (``"none"`` keeps the guesses).
-    guess_spread:
-        Relative std of the guesses as a prior of the offline initialization (:meth:`_with_guess_prior`; 0: none).
-    filter_policy:
-        ``"auto"``, ``"on"`` or ``"off"`` (:meth:`set_filter_policy`); overrides ``filter_memory_s`` when given.
+    ``structures, theta0``: submodels and their ``[a1, a2, b0]`` (rigid body ``[b0]``); ``forgetting``: ``lambda_i`` per
+    mode and update; ``controller``: ``C_d`` of the instrument ``z = S_uo(q, t_k) r`` (None: open loop, ``z = u``, eq.
+    28); ``input_delay`` in samples; ``block_sweeps, refinements``: ``M_l, M_s``; ``projection`` and ``subsampling``:
+    §4.7. ``p0_*``, ``init_*``, ``guess_spread`` and ``filter_policy`` mean what the ``estimator.*`` parameters of
+    :mod:`.params` say. ``p0_policy`` ``"information"`` starts ``P_i(0)`` at the offline fit's information weighted like
+    the recursion (:func:`p0_from_information`), else the diagonal of ``p0_relative``; ``max_step`` (0: off) and
+    ``p_cap`` (inf: off) guard parameter steps and wind-up; ``filter_memory_s`` (or ``filter_policy``) sets the filter
+    model ``a_f <- mu_f a_f + (1 - mu_f) a`` that builds the prefilters (0: Algorithm 2 as printed; ``None``:
+    ``FILTER_PERIODS`` periods of the mode, needed when a memory is below the mode's decay time; ``inf``: fixed
+    prefilters); ``reprime_s``: seconds without updates after a gap or a filter reset (default: 5 slowest time
+    constants).
     """
 
     def __init__(self, structures: Sequence[SubmodelStructure], theta0: Sequence[np.ndarray], rate_hz: float, *,
@@ -278,7 +225,7 @@ class RecursiveAdditiveSRIVC:
             raise ValueError("need input_delay >= 0, block_sweeps >= 1, refinements >= 0, subsampling >= 1")
         kind = np.array([_kind_of(s) for s in structures], dtype=np.int64)
         if np.sum(kind > 0) > 1:
-            raise ValueError("at most one rigid-body submodel (000 §4.6)")
+            raise ValueError("at most one rigid-body submodel ([RA-SRIVC] §4.6)")
         self.structures = structures
         self.rate_hz = float(rate_hz)
         self.p0_relative = (float(p0_relative[0]), float(p0_relative[1]))
@@ -358,7 +305,7 @@ class RecursiveAdditiveSRIVC:
     @classmethod
     def from_config(cls, cfg: MonitorSettings) -> RecursiveAdditiveSRIVC:
         """Build from a :class:`config.MonitorConfig` (modes, memories, controller, ``cfg.estimator`` options)."""
-        if not cfg.modes:  # issue 12: without guesses the modes come from core.modefind.autostart_config first
+        if not cfg.modes:  # without guesses the modes come from core.modefind.autostart_config first
             raise ValueError("no mode guesses (modes.natural_frequency_hz empty): find them first (core.modefind."
                              "autostart_config, rsrivc_diagnose, or rsrivc_identify --modes auto --out-params)")
         est = cfg.estimator
@@ -437,7 +384,7 @@ class RecursiveAdditiveSRIVC:
 
     @property
     def thetas(self) -> list[np.ndarray]:
-        """Latest ``theta_bar_i(t_k)`` per mode (000 eq. 7 order)."""
+        """Latest ``theta_bar_i(t_k)`` per mode ([RA-SRIVC] eq. 7 order)."""
         return [self._s["theta"][i, :s.n_theta].copy() for i, s in enumerate(self.structures)]
 
     @property
@@ -448,24 +395,14 @@ class RecursiveAdditiveSRIVC:
 
     @property
     def covariances(self) -> list[np.ndarray]:
-        """Covariance of ``theta_bar_i`` per mode: the IV sandwich ``sigma^2 P_bar_i S_i P_bar_i^T`` (issue 17 item 4).
+        """Covariance of ``theta_bar_i`` per mode: the IV sandwich ``sigma^2 P_bar_i S_i P_bar_i^T``.
 
-        000 eqs. 30-32 give ``theta_bar(t_N) - theta = P_bar(t_N) [lam^N P_bar(0)^-1 (theta_bar(0) - theta) + sum_k
-        lam^(N-k) zeta_k v_k]`` to first order (``P_bar^-1 = sum lam^(N-k) zeta phi^T``, the regression error ``v``
-        white with variance ``sigma^2``), hence ``Cov = sigma^2 P_bar S P_bar^T`` with ``S = sum_k lam^(2(N-k)) zeta
-        zeta^T + lam^(2N) S(0)`` (kernel accumulator; 000 §4.2 calls ``P_bar`` "an approximate covariance", which
-        this replaces). It differs from ``sigma^2 P_bar`` by (i) the forgetting factor: for stationary signals ``P_bar ~
-        (1 - lam) Rbar^-1`` and ``S ~ Rbar_zz/(1 - lam^2)``, so ``Cov ~ sigma^2 P_bar/(1 + lam)`` (``sigma^2 P_bar``
-        overstated the variance twice, the std by ``sqrt 2``); (ii) the IV sandwich ``Rbar^-1 Rbar_zz Rbar^-T``: it
-        collapses to ``Rbar^-1`` only when the instrument is the noise-free part of the regressor (refined/optimal
-        IV with a white OE error, 000 §4.5); (iii) non-stationary excitation and the start (``S(0)``, exact sums).
-
-        Cross-mode coupling: the block-coordinate recursion updates mode i with the block-diagonal gain ``G_i =
-        P_bar_i ~ (1 - lam_i) Rbar_ii^-1``; its error obeys ``d_k = (I - G zeta psi^T) d_(k-1) + G zeta v``, whose
-        stationary covariance solves ``G Rbar C + C Rbar G = sigma^2 G Rbar G`` to first order in ``1 - lam``, i.e.
-        ``C = sigma^2 G/2`` -- block-diagonal. The coupling of the modes slows the recursion in the weakly
-        excited joint directions instead of inflating its stationary variance, so no cross term is added (it
-        matters in transients only: the offline start's coupled covariance enters through ``S(0)``).
+        Linearizing [RA-SRIVC] eqs. 30-32, ``theta_bar - theta = P_bar sum_k lam^(N-k) zeta_k v_k`` (``v`` white,
+        variance ``sigma^2``), so ``Cov = sigma^2 P_bar S P_bar^T`` with ``S = sum_k lam^(2(N-k)) zeta zeta^T +
+        lam^(2N) S(0)`` (kernel accumulator). For stationary signals ``Cov ~ sigma^2 P_bar/(1 + lam)``: the
+        "approximate covariance" ``sigma^2 P_bar`` of §4.2 overstates the std by ``sqrt 2``. No cross-mode term: the
+        block-coordinate recursion's stationary error covariance is ``sigma^2 G/2`` with the block-diagonal gain
+        ``G`` (first order in ``1 - lam``); the offline start's coupled covariance enters through ``S(0)``.
         """
         return [c.copy() for c in self._blocks().covariances]
 
@@ -496,8 +433,8 @@ class RecursiveAdditiveSRIVC:
 
     @property
     def information_covariances(self) -> list[np.ndarray]:
-        """``sigma^2 P_bar_i`` (the adaptation gain's scale, 000 §4.2): it winds up without excitation, the sandwich
-        :attr:`covariances` does not (an estimate that stops moving keeps its error), so loss of excitation is
+        """``sigma^2 P_bar_i`` (the adaptation gain's scale, [RA-SRIVC] §4.2): it winds up without excitation, the
+        sandwich :attr:`covariances` does not (an estimate that stops moving keeps its error), so loss of excitation is
         judged on this one."""
         return [c.copy() for c in self._blocks().information]
 
@@ -520,7 +457,7 @@ class RecursiveAdditiveSRIVC:
     def closed_loop_max_pole(self) -> float:
         """Largest closed-loop pole modulus of the current model with ``C_d`` and the input delay (NaN in open loop).
 
-        ``>= 1``: the model's noise-free closed loop, which also generates the instrument (000 eq. 33), is
+        ``>= 1``: the model's noise-free closed loop, which also generates the instrument ([RA-SRIVC] eq. 33), is
         unstable; the estimate is then no valid model of a plant that the controller stabilizes.
         """
         if not self.closed_loop or self.controller is None:
@@ -575,9 +512,9 @@ class RecursiveAdditiveSRIVC:
     def set_filter_policy(self, policy: str) -> None:
         """Choose when the prefilters use the smoothed filter model ``A_f`` (see :meth:`set_filter_memory`).
 
-        ``"off"``: 000 Algorithm 2 as printed. ``"on"``: every mode, one period of the mode. ``"auto"``: only the
+        ``"off"``: [RA-SRIVC] Algorithm 2 as printed. ``"on"``: every mode, one period of the mode. ``"auto"``: only the
         modes whose forgetting memory is shorter than ``AUTO_DECAY_FACTOR`` decay times ``1/(zeta omega) =
-        2 a2/a1`` of their current model, where the slow-variation approximation of 000 Remark 4.4 behind the
+        2 a2/a1`` of their current model, where the slow-variation approximation of [RA-SRIVC] Remark 4.4 behind the
         carried filter states fails (the estimate <-> prefilter loop then oscillates and grows; measured in
         ``scripts/study_short_memory.py``). Re-evaluated on :meth:`reset`, :meth:`initialize` and memory changes.
         """
@@ -611,13 +548,13 @@ class RecursiveAdditiveSRIVC:
     def set_filter_memory(self, filter_memory_s: float | Sequence[float] | None) -> None:
         """Time constant (s) of the filter model ``A_f,i`` per mode; ``None`` = ``FILTER_PERIODS`` periods.
 
-        000 Remark 4.4 carries the filter states across coefficient changes, which is exact only while the
+        [RA-SRIVC] Remark 4.4 carries the filter states across coefficient changes, which is exact only while the
         coefficients are nearly constant over the filters' response. With a memory shorter than the decay time
         ``1/(zeta omega)`` of a lightly damped mode the estimate <-> prefilter loop of Algorithm 2 (through
         ``A_i`` alone) oscillates and grows (``scripts/study_short_memory.py``); averaging the estimated ``A_i``
         over a few periods of the mode before it builds the filters breaks that loop. The fixed point is
         unchanged (``A_f = A`` when the estimate is stationary). 0 = Algorithm 2, ``inf`` = frozen filters.
-        Rigid-body modes have no ``A`` (000 §4.6) and ignore it.
+        Rigid-body modes have no ``A`` ([RA-SRIVC] §4.6) and ignore it.
         """
         K = self.K
         sub = int(self._s["cfg_i"][kn.C_SUBSAMPLE])
@@ -653,7 +590,7 @@ class RecursiveAdditiveSRIVC:
         return [self._s["thf"][i, :s.n_theta].copy() for i, s in enumerate(self.structures)]
 
     def set_memory(self, memory_s: np.ndarray | Sequence[float] | float) -> None:
-        """``lambda_i = 1 - subsampling/(memory_s_i rate)`` (NOTES: lambda scales with the rate)."""
+        """``lambda_i = 1 - subsampling/(memory_s_i rate)`` (lambda scales with the rate)."""
         mem = np.broadcast_to(np.asarray(memory_s, dtype=float), (self.K,))
         sub = int(self._s["cfg_i"][kn.C_SUBSAMPLE])
         if not np.all(mem * self.rate_hz >= 2.0 * sub):
@@ -669,7 +606,7 @@ class RecursiveAdditiveSRIVC:
             raise ValueError(f"u and y must have the same length, got {n} and {y.size}")
         if r is None:
             if self.closed_loop:
-                raise ValueError("closed loop: the reference r is needed for the instrument (000 eq. 33)")
+                raise ValueError("closed loop: the reference r is needed for the instrument ([RA-SRIVC] eq. 33)")
             r = np.zeros(n)
         r = np.ascontiguousarray(np.atleast_1d(np.asarray(r, dtype=float)).ravel())
         if r.size != n:
@@ -689,7 +626,7 @@ class RecursiveAdditiveSRIVC:
                      s["rejr"], trace)
 
     def update(self, r: Any, u: Any, y: Any, valid: Any = None, *, trace: bool = False) -> np.ndarray | None:
-        """Process any number of samples (000 Algorithm 2 lines 2-16 per sample).
+        """Process any number of samples ([RA-SRIVC] Algorithm 2 lines 2-16 per sample).
 
         ``r`` is ignored in open loop (may be ``None``). ``valid`` (bool, broadcastable) marks samples to
         skip; non-finite samples are skipped as well. With ``trace=True`` returns theta after every
@@ -701,7 +638,7 @@ class RecursiveAdditiveSRIVC:
         return tr if trace else None
 
     def prime(self, r: Any, u: Any, y: Any, valid: Any = None) -> None:
-        """000 Algorithm 2 step 1: filters from rest over the data with the current model, no updates."""
+        """[RA-SRIVC] Algorithm 2 step 1: filters from rest over the data with the current model, no updates."""
         r, u, y, v = self._arrays(r, u, y, valid)
         self._reset_filters()
         self._run(r, u, y, v, False, np.empty((0, self.K, kn.NT)))
@@ -744,9 +681,9 @@ class RecursiveAdditiveSRIVC:
         return probe.residual_variance
 
     def initialize(self, r: Any, u: Any, y: Any) -> Any:
-        """Robust start (issue 4 item 2): offline init, P(0) scaled per parameter, then priming.
+        """Robust start: offline init, P(0) scaled per parameter, then priming.
 
-        The offline estimate (``core.offline.identify``, 001 eqs. 20-29), combined with the guesses as a prior
+        The offline estimate (``core.offline.identify``, [A-SRIVC] eqs. 20-29), combined with the guesses as a prior
         (:meth:`_with_guess_prior`), replaces the guesses only when it is finite, stable and explains the data better
         (smaller output-error variance). Returns the ``IdentificationResult`` or ``None`` (no offline core,
         ``init_method="none"`` or failure).
@@ -807,7 +744,7 @@ class RecursiveAdditiveSRIVC:
 
     def _uninformed(self, guesses: list[np.ndarray], data: tuple[np.ndarray, ...], fit_once: Any,
                     ) -> set[tuple[int, int]]:
-        """(mode, quantity) pairs the data do not inform: the guess predicts data *not used to fit* as well (issue 12).
+        """(mode, quantity) pairs the data do not inform: the guess predicts data *not used to fit* as well.
 
         The offline fit of the first two thirds of the window (``fit_once(r, u, y)``) predicts the last third by its
         output ``y_fit = sum_i G_i u`` (the models run over the whole window; a rigid body's free response is
@@ -868,13 +805,13 @@ class RecursiveAdditiveSRIVC:
 
     def _with_guess_prior(self, guesses: list[np.ndarray], fit: list[np.ndarray], result: Any,
                           data: tuple[np.ndarray, ...], fit_once: Any) -> tuple[list[np.ndarray], str]:
-        """The offline fit combined with the guesses as a prior (issue 12: guesses are a prior, not the answer).
+        """The offline fit combined with the guesses as a prior (guesses are a prior, not the answer).
 
         In modal coordinates ``m = (f, zeta, gain)`` per mode: prior ``N(m_g, diag((s m_g)^2))`` with ``s`` =
         ``guess_spread`` (a tiny spread for what :meth:`_uninformed` finds, and for a mode the fit leaves
         without a modal form), data ``N(m_f, C_f)`` with ``C_f`` the fit's joint covariance of every mode
-        (001 Theorem 1 sandwich, delta method); the start is the posterior mean ``m_g + P (P + C_f)^-1 (m_f - m_g)``:
-        the fit where its data inform, the guesses where they do not, per mode (within a mode the covariance of
+        ([A-SRIVC] Theorem 1 sandwich, delta method); the start is the posterior mean ``m_g + P (P + C_f)^-1 (m_f -
+        m_g)``: the fit where its data inform, the guesses where they do not, per mode (within a mode the covariance of
         gain and damping carries the other along the resonance peak). Only second-order modes and rigid bodies
         (their gain); otherwise the fit.
         Returns ``(thetas, note)``.

@@ -1,7 +1,7 @@
-"""The recursive estimator's per-report numbers in one compiled pass (issue 16), and its closed-loop state matrix.
+"""The recursive estimator's per-report numbers in one compiled pass, and its closed-loop state matrix.
 
 Every report publishes, per mode, the modal values and their delta-method stds from the IV sandwich covariance
-(000 §4.2, ``RecursiveAdditiveSRIVC.covariances``), the covariance blocks' problems (a non-finite or indefinite
+([RA-SRIVC] §4.2, ``RecursiveAdditiveSRIVC.covariances``), the covariance blocks' problems (a non-finite or indefinite
 block reports NaN std, never 0), the loss-of-excitation relative std from ``sigma^2 P_bar`` and the IV condition
 numbers. Done with numpy, these are some forty small-array calls per report (0.3 ms for K = 2, a tenth of a 60 s
 diagnosis); here they are one call. The arithmetic is that of :func:`.model.modal_from_theta`,
@@ -155,7 +155,7 @@ def _modal_values(kind: int, th: np.ndarray, out: np.ndarray) -> None:
 
 @kernel
 def _modal_stds(kind: int, th: np.ndarray, c: np.ndarray, out: np.ndarray) -> None:
-    """Delta-method stds ``sqrt(diag(J C J^T))`` (:func:`.model.modal_std`, 000 §4.2); a negative variance is NaN."""
+    """Delta-method stds ``sqrt(diag(J C J^T))`` (:func:`.model.modal_std`, [RA-SRIVC] §4.2); negative variance: NaN."""
     if kind != 0:
         var_f, var_z, var_g = 0.0, 0.0, c[0, 0]
     elif th[1] > 0.0:
@@ -271,8 +271,8 @@ def report_numbers(kind: np.ndarray, theta: np.ndarray, P: np.ndarray, S: np.nda
 def closed_loop_state_matrix(kind: np.ndarray, theta: np.ndarray, h: float, delay: int, nump: np.ndarray,
                              denp: np.ndarray, a: np.ndarray) -> None:
     """Fill the zeroed ``a`` (n x n, ``n = nx + delay + nc``) with the state matrix of the noise-free sampled loop
-    ``u = C_d(q)(r - y)`` around the frozen ZOH model (000 eq. 10; :func:`.recursive.closed_loop_matrix`): per mode
-    the kernel's ZOH of ``1/A_i`` (or ``1/p^l``) with output ``b0 w``, then ``delay`` shift states, then ``C_d`` in
+    ``u = C_d(q)(r - y)`` around the frozen ZOH model ([RA-SRIVC] eq. 10; :func:`.recursive.closed_loop_matrix`): per
+    mode the kernel's ZOH of ``1/A_i`` (or ``1/p^l``) with output ``b0 w``, then ``delay`` shift states, then ``C_d`` in
     transposed direct form II with ``nump, denp`` (numerator and denominator over ``den[0]``, equal length
     ``nc + 1``)."""
     n = a.shape[0]

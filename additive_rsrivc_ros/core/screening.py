@@ -1,21 +1,11 @@
-"""Screening of a whole record before a batch (non-recursive) fit: which samples are garbage, and which
-stretch of evenly spaced valid samples is left.
+"""Screening of a whole record before a batch fit: which samples are garbage, which clean stretch is left.
 
-The batch estimators (001, :func:`.offline.identify`) filter the data with continuous-time filters discretized
-on a uniform grid, so a fit needs contiguous, evenly spaced, valid samples. The rules mirror the monitor
-pipeline's sample validation (:mod:`.pipeline`), so the offline tools and the node call the same things bad:
-
-* a time stamp equal to the previous one is a *duplicate* (the later sample is dropped); an earlier one is
-  *out of order* (dropped);
-* a *non-finite* value in r, u or y, and a value of *absurd magnitude*: ``|x| > ABSURD_ABS`` or ``|x - median|``
-  above ``ABSURD_REL`` times the signal's robust scale (1.4826 x the median absolute deviation; the mean absolute
-  deviation when the MAD is 0), i.e. nothing a sensor or a controller can produce next to the rest of the record;
-* an output exactly equal to the previous output is a *held* sample (a lost sample the receiver repeated) when
-  ``faults.health.repeated_output_is_missing`` (default true), as in the pipeline;
-* a spacing above ``(1 + faults.health.gap_tolerance) / rate`` is a *data gap*.
-
-Bad samples and gaps split the record; :func:`screen` returns the counts per category and the longest clean
-segment. Nothing is repaired or interpolated.
+The batch estimators filter on a uniform grid, so a fit needs contiguous, evenly spaced, valid samples. The rules mirror
+the pipeline's sample validation, so the offline tools and the node call the same things bad: a repeated stamp is a
+*duplicate*, an earlier one *out of order*; a *non-finite* value, or one of *absurd magnitude* (``|x| > ABSURD_ABS`` or
+``|x - median|`` above ``ABSURD_REL`` robust scales); an output equal to the previous one is *held* (when
+``faults.health.repeated_output_is_missing``); a spacing above ``(1 + faults.health.gap_tolerance) / rate`` is a *gap*.
+:func:`screen` returns the counts per category and the longest clean segment; nothing is repaired.
 """
 
 from __future__ import annotations

@@ -1,39 +1,17 @@
 """Drift of modal quantities across recordings of one machine (``rsrivc_fleet``; ROS-free numerics).
 
-A slow change (wear, loosening, temperature) can move a mode by a fraction of a percent per recording: too
-little for the per-bag fault logic (:mod:`.faults`), which compares each recording with a baseline learned in
-that same recording. This module compares recordings with each other.
+A slow change (wear, loosening) can move a mode by a fraction of a percent per recording, too little for the per-bag
+fault logic, which compares each recording with its own baseline; here recordings are compared with each other. Per bag
+(:func:`bag_level`), over its monitored part: level ``m = median(q_k)``, scatter ``s = max(1.4826 MAD, median
+sigma_k)``, standard error ``se = sqrt(pi/2) s / sqrt(n_eff)`` with ``n_eff = T / (2 T_m)`` (the integrated
+autocorrelation time of a forgetting estimate is about twice its memory ``T_m``).
 
-**Per bag, a robust level** (:func:`bag_level`). From the bag's estimates while its fault tests ran (the
-monitored part of the record: after the start-up, outside health holds and gaps; :mod:`..verdict`), per mode
-and quantity ``q`` (natural frequency, damping ratio, gain):
-
-* level ``m = median(q_k)`` over the ``n`` monitored output instants;
-* one-estimate scatter ``s = max(1.4826 MAD(q_k), median(sigma_k))``: the estimate's own spread, never below
-  the published delta-method std ``sigma_k`` (000 eq. 32 scaled by the residual variance);
-* standard error ``se = sqrt(pi/2) s / sqrt(n_eff)`` (median of ``n_eff`` independent values), with
-  ``n_eff = max(1, T / (2 T_m))``: ``T`` the monitored time, ``T_m`` the mode's forgetting memory
-  (``memory_s``). Estimates with forgetting factor ``lambda`` are AR(1)-like with correlation ``lambda`` per
-  sample; their integrated autocorrelation time is ``(1 + lambda)/(1 - lambda) ~ 2 T_m``.
-
-**Across bags, a trend test** (:func:`drift_test`), per machine, mode and quantity, on the levels ordered by
-the recordings' first sample time, against recording order ``x_j = 0, 1, ...``:
-
-* random-effects weighted regression ``m_j = a + b x_j + e_j``, ``var e_j = se_j^2 + tau^2``; ``tau^2`` (the
-  recording-to-recording variation that no single bag shows: excitation, temperature, the estimator's bias in
-  that record) by the method of moments of DerSimonian & Laird, generalised to a regression:
-  ``tau^2 = max(0, (Q - (n - 2)) / (tr W - tr(W X (X'WX)^-1 X'W)))`` with ``Q`` the weighted residual sum
-  of the fit with ``W = diag(1/se_j^2)``;
-* slope std from ``(X'W*X)^-1`` with ``W* = diag(1/(se_j^2 + tau^2))``, inflated by ``max(1, Q*/(n - 2))``
-  (Birge ratio: never more confident than the scatter about the line allows); two-sided t test with
-  ``n - 2`` degrees of freedom at level ``alpha / n_tests`` (Bonferroni over the machine's modes x 3
-  quantities); at least :data:`MIN_RECORDINGS` recordings;
-* cumulative change ``c_j = b (x_j - x_0) / |a + b x_0|`` of the fitted line against the first recording's
-  fitted level, compared with the thresholds of the per-bag fault logic (``faults.min_change.*``): a drift
-  is flagged when the slope is significant, ``|c_last| >= min_change`` and the change also exceeds
-  ``faults.min_change.spread_factor`` times the scatter of the levels about the line;
-* ``direction`` is the slope's sign; ``first_index`` is the first recording whose fitted change reaches
-  ``min_change``; ``change_percent = 100 c_last``.
+Across bags (:func:`drift_test`), per mode and quantity against recording order: random-effects weighted regression
+``m_j = a + b x_j + e_j``, ``var e_j = se_j^2 + tau^2`` with ``tau^2`` by DerSimonian & Laird's moments generalised to a
+regression; the slope's std inflated by the Birge ratio ``max(1, Q*/(n - 2))``; two-sided t test at ``alpha / n_tests``
+(Bonferroni over modes x 3 quantities). A drift is flagged when the slope is significant and the fitted change from the
+first recording reaches ``faults.min_change.*`` and ``faults.min_change.spread_factor`` times the scatter about the
+line.
 """
 
 from __future__ import annotations

@@ -1,4 +1,4 @@
-"""The public names of ../shared/CONTRACT.md, written once, and the small helpers every writer and reader shares.
+"""The public names of docs/INTERFACE.md, written once, and the small helpers every writer and reader shares.
 
 Mode fields (``/diagnostics`` mode status keys, ``~/modes`` field order, CSV columns), quantity names (events,
 fault flags, trends), status level names, the headers of ``estimates.csv``, ``events.csv`` and ``fleet.csv``
@@ -27,7 +27,7 @@ QUANTITIES: tuple[str, ...] = ("natural_frequency", "damping", "gain")
 """Quantity names of events, flags and trends; index q matches columns q and q + 3 of ``modal()``."""
 FLAG_FIELDS: tuple[str, ...] = tuple(f"fault_{q}" for q in QUANTITIES)
 MODE_KEYS: tuple[str, ...] = (*MODE_FIELDS, *BASELINE_FIELDS, *FLAG_FIELDS)
-"""Exactly the CONTRACT keys of a ``<node name>: mode <i>`` diagnostic status, in order."""
+"""Exactly the interface's keys of a ``<node name>: mode <i>`` diagnostic status, in order."""
 SIM_QUANTITIES: tuple[str, ...] = ("frequency", "damping", "gain")
 """The simulator's spelling of :data:`QUANTITIES` (``ModalChange.quantity``): recorded bags carry it in their
 ``/truth/fault`` records, so it stays; :func:`quantity_of` and :func:`sim_quantity_of` translate."""

@@ -1,27 +1,14 @@
 """Exact zero-order-hold discretization of the small state-variable filters (numba-compiled).
 
-../shared/NOTES.md: the prefilters must be ZOH-exact (Tustin biased the closed-loop estimates by 1-4
-standard deviations). Every filter of the SRIVC family is built from the second-order section
-
-    a2 w'' + a1 w' + w = v(t),   v held constant on [t_k, t_k + h)          (000 eqs. 26-28)
-
-in physical coordinates ``x = [w, w']``; ``x_{k+1} = Phi x_k + Gamma v_k``. The filter outputs at t_k are
-``1/A v = w``, ``p/A v = w'`` and ``p^2/A v = (v_k - w - a1 w') / a2`` (direct term). Physical
-coordinates keep the state meaningful when the coefficients change from one sample to the next (the
-slow-variation approximation of 000 Remark 4.4), which is how the recursive engine and the simulator
-carry filter states.
-
-For admissible coefficients (``a1 >= 0``, ``a2 > 0``: every iterate after the stability projection of 000
-§4.7) :func:`second_order_zoh` is exact and finite for any ``h > 0`` (issue 17 item 2), by regime of the poles
-``lambda_{1,2}`` of ``1/A`` (``z = lambda h``): all ``|z| <= SERIES_RADIUS``: power series of the divided
-differences ``exp[z1, z2]`` and ``exp[0, z1, z2]`` (nothing cancels, full relative precision of the step
-response ``Gamma1`` however small ``h``); underdamped, or overdamped with ``q h < POLE_FORM_X``:
-``expm(M h) = e^{s h} [c I + S (M - s I)]`` with ``s = tr(M)/2 <= 0``, ``q^2 = s^2 - det(M)``,
-``c = cos/cosh(q h)``, ``S = sin/sinh(q h)/q`` (bounded here); overdamped otherwise: the real-pole form with
-``e^{lambda h} <= 1`` only (never ``e^{+q h}``: the old closed form overflowed above ``q h ~ 710`` and lost
-accuracy from ``q h ~ 20`` on). ``a1^2 - 4 a2`` is formed with an exact product, so near-critical damping keeps
-its digits. ``Gamma = [1 - Phi_11, -Phi_21]`` (the step response). ``scripts/validate_zoh.py`` measures the error
-against a 90-digit reference.
+Every filter of the SRIVC family is built from ``a2 w'' + a1 w' + w = v(t)``, ``v`` held on ``[t_k, t_k + h)``
+([RA-SRIVC] eqs. 26-28), in physical coordinates ``x = [w, w']``: ``x_{k+1} = Phi x_k + Gamma v_k``, outputs ``1/A v =
+w``, ``p/A v = w'``, ``p^2/A v = (v_k - w - a1 w') / a2``. Physical coordinates keep the state meaningful when the
+coefficients change (Remark 4.4). ZOH-exact because Tustin prefilters biased the closed-loop estimates by 1-4 stds. For
+``a1 >= 0, a2 > 0`` (every iterate after the projection of §4.7) :func:`second_order_zoh` is exact and finite for any
+``h > 0``, by regime of the poles: power series of the divided differences of ``exp`` for small ``|lambda h|``; ``expm(M
+h) = e^{s h} [c I + S (M - s I)]`` (``s = tr(M)/2``, ``c = cos/cosh(q h)``, ``S = sin/sinh(q h)/q``) when underdamped or
+mildly overdamped; else the real-pole form with ``e^{lambda h} <= 1`` only. ``Gamma = [1 - Phi_11, -Phi_21]``.
+``scripts/validate_zoh.py`` measures the error against a 90-digit reference.
 """
 
 from __future__ import annotations
@@ -184,7 +171,7 @@ def _real_pole_zoh(a1: float, a2: float, disc: float, h: float) -> ZohCoefficien
 def zoh_coefficients(a1: float, a2: float, h: float) -> ZohCoefficients:
     """The exact ZOH of ``a2 w'' + a1 w' + w = v`` as ``(Phi11, Phi12, Phi21, Phi22, Gamma1, Gamma2)``.
 
-    Admissible coefficients (``a1 >= 0``, ``a2 > 0``, every iterate after the projection of 000 §4.7): finite
+    Admissible coefficients (``a1 >= 0``, ``a2 > 0``, every iterate after the projection of [RA-SRIVC] §4.7): finite
     and accurate to a few ulp of each entry's scale for any ``h > 0`` (``scripts/validate_zoh.py``), by regime of
     the poles ``lambda`` of ``1/A``: all ``|lambda| h <= SERIES_RADIUS``: divided-difference series;
     underdamped or ``q h < POLE_FORM_X``: ``e^{s h}`` times bounded cos/cosh terms; otherwise the real-pole form

@@ -1,41 +1,14 @@
 """Block input: r, u, y rows of the controller, paired by its sample counter (ROS-free, used by the monitor node).
 
-Contract (../shared/CONTRACT.md "Signals in"): one ``std_msgs/msg/Float64MultiArray`` per block on ``block.topic``,
-layout dim[0] label ``sample`` (N rows), dim[1] label ``signal`` size 4, row-major columns ``index, reference,
-input, output``; ``index`` is the controller's sample counter (an integer, exact in float64). The layout is checked
-by :func:`..ros.convert.block_rows`; this module checks the index and turns rows into samples for the pipeline.
-
-* **Pairing and time**: a row is one sample, already paired by the controller, so no re-pairing happens (the
-  pipeline's stream aligner is for per-sample Float64 topics). The sample time is
-  ``t = t_anchor + (index - index_anchor) / loop_rate_hz``: the index is the truth, arrival times never move a
-  sample. ``t_anchor`` is the ROS time when the first row is released (after a restored state: at least 1 s after
-  the restored record's last sample).
-* **Missing indices** (a lost block, rows the controller did not send, the oldest blocks dropped at the queue
-  bound): a gap, counted (``block_gaps``, ``block_missing_samples``) and logged once per gap; the pipeline sees the
-  time gap and handles it as on every path (a short one is filled with invalid samples, a longer one re-primes the
-  estimator's filters, holds the fault tests, is counted in ``gaps`` and noted on health).
-* **Out of order**: rows after a hole wait up to ``block.reorder_s`` (arrival time) for the late block that fills
-  it; reliable DDS delivers one writer's blocks in order, so this only costs latency when a block is really lost.
-  A block that arrives after its hole was declared a gap (or, at the start, a block older than the first one) is
-  dropped (``block_late_samples``).
-* **Duplicates**: rows whose index was already released (a retransmitted or overlapping block) are compared with
-  the released values (the last ``DUPLICATE_MEMORY_S``, and at least the last two of the largest blocks seen): equal
-  rows are dropped (``block_duplicate_samples``).
-* **Controller restart**: a block whose rows contradict released or held rows (same index, other values) or lie before
-  the duplicate memory's span (the counter went back by more than ``DUPLICATE_MEMORY_S``) starts a new index
-  run: rows held after a hole are released first, then the time jumps by at least ``RESTART_GAP_S`` so the
-  estimator is re-primed; counted (``block_restarts``) and logged. Estimation continues on the new run.
-* **Malformed** blocks (layout, length, non-finite, non-integer or non-increasing index): dropped, counted
-  (``block_malformed``) and logged at most once per ``LOG_EVERY_S`` (with the count since the last line).
-* **Consistency (closed loop)**: the controller invariant ``u = C_d(q)(r - y)`` (000 eq. 10,
-  :func:`..core.alignment.invariant_residual`) is evaluated on consecutive released rows (one block per
-  ``INVARIANT_EVERY_S`` of data); a median relative residual above ``INVARIANT_WARN`` (rounding gives ~1e-16) is a
-  lasting warning naming the controller parameters and the column order. It never re-pairs rows.
-
-Bounded resources: the callback queue holds at most ``max_queue`` rows (the oldest blocks are dropped, counted as
-``queue_dropped`` and then seen as an index gap), rows held behind a hole at most ``max_queue`` (then the hole is
-declared a gap at once), the duplicate memory ``DUPLICATE_MEMORY_S`` of rows or two of the largest blocks (at most
-``max_queue`` rows).
+One ``Float64MultiArray`` per block on ``block.topic`` (layout: docs/INTERFACE.md "Signals in", checked by
+:func:`..ros.convert.block_rows`); here the index column is checked and rows become samples timed ``t = t_anchor +
+(index - index_anchor) / loop_rate_hz``: arrival times never move a sample. Missing indices are a gap (``block_gaps``)
+handled by the pipeline as on every path; rows after a hole wait ``block.reorder_s`` for the late block, later ones are
+dropped (``block_late_samples``); rows released before with the same values are dropped (``block_duplicate_samples``),
+with other values, or an index going back beyond ``DUPLICATE_MEMORY_S``, they are a controller restart
+(``block_restarts``: time jumps by ``RESTART_GAP_S`` and the estimator re-primes); malformed blocks are dropped and
+counted (``block_malformed``). In closed loop the invariant ``u = C_d(q)(r - y)`` ([RA-SRIVC] eq. 10) is evaluated on
+released rows as a consistency check, never to re-pair them. Every queue and memory is bounded by ``max_queue`` rows.
 """
 
 from __future__ import annotations
@@ -395,7 +368,7 @@ class BlockSync(InputSync):
         self._hold(k, vals, arrival_ns)
 
     def _check_invariant(self, k: np.ndarray, vals: np.ndarray) -> None:
-        """Closed loop: relative residual of ``D(q^-1) u = N(q^-1)(r - y)`` (000 eq. 10) over consecutive rows."""
+        """Closed loop: relative residual of ``D(q^-1) u = N(q^-1)(r - y)`` ([RA-SRIVC] eq. 10) over adjacent rows."""
         p = self._order
         if self._den is None:
             return

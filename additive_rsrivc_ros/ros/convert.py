@@ -67,7 +67,7 @@ def plain(value: Any) -> Any:
 
 
 def mode_status(record: StatusRecord, hardware_id: str) -> DiagnosticStatus:
-    """One ``<node>: mode <i>`` status with exactly the CONTRACT keys (flags 'true'/'false')."""
+    """One ``<node>: mode <i>`` status with exactly the interface's keys (flags 'true'/'false')."""
     kv = []
     for k in MODE_KEYS:
         v = record.values.get(k, math.nan if k not in FLAG_FIELDS else False)
@@ -92,7 +92,7 @@ def status(record: StatusRecord, hardware_id: str) -> DiagnosticStatus:
 
 
 def modes_array(modal: Any) -> Float64MultiArray:
-    """``~/modes``: dim[0] 'mode' (K), dim[1] 'field' (6), row-major (../shared/CONTRACT.md)."""
+    """``~/modes``: dim[0] 'mode' (K), dim[1] 'field' (6), row-major (docs/INTERFACE.md)."""
     rows = [[float(x) for x in row[:6]] for row in modal]
     k = len(rows)
     msg = Float64MultiArray()
@@ -108,7 +108,7 @@ BLOCK_COLUMNS = ("index", "reference", "input", "output")
 
 
 def block_rows(msg: Any) -> tuple[Any, str]:
-    """A block message (../shared/CONTRACT.md "Signals in") as an ``(N, 4)`` float64 array of rows ``index,
+    """A block message (docs/INTERFACE.md "Signals in") as an ``(N, 4)`` float64 array of rows ``index,
     reference, input, output``, or ``(None, reason)``.
 
     Strict: exactly two dimensions labelled ``sample`` (size N >= 1) and ``signal`` (size 4), strides row-major

@@ -1,19 +1,12 @@
 """Inputs of the monitor node: topic names, the input stage, subscriptions and their callbacks, the type check.
 
-Names (issue 14): the input topics are relative by default (``reference``, ``plant_input``, ``plant_output``),
-resolved in the node's namespace and remapped by ``-r from:=to``; every check and message (wrong type, silence,
-rates, queues) names the resolved topic.
-
-QoS of the signal subscriptions: RELIABLE, KEEP_LAST with a depth of five seconds of samples (param ``qos_depth``);
-per subscription overridable by the standard ``qos_overrides.<resolved topic>.subscription.``
-``{reliability,history,depth}`` parameters (rclpy ``QoSOverridingOptions``). Reliable delivery over loopback never
-drops a sample by itself; the only loss left is a reader history overflow when the executor falls behind (a loaded
-CPU), and five seconds of history cover such stalls (Float64 messages are 8 bytes of payload; 4096 Hz x 3 topics x
-5 s is a few MB). The EventsExecutor serves bursts topic by topic (measured: 3000 messages of one topic before the
-next), so the alignment tolerates large temporary count differences between the topics.
-
-Callbacks only append ``(value, arrival[, stamp])`` to the input stage's bounded per-topic deques (block input:
-:meth:`.blocks.BlockSync.enqueue`); the worker aligns them (:mod:`.sync`, :mod:`.blocks`).
+The input topics are relative (``reference``, ``plant_input``, ``plant_output``), resolved in the node's namespace and
+remappable; every check and message names the resolved topic. Subscriptions are RELIABLE, KEEP_LAST with five seconds of
+samples (``qos_depth``), overridable per topic by the standard ``qos_overrides.<topic>.subscription.*`` parameters: over
+loopback the only loss left is a reader history overflow while the executor falls behind, which five seconds cover. The
+EventsExecutor serves bursts topic by topic (about 3000 messages of one topic before the next), so the alignment
+tolerates large temporary count differences. Callbacks only append ``(value, arrival[, stamp])`` to bounded per-topic
+deques; the worker aligns them (:mod:`.sync`, :mod:`.blocks`).
 """
 
 from __future__ import annotations

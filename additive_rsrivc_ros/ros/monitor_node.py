@@ -1,18 +1,13 @@
 """``MonitorNode``: the ROS 2 lifecycle node that runs :class:`MonitorPipeline` on live r, u, y topics.
 
-A thin shell (../shared/CONTRACT.md, docs/ARCHITECTURE.md), assembled from small parts: :mod:`.params`
-(declaration and runtime changes), :mod:`.inputs` (topics, subscriptions, callbacks), :mod:`.worker` (the
-estimation thread), :mod:`.publishing` (``~/modes``, ``/diagnostics``), :mod:`.state` (``state_file``). Subscription
-callbacks only append ``(value, arrival)`` to per-topic deques; the worker thread aligns the streams (:mod:`.sync`,
-block input :mod:`.blocks`) and feeds the samples in blocks to the pipeline; the publisher thread publishes. The
-executor is ``rclpy.experimental.EventsExecutor`` driven by ``spin_once`` (:func:`spin`; in this rclpy build
-``spin()`` of the EventsExecutor never returns control to Python timers or other threads; ``spin_once`` does),
-because the default executor loses Float64 messages above ~1 kHz (../shared/NOTES.md).
-
-Lifecycle: ``configure`` checks the parameters (one-line rejection), loads the numba kernels, restores the
-pipeline from ``state_file`` or builds it, creates the input stage, subscriptions, publishers and the services
-``~/reset``, ``~/rebaseline``, ``~/save_state``; ``activate`` starts the worker and publisher threads,
-``deactivate`` stops them, ``cleanup`` saves the state and destroys the interfaces, ``shutdown`` saves once.
+A thin shell of small parts (docs/ARCHITECTURE.md): :mod:`.params` (declaration, runtime changes), :mod:`.inputs`
+(topics, callbacks that only queue), :mod:`.worker` (the thread that aligns the streams with :mod:`.sync` or
+:mod:`.blocks` and feeds the pipeline in blocks), :mod:`.publishing` (``~/modes``, ``/diagnostics``), :mod:`.state`
+(``state_file``). The executor is ``rclpy.experimental.EventsExecutor`` driven by ``spin_once`` (:func:`spin`; its
+``spin()`` starves Python timers and threads in this rclpy build), because the default executor loses Float64 messages
+above ~1 kHz. ``configure`` checks the parameters (one-line rejection), loads the kernels, restores or builds the
+pipeline and creates the interfaces; ``activate`` / ``deactivate`` start and stop the threads; ``cleanup`` and
+``shutdown`` save the state.
 """
 
 from __future__ import annotations

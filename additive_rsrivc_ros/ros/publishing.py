@@ -4,7 +4,7 @@ A separate publisher thread publishes every report's estimate on ``~/modes`` (in
 ``1/publish_rate_hz`` cycle) and one ``/diagnostics`` array per ``diagnostics_period_s`` (1 s by default) from the
 newest report, so publishing never holds up the consumption of the inputs (``~/modes`` messages are coalesced, and
 counted, only past ``MODES_QUEUE``). ``/diagnostics`` holds one ``<node>: mode <i>`` status per mode with exactly the
-CONTRACT keys and one ``<node>: estimator`` status with counters, condition numbers, real-time factor, CPU, and the
+interface's keys and one ``<node>: estimator`` status with counters, condition numbers, real-time factor, CPU, and the
 delay from a sample's arrival to the return of the pipeline update that includes it; levels and messages are
 composed by :mod:`..status` (ROS-free) and converted by :mod:`.convert`. ``<node>`` is the node name in the root
 namespace and the full name without its leading '/' under a namespace (``axis1/additive_rsrivc_monitor``).

@@ -1,37 +1,15 @@
 """Alignment of the r, u, y input streams into samples (ROS-free, used by the monitor node).
 
-Two modes (../shared/CONTRACT.md "Signals in"):
+* **order** (``std_msgs/Float64``): the k-th message of every topic is sample k, timed on the nominal grid ``t_k =
+  t_anchor + (k - k_anchor) / loop_rate_hz``; arrival times only decide whether a real pause happened (a lateness jump
+  above ``gap_s`` not caught up within ``hold_s``: the grid is re-anchored and the pipeline sees a gap). A count
+  mismatch between topics resynchronizes them (pending samples discarded, heads re-aligned by arrival time).
+* **stamped** (``sensor_msgs/JointState``): the header stamp is the sample time; samples match by equal stamps,
+  unmatched, out-of-order or repeated stamps are dropped.
 
-* **order** (``std_msgs/Float64``, no stamps): the k-th message of every topic is sample k. Sample
-  times are synthesized on the nominal grid ``t_k = t_anchor + (k - k_anchor) / loop_rate_hz``; arrival
-  times only decide whether a *real* pause happened: when the lateness of the samples relative to the
-  grid jumps by more than ``gap_s`` between two samples and is not taken back by a catch-up burst within
-  ``hold_s`` (a stalled publisher or executor delivers the held samples quickly), the grid is re-anchored
-  and the pipeline sees a time gap (its filters are re-primed). Count mismatches between the
-  topics (one topic ahead of the others by more than ``max_backlog`` samples, or unequal leftovers when
-  every topic has gone quiet) trigger a resynchronization: the pending samples are discarded (never fed),
-  the heads are re-aligned by arrival time and the grid restarts after a gap.
-* **stamped** (all signals ``sensor_msgs/JointState``): the header stamp is the sample time. Samples are
-  matched by equal stamps; a head whose stamp is older than another topic's head can never be matched
-  (topics arrive in order) and is dropped. Out-of-order or repeated stamps on a topic are dropped.
-
-Callbacks only append ``(value, arrival_ns[, stamp_ns])`` tuples to :attr:`InputSync.queues` (a deque
-append is atomic under the GIL); :meth:`InputSync.collect` runs in the estimation worker.
-
-Bounded resources: every topic holds at most ``max_queue`` samples in its callback deque and at most
-``max_queue`` in its pending list (a fixed number of bytes per sample, :data:`BYTES_PER_SAMPLE`); beyond that
-the oldest are dropped, counted per topic (:attr:`SyncCounters.queue_dropped`) and announced once per episode
-(an event when it starts and one when the queue is below half the bound again). In order mode a drop
-restarts the grid after re-aligning the heads by arrival time.
-
-Arrival-rate check (:meth:`InputSync.check_rates`): the slope of each topic's message count over its arrival
-times in a window (``rate_window_s``) is compared with ``loop_rate_hz`` x the clock speed; a relative
-difference above ``rate_tolerance`` in two consecutive checks is a rate mismatch (event, counter,
-:attr:`InputSync.rate_mismatch`). Windows with a pause or a stall of the node are not judged.
-
-The node's own stalls (``stalls``: intervals in which the executor did not run) are not input pauses: a
-lateness jump overlapping such an interval is counted in :attr:`SyncCounters.node_stall_gaps` with its own
-message (the samples were not taken in time, e.g. a reader history overflow), never as an input pause.
+Callbacks only append to :attr:`InputSync.queues`; :meth:`InputSync.collect` runs in the worker. Queues are bounded by
+``max_queue`` samples per topic (the oldest dropped and counted); each topic's arrival rate is checked against
+``loop_rate_hz`` (:meth:`InputSync.check_rates`); the node's own stalls are counted apart, never as input pauses.
 """
 
 from __future__ import annotations

@@ -2,8 +2,8 @@
 
 The worker thread wakes every ``block_period_s`` (block input: per block, at most once per ``block.batch_s``),
 lets the input stage (:mod:`.sync`, :mod:`.blocks`) align the queued samples, pushes them to
-:class:`..core.pipeline.MonitorPipeline` (validation, recursive additive SRIVC of 000 Algorithm 2, fault logic) and
-hands the reports to the publisher thread (:mod:`.publishing`). Once a second it checks the graph (wrong message
+:class:`..core.pipeline.MonitorPipeline` (validation, recursive additive SRIVC of [RA-SRIVC] Algorithm 2, fault logic)
+and hands the reports to the publisher thread (:mod:`.publishing`). Once a second it checks the graph (wrong message
 types), its CPU share and the arrival rates. It measures its own loop: steps further apart than ``STALL_NS`` are
 worker stalls; the executor's stalls are reported by :func:`.monitor_node.spin` (:meth:`WorkerMixin.note_stall`).
 """

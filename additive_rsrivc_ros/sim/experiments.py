@@ -1,7 +1,7 @@
-"""Seeded runs of the recursive estimator on the papers' plants with known truth (000 §5, §6; issue 4).
+"""Seeded runs of the recursive estimator on the papers' plants with known truth ([RA-SRIVC] §5, §6).
 
 Shared by ``scripts/validate_recursive.py`` (Monte Carlo tables) and the tests (test_recursive_scenarios,
-test_node, test_node_names): :func:`run_paper` (000 §5, closed or open loop) and :func:`run_beam` (the flexible
+test_node, test_node_names): :func:`run_paper` ([RA-SRIVC] §5, closed or open loop) and :func:`run_beam` (the flexible
 beam, K = 2 of 4 modes) return RMS / worst relative modal errors against the simulated truth.
 """
 
@@ -14,25 +14,25 @@ from ..core.recursive import RecursiveAdditiveSRIVC
 from .plants import BEAM_MODES, PAPER_MODES, PAPER_PID, beam_controller
 from .simulate import ModalChange, simulate_modes
 
-#: 000 §5 drifts (raised-cosine ramps): omega1 -20 % and zeta2 -50 % over [100, 300] s, omega3 -15 % and zeta3
+#: [RA-SRIVC] §5 drifts (raised-cosine ramps): omega1 -20 % and zeta2 -50 % over [100, 300] s, omega3 -15 % and zeta3
 #: -30 % over [500, 800] s
 PAPER_CHANGES = [ModalChange(0, "frequency", -0.20, 100.0, 200.0, "raised_cosine"),
                  ModalChange(1, "damping", -0.50, 100.0, 200.0, "raised_cosine"),
                  ModalChange(2, "frequency", -0.15, 500.0, 300.0, "raised_cosine"),
                  ModalChange(2, "damping", -0.30, 500.0, 300.0, "raised_cosine")]
-#: issue 4: RMS relative error limits over [50, 1000] s, (omega, zeta, gain) in %
+#: RMS relative error limits over [50, 1000] s, (omega, zeta, gain) in %
 LIMITS = np.array([[4.5, 2.0, 0.7], [0.05, 7.5, 2.0], [1.6, 10.5, 1.3]])
 
 
 def paper_reference(t: np.ndarray) -> np.ndarray:
-    """000 §5 setpoint ``3 sin(0.005 t) + sin 2t + sin 5t + sin 17.5t``."""
+    """[RA-SRIVC] §5 setpoint ``3 sin(0.005 t) + sin 2t + sin 5t + sin 17.5t``."""
     return 3 * np.sin(0.005 * t) + np.sin(2 * t) + np.sin(5 * t) + np.sin(17.5 * t)
 
 
 def run_paper(seed: int, *, closed: bool = True, duration: float = 1000.0, spread: tuple[float, float] = (0.0, 0.02),
               lam: float = 0.999, prime_s: float = 5.0, window: tuple[float, float] = (50.0, 1000.0),
               changes: list[ModalChange] | None = None, filter_policy: str = "auto") -> dict:
-    """One run of the 000 §5 scenario; returns RMS relative modal errors (%) and a divergence flag.
+    """One run of the [RA-SRIVC] §5 scenario; returns RMS relative modal errors (%) and a divergence flag.
 
     The start is ``theta*(0) (1 + s U)`` per parameter with ``|s| in [spread0, spread1]`` and a random sign;
     the filters are primed on the first ``prime_s`` seconds with the start model (Algorithm 2 step 1).
@@ -77,7 +77,7 @@ def run_paper(seed: int, *, closed: bool = True, duration: float = 1000.0, sprea
 
 def run_beam(seed: int, *, duration: float = 130.0, change_start: float = 40.0, change_len: float = 60.0,
              stiffness_change: float = -0.3, filter_policy: str = "auto", p0_policy: str = "information") -> dict:
-    """The beam (000 §6, NOTES): K = 2 of 4 modes, 4096 Hz, delay 4, memories 2.44 s / 0.244 s.
+    """The beam ([RA-SRIVC] §6): K = 2 of 4 modes, 4096 Hz, delay 4, memories 2.44 s / 0.244 s.
 
     The second mode's stiffness drops by ``stiffness_change`` (frequency ``sqrt(1 + c)``) with a raised-cosine
     profile over ``[change_start, change_start + change_len]``; 2 Hz square-wave setpoint. The controller is

@@ -1,9 +1,9 @@
 """An independent simulator for validating the offline estimators: ZOH-exact plant via scipy.signal.cont2discrete
-(independent of core/filters.py and core/plant.py) in an explicit causal closed loop, the 001 §5.2 reference
+(independent of core/filters.py and core/plant.py) in an explicit causal closed loop, the [A-SRIVC] §5.2 reference
 figures and the asymptotic covariance of the experiment. Used by test/test_offline*.py and scripts/validate_offline.py,
 never by the product; and ``simulate_modal``, a plain reference plant for the recursive engine's tests (modes
 ``b0/(a2 p^2 + a1 p + 1)`` or a rigid body ``b0/p^l`` in physical coordinates, ZOH input, optional input delay and
-closed loop ``u_k = C_d(q)(r_k - y_k)``, parameters piecewise constant between samples, 000 Assumption 5)."""
+closed loop ``u_k = C_d(q)(r_k - y_k)``, parameters piecewise constant between samples, [RA-SRIVC] Assumption 5)."""
 
 from __future__ import annotations
 
@@ -18,7 +18,7 @@ from .plants import CL52_THETAS, PAPER_PID, PAPER_PID_DEN, PAPER_PID_NUM
 from .plants import PAPER_THETAS as PAPER5_THETAS
 
 MODE = SubmodelStructure(n=2, m=0, integrators=0)
-# 001 §5.2 system (eq. 46) and PID (NOTES erratum 1)
+# [A-SRIVC] §5.2 system (eq. 46) and PID (erratum 1 in docs/DESIGN.md)
 PAPER_THETAS = CL52_THETAS
 PID_NUM = PAPER_PID_NUM
 PID_DEN = PAPER_PID_DEN
@@ -70,8 +70,8 @@ def simulate(thetas, structures, h, *, u=None, r=None, controller=None, noise=No
 
 
 def cl52_reference_mse() -> np.ndarray:
-    """MSE per parameter [a11, a12, b10, a21, a22, b20] of an independent implementation on the 001 §5.2
-    closed-loop example (issue 3; h = 0.05, N = 10000, 50 runs)."""
+    """MSE per parameter [a11, a12, b10, a21, a22, b20] of an independent implementation on the [A-SRIVC] §5.2
+    closed-loop example (h = 0.05, N = 10000, 50 runs)."""
     return np.array([1.03e-5, 2.98e-6, 1.26e-3, 1.12e-7, 2.00e-9, 3.96e-4])
 
 
@@ -81,7 +81,7 @@ def second_order_gradient_covariance(thetas, h: float, u: np.ndarray, noise_var:
     noise: ``noise_var * E{psi psi^T}^-1`` with ``psi`` the gradient of ``sum_i b_i0/(a_i2 p^2 + a_i1 p + 1) u``
     (``-p B/A^2 u``, ``-p^2 B/A^2 u``, ``1/A u``), each ZOH-discretized by scipy.
 
-    With ``u`` the noise-free closed-loop input ``S_uo r`` this is 001 Theorem 1 with the optimal instrument
+    With ``u`` the noise-free closed-loop input ``S_uo r`` this is [A-SRIVC] Theorem 1 with the optimal instrument
     (Corollary 1, eq. 15): the best any instrumental-variable estimator of the closed loop can do. With the
     measured ``u`` (fed-back noise included) it is the Cramer-Rao bound of the direct output-error approach.
     """
@@ -99,8 +99,8 @@ def second_order_gradient_covariance(thetas, h: float, u: np.ndarray, noise_var:
     return noise_var * np.linalg.inv(psi.T @ psi / len(psi))
 
 
-PID = PAPER_PID  # NOTES erratum 1
-PAPER_THETA = PAPER5_THETAS   # the 000 §5 plant (PAPER_THETAS above: the 001 §5.2 system)
+PID = PAPER_PID  # erratum 1 in docs/DESIGN.md
+PAPER_THETA = PAPER5_THETAS   # the [RA-SRIVC] §5 plant (PAPER_THETAS above: the [A-SRIVC] §5.2 system)
 
 
 @njit(cache=False)
@@ -178,5 +178,5 @@ def simulate_modal(theta, rate_hz, n, *, r=None, u=None, controller=None, delay=
 
 
 def paper_reference(t):
-    """000 §5 setpoint ``3 sin(0.005 t) + sin 2t + sin 5t + sin 17.5t``."""
+    """[RA-SRIVC] §5 setpoint ``3 sin(0.005 t) + sin 2t + sin 5t + sin 17.5t``."""
     return 3 * np.sin(0.005 * t) + np.sin(2 * t) + np.sin(5 * t) + np.sin(17.5 * t)

@@ -1,4 +1,4 @@
-"""Named simulation scenarios with known truth (000 §5, §6; 001 §5.2, §6; ../shared/NOTES.md "Scenarios").
+"""Named simulation scenarios with known truth ([RA-SRIVC] §5, §6; [A-SRIVC] §5.2, §6).
 
 Each scenario is seeded and deterministic and has a params YAML ``config/<name>.yaml`` for the estimator
 (the controller, loop rate and input delay are read from that file, so the simulated loop and the estimator
@@ -179,7 +179,7 @@ def _finish(name: str, seed: int, cfg_path: Path, cfg: MonitorConfig, modes, sim
 
 
 def _paper_example(name, cfg_path, cfg, duration_s, rng, p):
-    """000 §5 with raised-cosine ramps: omega1 -20 %, zeta2 -50 % over [100, 300] s; omega3 -15 %, zeta3 -30 %
+    """[RA-SRIVC] §5 with raised-cosine ramps: omega1 -20 %, zeta2 -50 % over [100, 300] s; omega3 -15 %, zeta3 -30 %
     over [500, 800] s; r = 3 sin(0.005t) + sin 2t + sin 5t + sin 17.5t; white noise var 0.01."""
     t = time_vector(cfg.loop_rate_hz, duration_s)
     r = sum_of_sines(t, [3.0, 1.0, 1.0, 1.0], [0.005, 2.0, 5.0, 17.5])
@@ -203,7 +203,7 @@ def _beam_common(cfg, duration_s, rng, p):
 
 
 def _beam(name, cfg_path, cfg, duration_s, rng, p):
-    """000 §6 / 001 §6 flexible beam: mode 2's stiffness manipulated smoothly (frequency down and back)."""
+    """[RA-SRIVC] §6 / [A-SRIVC] §6 flexible beam: mode 2's stiffness manipulated smoothly (frequency down and back)."""
     t, r, v = _beam_common(cfg, duration_s, rng, p)
     a, b = p["manipulation_start_s"], p["manipulation_end_s"]
     changes = [ModalChange(1, "frequency", p["manipulation_depth"], a, b - a, "bump")] if b > a else []
@@ -240,7 +240,7 @@ def _open_loop_multisine(name, cfg_path, cfg, duration_s, rng, p):
 
 
 def _rigid_body(name, cfg_path, cfg, duration_s, rng, p):
-    """Double integrator ``b0/p^2`` plus two flexible modes (001 Remark 6, 000 §4.6), PD control."""
+    """Double integrator ``b0/p^2`` plus two flexible modes ([A-SRIVC] Remark 6, [RA-SRIVC] §4.6), PD control."""
     t = time_vector(cfg.loop_rate_hz, duration_s)
     r = square_wave(t, p["setpoint_hz"], p["setpoint_amplitude"])
     v = white_noise(t.size, p["noise_std"], rng)
@@ -252,7 +252,7 @@ def _rigid_body(name, cfg_path, cfg, duration_s, rng, p):
 
 
 def _sensor_fault(name, cfg_path, cfg, duration_s, rng, p):
-    """Healthy 000 §5 plant, faulty sensor: bias step, stuck value, NaN samples and dropped samples."""
+    """Healthy [RA-SRIVC] §5 plant, faulty sensor: bias step, stuck value, NaN samples and dropped samples."""
     t = time_vector(cfg.loop_rate_hz, duration_s)
     r = sum_of_sines(t, [3.0, 1.0, 1.0, 1.0], [0.005, 2.0, 5.0, 17.5])
     v = white_noise(t.size, p["noise_std"], rng)
@@ -267,10 +267,10 @@ def _sensor_fault(name, cfg_path, cfg, duration_s, rng, p):
 _BEAM_SIGNAL = {"setpoint_hz": 2.0, "setpoint_amplitude": 0.1, "dither_std": 0.0, "noise_std": BEAM_NOISE_STD}
 
 SCENARIOS: dict[str, Scenario] = {s.name: s for s in (
-    Scenario("paper_example", "000 §5: 3 modes at 20 Hz, closed loop, drifting omega1/zeta2 and omega3/zeta3",
+    Scenario("paper_example", "[RA-SRIVC] §5: 3 modes at 20 Hz, closed loop, drifting omega1/zeta2 and omega3/zeta3",
              1000.0, {"noise_std": 0.1, "drift1_start_s": 100.0, "drift1_end_s": 300.0, "drift2_start_s": 500.0,
                       "drift2_end_s": 800.0}, _paper_example),
-    Scenario("beam", "000 §6 flexible beam at 4096 Hz: 4 plant modes (K = 2 estimated), mode-2 frequency "
+    Scenario("beam", "[RA-SRIVC] §6 flexible beam at 4096 Hz: 4 plant modes (K = 2 estimated), mode-2 frequency "
              "down 10 % and back over [40, 100] s", 120.0,
              {**_BEAM_SIGNAL, "manipulation_start_s": 40.0, "manipulation_end_s": 100.0,
               "manipulation_depth": -0.10}, _beam),
@@ -286,7 +286,7 @@ SCENARIOS: dict[str, Scenario] = {s.name: s for s in (
     Scenario("rigid_body", "double integrator + 8 Hz and 25 Hz modes at 1 kHz, PD control", 120.0,
              {"setpoint_hz": 0.5, "setpoint_amplitude": 0.1, "noise_std": 2e-5, "fault_time_s": None,
               "fault_size": 0.05}, _rigid_body),
-    Scenario("sensor_fault", "healthy 000 §5 plant, faulty sensor: bias from fault_time_s, stuck +100 s, NaN "
+    Scenario("sensor_fault", "healthy [RA-SRIVC] §5 plant, faulty sensor: bias from fault_time_s, stuck +100 s, NaN "
              "samples +200 s, dropped samples +300 s", 600.0,
              {"noise_std": 0.1, "fault_time_s": 150.0, "bias": 0.5, "nan_fraction": 0.02, "drop_fraction": 0.05},
              _sensor_fault),

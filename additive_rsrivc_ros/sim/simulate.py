@@ -1,22 +1,12 @@
 """Time-varying additive modal plant in closed or open loop, exact ZOH (the loop: ``core.plant.simulate_kernel``).
 
-The plant is the additive continuous-time model of 000 eq. (5) / 001 eq. (2)
-
-    x(t) = sum_i x_i(t),   p^l_i (a_i2 p^2 + a_i1 p + 1) x_i = b_i0 u(t - d h)     (flexible / with integrators)
-                           p^l_i x_i = b_i0 u(t - d h)                              (rigid body, n = 0)
-
-with ``u`` held constant between samples (zero-order hold, ../shared/NOTES.md conventions) and a known input
-delay of ``d`` samples. Parameters may change at every sample: ``theta_i(t_k)`` holds on ``[t_k, t_k+1)`` and the
-physical state of each mode ``[x_i, x_i', ...]`` (output coordinates) is carried across changes, so a gain change
-changes the forcing, never the position (the slow-variation setting of 000 Remark 4.4).
-
-Sampling and causality (000 eq. 10, §5): ``y(t_k) = x(t_k) + v(t_k)`` and in closed loop
-``u(t_k) = C_d(q) (r - y)(t_k)``; ``x(t_k)`` depends on ``u`` up to ``t_{k-1-d}``. The ZOH transition of each mode
-is exact (see :mod:`additive_rsrivc_ros.core.plant`, which also holds the frozen-loop analysis).
-
-Sensor faults act on the measured output (the sensor feeds the controller too): additive bias/drift, a stuck
-value, dropped samples (the last received value is held by the receiver) and NaN samples (the controller holds
-its last finite measurement; the recorded ``y`` is NaN).
+The plant of [RA-SRIVC] eq. 5 / [A-SRIVC] eq. 2: ``x = sum_i x_i`` with ``p^l_i (a_i2 p^2 + a_i1 p + 1) x_i = b_i0 u(t -
+d h)`` (rigid body: ``p^l_i x_i = b_i0 u(t - d h)``), ``u`` held between samples and delayed ``d`` samples.
+``theta_i(t_k)`` holds on ``[t_k, t_k+1)`` and each mode's physical state is carried across changes (the slow-variation
+setting of Remark 4.4). ``y(t_k) = x(t_k) + v(t_k)``, in closed loop ``u(t_k) = C_d(q) (r - y)(t_k)`` ([RA-SRIVC] eq.
+10); the transition is exact (:mod:`..core.plant`). Sensor faults act on the measured output, which feeds the controller
+too: bias or drift, a stuck value, dropped samples (the receiver holds the last value) and NaN samples (the controller
+holds its last finite measurement).
 """
 
 from __future__ import annotations
@@ -41,9 +31,9 @@ SENSOR_FAULTS = ("bias", "drift", "stuck", "drop", "nan")
 # ----------------------------------------------------------------------------------------------------------------
 @dataclass(frozen=True)
 class PlantMode:
-    """One additive submodel in modal form: ``gain / (p^l (p^2/w^2 + 2 zeta p/w + 1))`` (000 eq. 16).
+    """One additive submodel in modal form: ``gain / (p^l (p^2/w^2 + 2 zeta p/w + 1))`` ([RA-SRIVC] eq. 16).
 
-    ``natural_frequency_hz == 0`` is a rigid-body mode ``gain / p^l`` (needs ``integrators > 0``, 000 §4.6).
+    ``natural_frequency_hz == 0`` is a rigid-body mode ``gain / p^l`` (needs ``integrators > 0``, [RA-SRIVC] §4.6).
     """
 
     natural_frequency_hz: float
@@ -173,7 +163,7 @@ def modal_trajectories(modes: Sequence[PlantMode], t: np.ndarray,
 
 
 def thetas_from_modal(modal: np.ndarray, modes: Sequence[PlantMode]) -> list[np.ndarray]:
-    """``theta_i(t_k) = [a1, a2, b0]`` (000 eq. 7, 16-17) per sample, or ``[b0]`` for rigid-body modes."""
+    """``theta_i(t_k) = [a1, a2, b0]`` ([RA-SRIVC] eq. 7, 16-17) per sample, or ``[b0]`` for rigid-body modes."""
     thetas = []
     for i, m in enumerate(modes):
         f, z, g = modal[i, :, 0], modal[i, :, 1], modal[i, :, 2]
@@ -215,7 +205,7 @@ def time_vector(rate_hz: float, duration_s: float) -> np.ndarray:
 
 def sum_of_sines(t: np.ndarray, amplitudes: Sequence[float], omegas_rad_s: Sequence[float],
                  phases: Sequence[float] | None = None) -> np.ndarray:
-    """``sum_j A_j sin(w_j t + phi_j)`` (000 §5 reference: ``3 sin(0.005t) + sin 2t + sin 5t + sin 17.5t``)."""
+    """``sum_j A_j sin(w_j t + phi_j)`` ([RA-SRIVC] §5 reference: ``3 sin(0.005t) + sin 2t + sin 5t + sin 17.5t``)."""
     t = np.asarray(t, dtype=float)
     amplitudes, omegas = np.asarray(amplitudes, float), np.asarray(omegas_rad_s, float)
     phases = np.zeros_like(omegas) if phases is None else np.asarray(phases, float)
@@ -348,9 +338,9 @@ def simulate(thetas: Sequence[np.ndarray], structures: Sequence[SubmodelStructur
              noise: np.ndarray | None = None, sensor_faults: Sequence[SensorFault] = (),
              rng: np.random.Generator | None = None, n: int | None = None,
              modal: np.ndarray | None = None) -> SimulationResult:
-    """Simulate the additive plant (000 eq. 5, 10) exactly at the samples.
+    """Simulate the additive plant ([RA-SRIVC] eq. 5, 10) exactly at the samples.
 
-    ``thetas[i]`` is ``(N, n_theta_i)`` (one row per sample, 000 eq. 7 order) or ``(n_theta_i,)`` for a constant
+    ``thetas[i]`` is ``(N, n_theta_i)`` (one row per sample, [RA-SRIVC] eq. 7 order) or ``(n_theta_i,)`` for a constant
     mode; ``structures[i]`` must be a mode (n = 2, m = 0) or a rigid body (n = 0, m = 0, integrators >= 1).
     Closed loop: give ``r`` and ``controller``. Open loop: give ``u``. ``noise`` is ``v(t_k)`` (default 0).
     ``modal`` (optional, ``(K, N, 3)``) is the precomputed modal truth of ``thetas``.

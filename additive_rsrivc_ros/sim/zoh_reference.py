@@ -1,25 +1,12 @@
-"""Extended-precision reference of the ZOH discretization of a second-order mode (validation only, never used by the
-product): ``scripts/validate_zoh.py`` prints the error table, ``test/test_zoh.py`` checks it.
+"""Extended-precision reference of the ZOH discretization of a second-order mode (validation only).
 
-``python scripts/validate_zoh.py [--n 100000] [--seed 0]`` prints the max error table per regime.
-
-Reference (mpmath is not installed in the venv): Python's ``decimal`` at ``PREC`` significant digits, from the
-float inputs taken exactly. ``Phi = e^{s h}[c I + S (M - s I)]`` (Cayley-Hamilton / Putzer form of ``expm(M h)``,
-``s = -a1/(2 a2)``, ``q^2 = s^2 - 1/a2``, ``c = cosh(q h)``, ``S = sinh(q h)/q``; trigonometric for ``q^2 < 0``),
-``Gamma = [1 - Phi11, -Phi21]``. At 90 digits nothing the float code can resolve is lost to cancellation
-(``q^2`` loses at most ~32 digits for float inputs, ``1 - Phi11`` at most ``log10(1/Gamma1)`` digits) and the
-exponent range of ``decimal`` has no overflow at ``e^{+q h}``. :func:`decimal_expm` (Taylor series with scaling
-and squaring of the augmented 3x3 matrix in ``decimal``) checks that closed form independently
-(``test/test_zoh.py``).
-
-Error measure: ``|x - ref| / scale`` per entry, ``scale = max(|ref|, natural scale)``; the natural scale of an
-entry is the size of the terms that the exact value is made of, in dimensionless coordinates
-``[w, h w']`` (so no unit makes an entry look small): ``e^{s h}(|c| + |s h S/h|)`` for the diagonal,
-``e^{s h}|S/h|`` times the coordinate factors for ``Phi12 / h`` and ``h Phi21``, ``h Gamma2``; for complex poles the
-envelope of these oscillating terms (``|c| -> 1``, ``|S/h| -> min(1, 1/(omega_d h))``), since near a zero of
-``sin`` the value itself carries the float rounding of the phase ``omega_d h`` of the float inputs (~1e-16
-``omega_d h``). ``Gamma1`` (the step response, ``>= 0``) is measured relative to itself only. Entries whose scale
-is below 1e-290 count as underflow (absolute error).
+``scripts/validate_zoh.py`` prints the error table, ``test/test_zoh.py`` checks it. Python's ``decimal`` at ``PREC``
+digits from the float inputs taken exactly: ``Phi = e^{s h}[c I + S (M - s I)]`` (Putzer form, ``s = -a1/(2 a2)``, ``q^2
+= s^2 - 1/a2``, ``c = cosh(q h)``, ``S = sinh(q h)/q``, trigonometric for ``q^2 < 0``), ``Gamma = [1 - Phi11, -Phi21]``;
+at 90 digits nothing the float code resolves is lost to cancellation, and :func:`decimal_expm` (Taylor series with
+scaling and squaring) checks the closed form independently. Error: ``|x - ref| / scale`` per entry, ``scale`` the larger
+of ``|ref|`` and the size of the terms the exact value is made of in the dimensionless coordinates ``[w, h w']`` (for
+complex poles their envelope); ``Gamma1`` relative to itself; scales below 1e-290 count as underflow.
 """
 
 from __future__ import annotations

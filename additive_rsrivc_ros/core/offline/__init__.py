@@ -1,8 +1,8 @@
-"""Offline continuous-time identification (001, 002, 003): one entry point, :func:`identify`.
+"""Offline continuous-time identification ([A-SRIVC], [BCD-SRIVC], [UNS-SRIVC]): one entry point, :func:`identify`.
 
 ``types`` holds the checked data and the result every estimator returns; ``stable`` the LSSVF, SRIVC, CLSRIVC,
-additive SRIVC/CLSRIVC and BCD estimators (001, 002) with the warm-up and initial-transient tests; ``unstable``
-the estimators for unstable plants (003), reached through :func:`identify`'s ``*-uns`` methods.
+additive SRIVC/CLSRIVC and BCD estimators ([A-SRIVC], [BCD-SRIVC]) with the warm-up and initial-transient tests;
+``unstable`` the estimators for unstable plants ([UNS-SRIVC]), reached through :func:`identify`'s ``*-uns`` methods.
 """
 
 from .stable import (

@@ -1,22 +1,16 @@
-"""Offline continuous-time identification: LSSVF, SRIVC, CLSRIVC, additive SRIVC/CLSRIVC, BCD (001, 002).
+"""Offline continuous-time identification: LSSVF, SRIVC, CLSRIVC, additive SRIVC/CLSRIVC, BCD ([A-SRIVC], [BCD-SRIVC]).
 
-All estimators return one :class:`IdentificationResult`. The single entry point :func:`identify` is used
-by the recursive engine (000 Algorithm 2 step 1) and by ``rsrivc_identify``.
+Every estimator returns an :class:`IdentificationResult`; :func:`identify` is the one entry point (the recursive
+estimator's start, [RA-SRIVC] Algorithm 2 step 1, and ``rsrivc_identify``). Conventions of ``core/model.py``; the input
+is held between samples and delayed ``input_delay`` samples; all filtering is ZOH-exact (``core/filters.py``).
+Integrators ([A-SRIVC] Remark 6, eqs. 31-32) are part of every method.
 
-Conventions (``core/model.py``): submodel ``B_i(p)/(p^l_i A_i(p))``, ``theta_i = [a_i1..a_in, b_i0..b_im]``
-(000 eq. 7); the input is held (ZOH) between samples and reaches the plant ``input_delay`` samples late.
-All filtering is ZOH-exact (``core/filters.py``).
-
-Methods
--------
-``additive-clsrivc``  001 eq. 29 with the closed-loop instrument 001 eq. 20 (``z = S_uo(q) r``)
-``additive-srivc``    001 eq. 29 with the open-loop instrument 001 eq. 10 (``z = u``)
-``bcd-srivc``         002 Algorithm 2 (SRIVC inner iterations per block, descent test on V_N)
-``srivc``/``clsrivc`` unfactored ``B/(p^l A)`` (001 eq. 30, K = 1), split back into the additive form
-``lssvf``             one least-squares step with the fixed filter of the initial guess (003 §3)
-``*-uns``             unstable plants (003 §4-§6), see ``core/offline/unstable.py``
-
-Marginally stable submodels (integrators, 001 Remark 6 eqs. 31-32) are part of every method here.
+* ``additive-clsrivc`` / ``additive-srivc``: [A-SRIVC] eq. 29 with the closed-loop instrument of eq. 20 (``z = S_uo(q)
+  r``) / the open-loop one of eq. 10 (``z = u``).
+* ``bcd-srivc``: [BCD-SRIVC] Algorithm 2 (SRIVC iterations per block, descent test on ``V_N``).
+* ``srivc`` / ``clsrivc``: unfactored ``B/(p^l A)`` ([A-SRIVC] eq. 30, K = 1), split back into the additive form;
+  ``lssvf``: one least-squares step with the guess's fixed filter ([UNS-SRIVC] §3); ``*-uns``:
+  ``core/offline/unstable.py``.
 """
 
 from __future__ import annotations
@@ -81,7 +75,7 @@ def _check_inputs(u, y, rate_hz, structures, thetas0, r, controller, input_delay
             raise ValueError(f"submodel {i + 1}: leading denominator coefficient a_n must be non-zero")
         thetas.append(th)
     if sum(st.is_biproper for st in structures) > 1:
-        raise ValueError("at most one submodel may be biproper (001 §2)")
+        raise ValueError("at most one submodel may be biproper ([A-SRIVC] §2)")
     n_par = sum(st.n_theta for st in structures)
     delay = int(input_delay)
     if delay < 0:
@@ -98,14 +92,14 @@ def _check_inputs(u, y, rate_hz, structures, thetas0, r, controller, input_delay
 
 
 # --------------------------------------------------------------------------------------------------
-# the additive IV iteration (001 eqs. 21-29, Remark 6)
+# the additive IV iteration ([A-SRIVC] eqs. 21-29, Remark 6)
 
 
 @dataclass
 class _Step:
-    Z: np.ndarray            # (N, P) instrument 001 eq. 10 / 20 / 31
-    Phi: np.ndarray          # (N, P) regressor 001 eq. 24 / 32
-    Ups: np.ndarray          # (N, K) filtered residual outputs 001 eq. 22
+    Z: np.ndarray            # (N, P) instrument [A-SRIVC] eq. 10 / 20 / 31
+    Phi: np.ndarray          # (N, P) regressor [A-SRIVC] eq. 24 / 32
+    Ups: np.ndarray          # (N, K) filtered residual outputs [A-SRIVC] eq. 22
     xhat: list[np.ndarray]   # submodel outputs G_i u
     eps: np.ndarray          # output error y - sum G_i u
 
@@ -119,7 +113,7 @@ def _blocks(structures: list[SubmodelStructure]) -> list[slice]:
 
 
 def _submodel_outputs(data: OfflineData, thetas, structures) -> tuple[list[np.ndarray], list[np.ndarray]]:
-    """``p^j/(p^l A_i) u`` (j = 0..m_i) banks and the simulated outputs ``B_i/(p^l A_i) u`` (001 eq. 23)."""
+    """``p^j/(p^l A_i) u`` (j = 0..m_i) banks and the simulated outputs ``B_i/(p^l A_i) u`` ([A-SRIVC] eq. 23)."""
     banks, xhat = [], []
     for th, st in zip(thetas, structures, strict=True):
         a, b = split_theta(th, st)
@@ -130,7 +124,7 @@ def _submodel_outputs(data: OfflineData, thetas, structures) -> tuple[list[np.nd
 
 
 def _instrument_source(data: OfflineData, thetas, structures, closed_loop: bool) -> np.ndarray:
-    """``z = u`` (open loop) or ``z = S_uo(q) r`` of the current model, delayed like ``u`` (001 eq. 20)."""
+    """``z = u`` (open loop) or ``z = S_uo(q) r`` of the current model, delayed like ``u`` ([A-SRIVC] eq. 20)."""
     if not closed_loop:
         return data.u
     z, _ = closed_loop_response(thetas, structures, data.h, data.controller, data.r, data.delay, check=False)
@@ -156,7 +150,7 @@ def _build(data: OfflineData, thetas, structures, closed_loop: bool, only: int |
         dss[i] = discretize(*svf_continuous(a, st.integrators), data.h)
         if i in idx:
             sl = blocks[idx.index(i)]
-            dst = Phi[:, sl.start + st.n: sl.stop]                   # p^j/(p^l A_i) u, 001 eq. 24 / 32
+            dst = Phi[:, sl.start + st.n: sl.stop]                   # p^j/(p^l A_i) u, [A-SRIVC] eq. 24 / 32
             dss[i].run(data.u, rows=range(st.m + 1), out=dst)
             xhat[i] = dst @ b
         else:
@@ -166,12 +160,12 @@ def _build(data: OfflineData, thetas, structures, closed_loop: bool, only: int |
     for k, i in enumerate(idx):
         th, st, sl = thetas[i], structures[i], blocks[k]
         a, _ = split_theta(th, st)
-        ytil = data.y - (total - xhat[i])                            # 001 eq. 23
+        ytil = data.y - (total - xhat[i])                            # [A-SRIVC] eq. 23
         d_y = dss[i] if st.integrators == 0 else discretize(*svf_continuous(a, 0), data.h)
-        d_y.run(ytil, rows=[0], out=Ups[:, k: k + 1])               # 001 eq. 22
+        d_y.run(ytil, rows=[0], out=Ups[:, k: k + 1])               # [A-SRIVC] eq. 22
         if st.n:
             d_y.run(ytil, rows=range(1, st.n + 1), out=Phi[:, sl.start: sl.start + st.n], sign=-1.0)
-            discretize(*instrument_continuous(th, st), data.h).run(   # -p^j B/(p^l A^2) z, 001 eq. 10/20/31
+            discretize(*instrument_continuous(th, st), data.h).run(   # -p^j B/(p^l A^2) z, [A-SRIVC] eq. 10/20/31
                 z, rows=range(1, st.n + 1), out=Z[:, sl.start: sl.start + st.n], sign=-1.0)
         if z is data.u:
             Z[:, sl.start + st.n: sl.stop] = Phi[:, sl.start + st.n: sl.stop]
@@ -184,8 +178,8 @@ def _build(data: OfflineData, thetas, structures, closed_loop: bool, only: int |
 
 def integrator_free_response(n: int, integrators: int, h: float, start: int = 0) -> np.ndarray:
     """``(n, l)`` orthonormal basis of ``1, t, ..., t^(l-1)``: the free response of ``l`` integrators from the state the
-    plant had at the first sample (a rigid body attached in motion: position offset, velocity ramp; issue 17
-    item 1). Submodel outputs simulated from rest never contain it, and it never decays."""
+    plant had at the first sample (a rigid body attached in motion: position offset, velocity ramp).
+    Submodel outputs simulated from rest never contain it, and it never decays."""
     t = (np.arange(n) + start) * h
     t = t / max(float(t[-1]), h) if n else t
     q, _ = np.linalg.qr(np.vander(t, integrators, increasing=True))
@@ -227,9 +221,9 @@ def _without_free_response(step: _Step, space: tuple[np.ndarray, int] | None) ->
     """Project the free response (basis ``q`` of the first ``L`` rows, :func:`_free_response_space`) out of
     instrument, regressor, filtered outputs and output error.
 
-    With the basis ``B`` among both regressors and instruments of every equation (001 eq. 21 plus the free response
-    ``c^T B``, which enters every residual output ``y~_i`` through the submodels' outputs simulated from rest: at
-    ``A_i`` the filtered equation's error is ``y~_i`` minus the forced response, i.e. the free responses plus noise),
+    With the basis ``B`` among both regressors and instruments of every equation ([A-SRIVC] eq. 21 plus the free
+    response ``c^T B``, which enters every residual output ``y~_i`` through the submodels' outputs simulated from rest:
+    at ``A_i`` the filtered equation's error is ``y~_i`` minus the forced response, i.e. the free responses plus noise),
     the IV estimate of the model parameters equals the IV estimate on the data with ``B`` projected out
     (Frisch-Waugh-Lovell): ``c`` need not be carried. No basis: the step unchanged."""
     if space is None or step.eps.size == 0:
@@ -251,7 +245,7 @@ def _projected_out(x: np.ndarray, space: tuple[np.ndarray, int]) -> np.ndarray:
 
 
 def _iv_update(step: _Step, structures: list[SubmodelStructure], only: int | None = None) -> tuple[list, float]:
-    """001 eq. 29: ``B^{j+1} = [sum zeta phi^T]^-1 [sum zeta Upsilon^T]``, block diagonal extracted (eq. 27)."""
+    """[A-SRIVC] eq. 29: ``B^{j+1} = [sum zeta phi^T]^-1 [sum zeta Upsilon^T]``, block diagonal extracted (eq. 27)."""
     M = step.Z.T @ step.Phi
     R = step.Z.T @ step.Ups
     X, cond = equilibrated_solve(M, R, column_norms(step.Z), column_norms(step.Phi))
@@ -261,7 +255,7 @@ def _iv_update(step: _Step, structures: list[SubmodelStructure], only: int | Non
 
 
 def _project(thetas, structures) -> tuple[list[np.ndarray], int]:
-    """Reflect right-half-plane roots of every ``A_i`` into the left half plane (000 §4.7)."""
+    """Reflect right-half-plane roots of every ``A_i`` into the left half plane ([RA-SRIVC] §4.7)."""
     out, count = [], 0
     for th, st in zip(thetas, structures, strict=True):
         if st.n == 0:
@@ -297,7 +291,7 @@ def min_cost_assignment(cost: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
 
 def match_order(thetas: list[np.ndarray], reference: list[np.ndarray], structures) -> tuple[list[np.ndarray], bool]:
     """Permute submodels of identical structure so that they follow the reference's (e.g. the initial
-    guesses') order by time scale. Any permutation is the same additive model (001 §2: the decomposition is
+    guesses') order by time scale. Any permutation is the same additive model ([A-SRIVC] §2: the decomposition is
     unique up to the labels), so this only restores the user's labelling after an iteration swapped two."""
     out = list(thetas)
     swapped = False
@@ -336,7 +330,7 @@ def _cl_ok(data: OfflineData, thetas, structures) -> bool:
 
 
 def _safeguard(data, thetas_new, thetas_old, structures, closed_loop: bool, projection: bool):
-    """Projection (000 §4.7) and, in closed loop, step halving until the controller stabilizes the iterate.
+    """Projection ([RA-SRIVC] §4.7) and, in closed loop, step halving until the controller stabilizes the iterate.
 
     Returns ``(thetas, projections, note)``; ``thetas`` is None when no admissible step was found.
     """
@@ -358,7 +352,7 @@ def _safeguard(data, thetas_new, thetas_old, structures, closed_loop: bool, proj
 
 def _finalize(method: str, data: OfflineData, structures, thetas, closed_loop: bool, iterations: int, converged: bool,
               cond: float, projections: int, message: str, thetas_cov=None) -> IdentificationResult:
-    """Covariance (001 Theorem 1, sandwich form), residual variance, cost, modal values and their stds."""
+    """Covariance ([A-SRIVC] Theorem 1, sandwich form), residual variance, cost, modal values and their stds."""
     step = _build(data, thetas, structures, closed_loop)
     N, P = step.Z.shape
     rss = float(step.eps @ step.eps)
@@ -401,15 +395,15 @@ SETTLE_ITERATIONS = 3  # additive_iv(settle_tol=...): iterations without a gain 
 def additive_iv(data: OfflineData, structures, thetas0, *, closed_loop: bool, method: str, max_iterations: int = 50,
                 tol: float = 1e-7, projection: bool = True, settle_tol: float | None = None,
                 settle_floor: float = 0.0) -> IdentificationResult:
-    """Additive SRIVC / CLSRIVC: iterate 001 eq. 29 (K = 1: SRIVC/CLSRIVC of 001 eq. 30).
+    """Additive SRIVC / CLSRIVC: iterate [A-SRIVC] eq. 29 (K = 1: SRIVC/CLSRIVC of [A-SRIVC] eq. 30).
 
-    Open loop ``zeta`` = 001 eq. 10 (gradient of the output error), closed loop 001 eq. 20 with
-    ``z = S_uo(q) r``; integrators per 001 Remark 6 (eqs. 31-32). Stops when the scaled relative change
+    Open loop ``zeta`` = [A-SRIVC] eq. 10 (gradient of the output error), closed loop [A-SRIVC] eq. 20 with
+    ``z = S_uo(q) r``; integrators per [A-SRIVC] Remark 6 (eqs. 31-32). Stops when the scaled relative change
     of beta is below ``tol``; a failure (singular normal matrix, no stabilized iterate, iteration limit)
     returns the last admissible iterate with ``converged=False`` and a message.
 
     ``settle_tol`` (the order scan's short fits, :mod:`..modefind`): also stop once the output error of the
-    iterates (001 eq. 23 summed, the cost the scan judges a model by) has not fallen by more than ``settle_tol``
+    iterates ([A-SRIVC] eq. 23 summed, the cost the scan judges a model by) has not fallen by more than ``settle_tol``
     of its best for :data:`SETTLE_ITERATIONS` iterations; the best iterate is returned, not converged, with
     ``extra["settled"]``. A submodel the data do not inform (one mode too many) moves its parameters for dozens of
     iterations without changing the output error; the parameter test alone keeps iterating it. Only an output error
@@ -422,7 +416,7 @@ def additive_iv(data: OfflineData, structures, thetas0, *, closed_loop: bool, me
     projections, cond, message, converged, it = 0, np.nan, "", False, 0
     change, at_limit = np.inf, np.inf
     best_cost, best_thetas, flat, settled = np.inf, thetas, 0, False
-    if projection:   # the filters are built from the initial guess too (000 §4.7)
+    if projection:   # the filters are built from the initial guess too ([RA-SRIVC] §4.7)
         thetas, projections = _project(thetas, structures)
     for it in range(1, max_iterations + 1):
         try:
@@ -490,8 +484,8 @@ def _cost(data: OfflineData, xhat_sum: np.ndarray, thetas=None, structures=None)
 
 def bcd_srivc(data: OfflineData, structures, thetas0, *, max_iterations: int = 50, tol: float = 1e-7,
               inner_iterations: int = 20, projection: bool = True, closed_loop: bool = False) -> IdentificationResult:
-    """Block-coordinate descent SRIVC (002 Algorithm 2): per block, SRIVC iterations (002 eq. 12) on the
-    residual output until ``V_N`` (002 eq. 8) decreases; stop on the relative change of x (line 15)."""
+    """Block-coordinate descent SRIVC ([BCD-SRIVC] Algorithm 2): per block, SRIVC iterations ([BCD-SRIVC] eq. 12) on the
+    residual output until ``V_N`` ([BCD-SRIVC] eq. 8) decreases; stop on the relative change of x (line 15)."""
     thetas = [np.asarray(t, float).copy() for t in thetas0]
     K = len(structures)
     scale = np.abs(np.concatenate(thetas))
@@ -524,7 +518,7 @@ def bcd_srivc(data: OfflineData, structures, thetas0, *, max_iterations: int = 5
                     break
                 trial = cand
                 _, xi = _submodel_outputs(data, [trial[i]], [structures[i]])
-                if _cost(data, others + xi[0], trial, structures) < v_start:       # 002 Algorithm 2 line 8
+                if _cost(data, others + xi[0], trial, structures) < v_start:       # [BCD-SRIVC] Algorithm 2 line 8
                     thetas = trial
                     xhat[i] = xi[0]
                     break
@@ -547,7 +541,7 @@ def bcd_srivc(data: OfflineData, structures, thetas0, *, max_iterations: int = 5
 
 
 def unfactored_structure(structures: list[SubmodelStructure]) -> SubmodelStructure:
-    """Smallest ``B/(p^l A)`` that contains the additive model (002 Proposition 1)."""
+    """Smallest ``B/(p^l A)`` that contains the additive model ([BCD-SRIVC] Proposition 1)."""
     n = sum(st.n for st in structures)
     l_tot = sum(st.integrators for st in structures)
     m = max(st.m + (n + l_tot) - (st.n + st.integrators) for st in structures)
@@ -555,7 +549,7 @@ def unfactored_structure(structures: list[SubmodelStructure]) -> SubmodelStructu
 
 
 def to_unfactored(thetas, structures) -> tuple[np.ndarray, SubmodelStructure]:
-    """The additive model as one ``theta`` of :func:`unfactored_structure` (001 eq. 1)."""
+    """The additive model as one ``theta`` of :func:`unfactored_structure` ([A-SRIVC] eq. 1)."""
     su = unfactored_structure(structures)
     num, den = total_transfer_function(thetas, structures)
     den = den[su.integrators:]
@@ -565,7 +559,7 @@ def to_unfactored(thetas, structures) -> tuple[np.ndarray, SubmodelStructure]:
 
 def split_additive(theta_u: np.ndarray, su: SubmodelStructure, structures: list[SubmodelStructure],
                    thetas_ref: list[np.ndarray]) -> list[np.ndarray]:
-    """Partial-fraction split of an unfactored ``B/(p^l A)`` into the additive structures (002 §4.1).
+    """Partial-fraction split of an unfactored ``B/(p^l A)`` into the additive structures ([BCD-SRIVC] §4.1).
 
     The roots of ``A`` are assigned to the submodels by matching the poles of ``thetas_ref`` (Hungarian
     assignment); the numerators are the least-squares fit of the frequency response with those
@@ -621,7 +615,7 @@ def split_additive(theta_u: np.ndarray, su: SubmodelStructure, structures: list[
 
 def unfactored_iv(data: OfflineData, structures, thetas0, *, closed_loop: bool, method: str, max_iterations: int = 50,
                   tol: float = 1e-7, projection: bool = True) -> IdentificationResult:
-    """Unfactored SRIVC / CLSRIVC (001 eq. 30, Remark 5) on ``B/(p^l A)``, then split into the submodels.
+    """Unfactored SRIVC / CLSRIVC ([A-SRIVC] eq. 30, Remark 5) on ``B/(p^l A)``, then split into the submodels.
 
     The additive covariance follows from the unfactored one by the delta method through the split.
     """
@@ -665,10 +659,10 @@ def unfactored_iv(data: OfflineData, structures, thetas0, *, closed_loop: bool, 
 
 
 def lssvf(data: OfflineData, structures, thetas0, *, method: str = "lssvf") -> IdentificationResult:
-    """Least-squares state-variable filter (003 §3): one LS step with the fixed filter ``1/A_f`` of the guess.
+    """Least-squares state-variable filter ([UNS-SRIVC] §3): one LS step with the fixed filter ``1/A_f`` of the guess.
 
     Uses the unfactored model with ``A_f`` the total denominator of the initial guess, then the additive
-    split. (An unstable ``A_f`` needs the all-pass extension: ``lssvf-uns``, 003 Remark 2.)
+    split. (An unstable ``A_f`` needs the all-pass extension: ``lssvf-uns``, [UNS-SRIVC] Remark 2.)
     """
     th_u0, su = to_unfactored(thetas0, structures)
     a_f, _ = split_theta(th_u0, su)
@@ -776,7 +770,7 @@ def warmup_samples(thetas, structures, rate_hz: float, n: int, warmup_s: float |
 
     The prefilters, the simulated submodel outputs and the closed-loop instrument start from rest. When the
     recording starts with the plant in motion (the usual case for a monitor that attaches to a running
-    machine), the regression equations (001 eq. 21) hold only up to the initial-condition response until
+    machine), the regression equations ([A-SRIVC] eq. 21) hold only up to the initial-condition response until
     those transients have decayed; for a lightly damped mode driven near resonance that transient carries as
     much energy as all the noise of a long record and biases b0 and zeta together (the resonance peak
     b0/(2 zeta) stays right). ``warmup_s`` given: that many seconds. ``None``: ``WARMUP_DECAY_TIMES`` decay

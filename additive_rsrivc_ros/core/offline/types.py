@@ -1,4 +1,4 @@
-"""Data and results shared by the offline estimators (``stable`` and ``unstable``; 001, 002, 003).
+"""Data and results shared by the offline estimators (``stable`` and ``unstable``; [A-SRIVC], [BCD-SRIVC], [UNS-SRIVC]).
 
 :class:`OfflineData` is the checked input of one identification, :class:`IdentificationResult` what every
 estimator returns, :func:`equilibrated_solve` the equilibrated IV normal-equation solve they all use.
@@ -20,15 +20,15 @@ METHODS = ("auto", "additive-clsrivc", "additive-srivc", "bcd-srivc", "srivc", "
 
 @dataclass
 class IdentificationResult:
-    """Outcome of one offline estimator (001 eq. 29 / Theorem 1 covariance).
+    """Outcome of one offline estimator ([A-SRIVC] eq. 29 / Theorem 1 covariance).
 
-    ``thetas``: per submodel, 000 eq. 7 layout. ``covariance``: full ``sigma^2`` sandwich covariance
+    ``thetas``: per submodel, [RA-SRIVC] eq. 7 layout. ``covariance``: full ``sigma^2`` sandwich covariance
     ``sigma^2 M^-1 (Z^T Z) M^-T`` with ``M = Z^T Phi`` the IV normal matrix (asymptotically
-    ``sigma^2 (sum zeta zeta^T)^-1``, 001 Theorem 1/Corollary 1); ``covariances`` its diagonal blocks.
-    ``P``: the unscaled inverse IV normal matrix ``M^-1`` (sums, not means; 001 eq. 33), and ``p_blocks``
-    the per-submodel ``(sum_k zeta_i phi_i^T)^-1`` used by the block-coordinate recursion (000 eqs. 30-32).
+    ``sigma^2 (sum zeta zeta^T)^-1``, [A-SRIVC] Theorem 1/Corollary 1); ``covariances`` its diagonal blocks.
+    ``P``: the unscaled inverse IV normal matrix ``M^-1`` (sums, not means; [A-SRIVC] eq. 33), and ``p_blocks``
+    the per-submodel ``(sum_k zeta_i phi_i^T)^-1`` used by the block-coordinate recursion ([RA-SRIVC] eqs. 30-32).
     ``cond``: condition number of the column-equilibrated IV normal matrix. ``cost``: ``V_N = mean(eps^2)``
-    of the output error (002 eq. 8). ``modal``: (K, 3) natural frequency [Hz], damping ratio, gain;
+    of the output error ([BCD-SRIVC] eq. 8). ``modal``: (K, 3) natural frequency [Hz], damping ratio, gain;
     ``modal_std`` by the delta method (``model.modal_std``).
     """
 
@@ -53,7 +53,7 @@ class IdentificationResult:
 
     @property
     def beta(self) -> np.ndarray:
-        """Stacked parameter vector (000 eq. 8)."""
+        """Stacked parameter vector ([RA-SRIVC] eq. 8)."""
         return np.concatenate(self.thetas)
 
     @property
@@ -61,7 +61,7 @@ class IdentificationResult:
         return [np.sqrt(np.maximum(np.diag(c), 0.0)) for c in self.covariances]
 
     def to_dict(self) -> dict[str, Any]:
-        """JSON-ready object of ../shared/CONTRACT.md (``rsrivc_identify``)."""
+        """JSON-ready object of docs/INTERFACE.md (``rsrivc_identify``)."""
         modes = []
         for th, sd, mo, ms in zip(self.thetas, self.theta_std, self.modal, self.modal_std, strict=True):
             modes.append({

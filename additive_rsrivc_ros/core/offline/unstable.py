@@ -1,23 +1,15 @@
-"""Unstable plants and integral action: LSSVF-uns, SRIVC-uns, CLSRIVC-uns (003 §4-§6), K = 1.
+"""Unstable plants and integral action: LSSVF-uns, SRIVC-uns, CLSRIVC-uns ([UNS-SRIVC] §4-§6), K = 1.
 
-The filtered signals of the SRIVC family need ``1/A(p)``, which is unstable for an unstable model. 003 §4
-multiplies every filtered signal by the discrete all-pass ``A_da(q)/Abar_da(q)`` (003 eqs. 15-16) whose
-zeros are the unstable poles ``lambda`` of the ZOH equivalent ``A_d(q)`` (003 eq. 12) and whose poles are
-their reflections ``1/lambda``. The product is realized directly as the stable filter
-``N_j(q) / (A_ds(q) Abar_da(q))`` (exact cancellation). Both all-pass polynomials are monic in q^-1 as in
-003 eq. 16 (gain ``prod |lambda|``): that keeps (17) a proper predictor, which the PEM interpretation of
-the fixed point (003 Lemma 4.3) needs; the reported residual variance is divided by ``prod |lambda|^2``.
-Models here are of low order (the 003 examples have n = 2), so the discrete numerators come from the small
-state-space realizations of ``core/filters.py``.
+``1/A(p)`` is unstable for an unstable model, so every filtered signal is multiplied by the discrete all-pass
+``A_da(q)/Abar_da(q)`` (eqs. 15-16) whose zeros are the unstable poles of the ZOH equivalent ``A_d(q)`` (eq. 12),
+realized as the stable filter ``N_j(q) / (A_ds(q) Abar_da(q))``. Both all-pass polynomials are monic in ``q^-1``, which
+keeps (17) a proper predictor (Lemma 4.3); the residual variance is divided by ``prod |lambda|^2``.
 
-* ``lssvf-uns``: one LS step of 003 eq. 24 with the fixed (possibly unstable) filter of the guess (Remark 2).
-* ``srivc-uns``: 003 eq. 25 with the instrument of 003 eq. 26, the gradient of the stable predictor (17),
-  computed by central differences of the prefiltered residual ``eps = AP (y - G u)`` (003 §7.1).
-* ``clsrivc-uns``: 003 eq. 25 with the instrument 003 eq. 29: ``AP [-p^j/A T_o r, p^j/(p^l A) S_uo r]``.
-* integral action (003 §6): solution 2 forces the pole(s) at 0: a structure with ``integrators > 0``
-  (the integrator poles at q = 1 are not cancelled, 003 §4.1 (b)); solution 1 (``*-uns-monic``) uses the
-  monic denominator ``A = a_0 + a_1 p + .. + p^n`` with ``theta = [a_0..a_(n-1), b_0..b_m]`` so that a_0
-  can go to zero.
+* ``lssvf-uns``: one LS step of eq. 24 with the fixed filter of the guess (Remark 2).
+* ``srivc-uns``: eq. 25 with the instrument of eq. 26 (the stable predictor's gradient, by central differences, §7.1).
+* ``clsrivc-uns``: eq. 25 with the instrument of eq. 29, ``AP [-p^j/A T_o r, p^j/(p^l A) S_uo r]``.
+* integral action (§6): ``integrators > 0`` forces the poles at 0 (solution 2); ``*-uns-monic`` uses the monic ``A = a_0
+  + .. + p^n`` so ``a_0`` can go to zero (solution 1).
 """
 
 from __future__ import annotations
@@ -33,7 +25,7 @@ UNSTABLE_RADIUS = 1.0 + 1e-9   # |lambda| above this is cancelled; integrator po
 
 
 class _Param:
-    """Anti-monic (003 eq. 1) or monic (003 §6 solution 1) parametrization of ``B/(p^l A)``."""
+    """Anti-monic ([UNS-SRIVC] eq. 1) or monic ([UNS-SRIVC] §6 solution 1) parametrization of ``B/(p^l A)``."""
 
     def __init__(self, st: SubmodelStructure, monic: bool):
         if monic and st.integrators:
@@ -68,7 +60,7 @@ class _Param:
 
 
 class _Bank:
-    """``AP [p^j/(p^l D)]_ZOH`` for j = 0..order, as stable discrete filters in q^-1 (003 eqs. 21-22)."""
+    """``AP [p^j/(p^l D)]_ZOH`` for j = 0..order, as stable discrete filters in q^-1 ([UNS-SRIVC] eqs. 21-22)."""
 
     def __init__(self, den: np.ndarray, integrators: int, h: float, lam_u: np.ndarray | None = None):
         dss = discretize(*svf_continuous(den, integrators), h)
@@ -104,7 +96,7 @@ def _unstable_roots(par: _Param, theta: np.ndarray, h: float) -> np.ndarray:
 
 
 def _signals(data: OfflineData, par: _Param, theta: np.ndarray, lam_u=None):
-    """Filtered output (003 eq. 21), regressor (eq. 22) and the prefiltered residual (eq. 19)."""
+    """Filtered output ([UNS-SRIVC] eq. 21), regressor (eq. 22) and the prefiltered residual (eq. 19)."""
     st, h = par.st, data.h
     den = par.den(theta)
     if lam_u is None:
@@ -121,9 +113,9 @@ def _signals(data: OfflineData, par: _Param, theta: np.ndarray, lam_u=None):
 
 def _instrument_srivc(data: OfflineData, par: _Param, theta: np.ndarray, lam_u: np.ndarray,
                       Phi: np.ndarray) -> np.ndarray:
-    """003 eq. 26: ``d yhat / d theta``. Without unstable poles to cancel it is the exact ZOH gradient
-    ``[-p^j B/(p^l A^2) u, p^j/(p^l A) u]`` (001 eq. 10/31); otherwise central differences of the stable
-    prefiltered residual (003 §7.1: the a-part would need ``1/A^2``, which one all-pass cannot stabilize)."""
+    """[UNS-SRIVC] eq. 26: ``d yhat / d theta``. Without unstable poles to cancel it is the exact ZOH gradient
+    ``[-p^j B/(p^l A^2) u, p^j/(p^l A) u]`` ([A-SRIVC] eq. 10/31); otherwise central differences of the stable
+    prefiltered residual ([UNS-SRIVC] §7.1: the a-part would need ``1/A^2``, which one all-pass cannot stabilize)."""
     if lam_u.size == 0:
         ins = discretize(*instrument_continuous_poly(par.den(theta), par.num(theta), par.st.integrators),
                          data.h).run(data.u)
@@ -141,7 +133,7 @@ def _instrument_srivc(data: OfflineData, par: _Param, theta: np.ndarray, lam_u: 
 
 
 def _instrument_clsrivc(data: OfflineData, par: _Param, theta: np.ndarray, by, bu) -> np.ndarray:
-    """003 eqs. 28-29 with a discrete controller: ``AP [-p^j/A T_o r, p^j/(p^l A) S_uo r]``."""
+    """[UNS-SRIVC] eqs. 28-29 with a discrete controller: ``AP [-p^j/A T_o r, p^j/(p^l A) S_uo r]``."""
     at = par.to_antimonic(theta)
     if at is None:
         # monic with a_0 = 0: A = p (a_1 + .. + p^(n-1)) -> the forced-integrator form B'/(p A'), anti-monic A'
@@ -175,7 +167,7 @@ def _regression(base: str, data: OfflineData, par, theta: np.ndarray) -> tuple[n
 
 def identify_unstable(data: OfflineData, structures, thetas0, *, method: str, max_iterations: int = 50,
                       tol: float = 1e-7) -> IdentificationResult:
-    """Dispatch of the 003 estimators (K = 1); returns an :class:`types.IdentificationResult`."""
+    """Dispatch of the [UNS-SRIVC] estimators (K = 1); returns an :class:`types.IdentificationResult`."""
     from ..filters import ClosedLoopUnstableError
 
     if len(structures) != 1:
@@ -220,7 +212,7 @@ def identify_unstable(data: OfflineData, structures, thetas0, *, method: str, ma
             break
     else:
         message = f"no convergence within {max_iterations} iterations (last relative change {change:.3g})"
-    # covariance at the estimate (sandwich form, 001 Theorem 1) with the final instrument
+    # covariance at the estimate (sandwich form, [A-SRIVC] Theorem 1) with the final instrument
     N = data.n
     try:
         yf, Phi, eps, Z, lam_u = _regression(base, data, par, theta)
@@ -258,7 +250,7 @@ def identify_unstable(data: OfflineData, structures, thetas0, *, method: str, ma
         modal = np.array([np.nan, np.nan, np.nan])
         mstd = np.array([np.nan, np.nan, np.nan])
     if monic:
-        message += " (monic layout theta = [a_0..a_(n-1), b_0..b_m], 003 §6 solution 1)"
+        message += " (monic layout theta = [a_0..a_(n-1), b_0..b_m], [UNS-SRIVC] §6 solution 1)"
     return IdentificationResult(
         method=method, structures=[st], thetas=[theta], covariances=[cov], covariance=cov, P=P, p_blocks=[P],
         residual_variance=sigma2, iterations=it, converged=converged, cond=cond, cost=cost,
