@@ -1,28 +1,15 @@
-"""The offline verdict: did the structural fault tests actually run, and where were they blind?
+"""The offline verdict: did the structural fault tests actually run, and where was each mode blind?
 
-ROS-free and matplotlib-free, so the node can reuse it. :func:`assess` reads the stream of
-:class:`.core.pipeline.Report` objects (any objects with ``time_s``, ``phase``, ``estimating`` and a
-``health`` dict with ``hold``, ``reasons`` and optionally ``issues``) and returns a :class:`Verdict`:
+ROS-free, so the node can reuse it. :func:`assess` reads the reports (``time_s``, ``phase``, ``estimating`` and a
+``health`` dict with ``hold``, ``reasons``, ``issues`` and the modes' decision states ``modes``) and returns a
+:class:`Verdict`: ``monitored_s`` (tests ran against a trusted baseline), ``blind_intervals`` (where and why they
+did not: start-up, holds, data gaps, no estimate, untrusted baseline), ``mode_blind`` (a mode's own holds while the
+others were tested), ``flagged_model_s`` (tests ran against a model the model-order check flagged) and the
+``level`` (docs/INTERFACE.md "Offline verdict"): NO ESTIMATE without an accepted model, FAULT with an event,
+DEGRADED when the tests or one mode were blind after the start-up or ran against a flagged model, else OK.
 
-* ``monitored_s``: seconds during which the fault tests ran against a trusted baseline, i.e. covered by
-  reports in phase ``monitoring`` without a health hold;
-* ``blind_intervals``: where and why they did not run (``initializing``, ``settling``, ``learning``,
-  ``hold``, ``no_data``, ``no_estimate``), or ran against an ``untrusted`` baseline (health
-  ``baseline_trusted`` false: learned over less than half its window, or the estimate moved within it);
-* ``flagged_model_s``: seconds of ``monitored_s`` during which the model-order check flagged the model
-  (``health['model_order']['state']`` in :data:`.core.vocabulary.MODEL_ORDER_FLAGGED`: a model that misfits
-  the data, e.g. a wrong input delay or a missing mode). The check only warns (it does not hold the tests), but
-  a silence of fault tests that compare a misfitting model with its baseline is not evidence of health;
-* ``level`` (../shared/CONTRACT.md "Offline verdict"): ``NO ESTIMATE`` when no report ever carried an
-  accepted model; ``FAULT`` when a structural event was opened; ``DEGRADED`` when the tests never ran, or
-  were blind after the normal start-up (initialization, settling, learning the baseline, in this order,
-  undisturbed), or health held them back for a reason other than the start-up, or they ran against a flagged
-  model; ``OK`` otherwise.
-
-Time coverage: a report at ``t_j`` stands for ``[t_j, t_j + P)`` with ``P`` the median report spacing
-(the publish period); a longer silence between reports (a data gap: the pipeline reports nothing while no
-samples arrive) is a ``no_data`` interval. Times are seconds since the first sample; the record ends at
-``duration_s``.
+A report at ``t_j`` stands for ``[t_j, t_j + P)`` with ``P`` the median report spacing; a longer silence is a
+``no_data`` interval. Times are seconds since the first sample.
 """
 
 from __future__ import annotations

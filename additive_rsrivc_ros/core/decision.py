@@ -1,27 +1,12 @@
 """The per-mode fault decision: one explicit state per mode, and holds that each have an owner, a reason and an end.
 
-Every report gives each mode exactly one :class:`ModeState`; the verdict, ``/diagnostics``, ``events.csv`` and the
-report all read these states (there is no second account of them)::
-
-      (no model / settling)            baseline window              tests run, nothing deviates
-    BLIND ------------------------> LEARNING -----------------> MONITORING <-----------------+
-      ^   ^                                                       |    ^                     |
-      |   |  hold ends (its end time passed,                      |    | deviation gone      | event cleared
-      |   |  its cause no longer seen)               CUSUM > h and|    | (or not relevant)   | (clear time)
-      |   +---------------------------------------  relevant dev. v    |                     |
-      +--- hold on this mode (owner, reason, end) <-------------- SUSPECT ---persistence---> FAULT
-                                                                     (WARN)                 (ERROR)
-
-* **Blind** carries its reason: no valid model, settling, or the holds on the mode. A hold is a
-  :class:`Hold` with an *owner* (the health issue kind that raised it), a *reason* (one line) and an *end*: the
-  time at which it lapses unless its cause is seen again. A hold scoped to one mode (its excitation was lost, its
-  covariance block is invalid) blinds that mode only; a data problem (gap, non-finite or stuck sensor, clock step,
-  re-priming, re-initialization) holds every mode. An open event is never held: its mode stays FAULT.
-* **Restricted monitoring** (stress): an advisory issue (residual-variance jump, projection storm) is also the
-  signature of a genuine abrupt change, so it does not hold. For a bounded window after it began only the mode's
-  leading deviation that began with it may be confirmed (isolation); after the window every persistent deviation
-  is judged against the baseline again. The window never waits for the estimates to return.
-* The monitored, suspect and fault states are the sequential tests' (:class:`.faults.SequentialTest`, S3-S4).
+Every report gives each mode one :class:`ModeState` (blind, learning, monitoring, suspect, fault); the verdict,
+``/diagnostics``, ``events.csv`` and the report read these states. A :class:`Hold` names its owner (the health issue
+kind), its reason and its end (it lapses then unless its cause is seen again); a hold scoped to one mode (lost
+excitation, an invalid covariance block) blinds that mode only, a data problem holds every mode, and an open event
+is never held. Under estimator stress (a residual-variance jump: also the signature of a real abrupt change)
+confirmation is restricted for a bounded window, never until the estimates return. The transitions are drawn and
+explained in docs/DESIGN.md ("The fault decision").
 """
 
 from __future__ import annotations

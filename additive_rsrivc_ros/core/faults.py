@@ -1,43 +1,17 @@
-"""Fault diagnosis on the stream of modal estimates: baselines, sequential tests, estimator health.
+"""Structural fault tests on the stream of modal estimates, kept apart from the estimator's health.
 
-The recursive estimator (000 Algorithm 2) publishes per mode ``[f_hz, zeta, gain]`` and their standard
-deviations from ``sigma^2 P_bar`` (000 eq. 32 interpreted as a covariance, delta method in
-:mod:`.model`). This module turns that stream into structural fault flags, kept apart from the
-health of the estimator itself.
+The recursion ([RA-SRIVC] Algorithm 2) publishes per mode ``[f_hz, zeta, gain]`` and their std (delta method on
+``sigma^2 P_bar``). The steps below are cited by name (S1-S6) in this module's docstrings:
 
-Statistics used (documented here once; the docstrings below refer to these items):
-
-* **S1 - autocorrelation.** With forgetting ``lambda = 1 - h/T`` (memory ``T`` seconds) the estimate
-  is an exponentially weighted average of the data (000 eq. 21), i.e. close to an AR(1) process with
-  correlation ``exp(-dt/T)``. Its integrated autocorrelation time is ``tau_c = 2 T``: a window of
-  ``W`` seconds holds about ``n_eff = W / (2 T)`` independent values, and a sum of normalized values
-  over ``tau_c`` has roughly unit variance.
-* **S2 - baseline.** Over a healthy window after the estimator converged (settle time elapsed, and over
-  the last memory length no estimate moved by more than 3 reported std), the baseline is the mean of
-  the estimate. The typical fluctuation of the estimate is ``s_x = max(reported std, empirical std)``
-  (the reported std is approximate, the empirical one captures model error and excitation effects) and
-  the uncertainty of the baseline mean is ``s_b = s_x / sqrt(n_eff)`` (S1).
-* **S3 - test.** The deviation ``z = (x - b) / sqrt(s_x(t)^2 + s_b^2)`` (``s_x(t)`` uses the current
-  reported std) drives a two-sided CUSUM (Page 1954) whose increments are weighted by ``dt / tau_c``
-  so that the threshold ``h`` is counted in independent samples (S1):
-  ``g+ = max(0, g+ + w (z - k))``, ``g- = max(0, g- + w (-z - k))``, with the reference
-  ``k = max(k_min, delta / 2)`` where ``delta`` is the minimum relevant change in std units (the CUSUM
-  tuned to the smallest change worth detecting). The change time is estimated as
-  the last time ``g`` was zero (the CUSUM maximum-likelihood change point), bounded below by the last
-  time the deviation was still under half of the relevant change.
-* **S4 - decision.** A fault is *suspected* (WARN) when ``g > h`` AND the relative deviation exceeds
-  the minimum relevant change (same direction); it is *confirmed* (ERROR, flag set, event opened) once
-  the relevant deviation has lasted the persistence time; it clears when the deviation is back under ``clear_fraction``
-  of the relevant change or no longer significant (``z < k``) for the clear time (hysteresis).
-* **S6 - joint confirmation** (issue 17 item 3, :mod:`.joint_check`). When the baseline window's joint fit finds
-  a quantity that is not identifiable jointly (narrow excitation: the modes' gains and dampings trade off), the
-  monitor is *armed*: a deviation of the recursion is then confirmed only if the latest joint fit of a window
-  supports it, and a change the joint fit supports in two consecutive checks is confirmed even where the
-  recursion's split does not show it (the event's value is the joint fit's). Such an event clears when two
-  consecutive joint fits no longer support it. Unarmed (broadband data), S3-S4 alone decide.
-* **S5 - health.** Divergence, projection storms, loss of excitation, residual-variance jumps, stuck
-  or non-finite sensor values and data gaps make the health bad; while (and for a hold-off after) it
-  is bad, structural tests are frozen and the health lists why.
+* S1 autocorrelation: with memory ``T`` the estimate is close to AR(1); ``tau_c = 2 T``, ``n_eff = W / (2 T)``.
+* S2 baseline: mean over a healthy window, ``s_x = max(reported, empirical std)``, ``s_b = s_x / sqrt(n_eff)``.
+* S3 test: two-sided CUSUM (Page 1954) on ``z = (x - b) / sqrt(s_x^2 + s_b^2)``, increments weighted ``dt / tau_c``,
+  reference tuned to the minimum relevant change; the change time is the CUSUM's last zero.
+* S4 decision: suspect when ``g > h`` and the deviation is relevant; fault after the persistence time; clear with
+  hysteresis (``clear_fraction`` and the clear time).
+* S5 health: data and estimator problems hold the tests (one mode's problem holds that mode only, :mod:`.decision`);
+  advisory stress restricts confirmation for a bounded window.
+* S6 joint confirmation (:mod:`.joint_check`): where a joint fit is needed, a deviation needs its support.
 """
 
 from __future__ import annotations
@@ -307,7 +281,7 @@ def cusum_threshold(k: float, arl0: float) -> float:
 # ----------------------------------------------------------------------------------------------- events
 @dataclass
 class FaultEvent:
-    """One structural fault episode; fields map onto events.csv (../shared/CONTRACT.md)."""
+    """One structural fault episode; fields map onto events.csv (docs/INTERFACE.md)."""
 
     mode: int                  # 1-based, as in the diagnostics status name "mode <i>"
     quantity: str              # natural_frequency | damping | gain
@@ -1163,7 +1137,7 @@ class HealthMonitor:
         est = est_health if est_health is not None else EstimatorHealth()
         values: dict[str, Any] = {}
         modal = np.asarray(modal, dtype=float)
-        # divergence: non-finite or blown-up parameters (000 §4.7 projection keeps A_i stable, not bounded)
+        # divergence: non-finite or blown-up parameters ([RA-SRIVC] §4.7 projection keeps A_i stable, not bounded)
         if not np.all(np.isfinite(modal[:, :3])):
             self.note("divergence", t, "divergence: non-finite estimate")
         elif self.reference_modal is not None:
@@ -1206,7 +1180,7 @@ class HealthMonitor:
                 if not ci <= s.health_max_condition:
                     self.note("loss_of_excitation", t, f"loss of excitation: {'' if i is None else f'mode {i + 1} '}"
                               f"IV condition number {ci:.3g} > {s.health_max_condition:.3g}", mode=i)
-        # projection storm: fraction of updates that needed the stability projection (000 §4.7)
+        # projection storm: fraction of updates that needed the stability projection ([RA-SRIVC] §4.7)
         if est.projections:
             p_now = float(np.sum(np.asarray(est.projections, float)))
             n_now = float(est.updates)

@@ -1,25 +1,15 @@
-"""What the data identify jointly, and which structural changes they support (issue 17 item 3).
+"""What the data identify jointly, and which structural changes they support.
 
-The recursion updates each mode with its own gain (000 Algorithm 2); its covariance ``sigma^2 P_i`` is *conditional*
-on the other modes. When modes share the excitation -- a few reference lines, each near one resonance (000 §5) -- a
-gain of one mode trades against the gains and dampings of the others: the joint IV covariance is many times the
-conditional one (measured on the 000 §5 loop: gains 9-11x), and after a change the recursion drifts along those
-weak directions for many memory lengths, moving quantities that did not change (a -20 % gain step on mode 1 moved
-mode 2's gain and damping by -40 % together, mode 3's gain by -16 %, mode 1's frequency by +2.5 %).
+The recursion's covariance ``sigma^2 P_i`` is *conditional* on the other modes ([RA-SRIVC] Algorithm 2). When modes
+share the excitation (a few reference lines near the resonances, [RA-SRIVC] §5) the joint covariance is many times
+larger (gains 9-11x), and after a change the recursion drifts along those weak directions. The joint check answers
+from a window's data: the offline fit of all modes in one IV solve ([A-SRIVC] eq. 29) and its sandwich covariance
+([A-SRIVC] Theorem 1), mapped to (f, zeta, gain) by the delta method.
 
-The joint check answers from the data of a window, not from the iterate: the offline additive CLSRIVC / SRIVC
-(001 eq. 29, all modes' parameters in one IV solve, iterated to convergence) and its sandwich covariance
-``sigma^2 M^-1 G M^-T`` over *all* modes (001 Theorem 1), mapped to (f, zeta, gain) by the delta method.
-
-* A quantity is **identifiable** when 3 joint stds are below its relevant change ``faults.min_change``.
-* The reference is the joint fit of the end of the baseline window (the recursion's baseline is conditional too:
-  on narrow excitation its non-identifiable quantities sit anywhere along the weak directions). A change is
-  **supported** when the quantity is identifiable (in the reference's window and in the current one: a fit at a
-  wrong optimum can report small stds), relevant (``|x - b| >= rho |b|``) and significant against both
-  fits' joint stds (``|x - b| >= 4 sqrt(s^2 + s_b^2)``: the checks are many and overlap).
-* Where gain and damping of a mode are not separately identifiable, their combination ``g / (2 zeta)`` -- the
-  resonance peak, which a reference line near the resonance pins -- may be; its relative change and std follow
-  from the same covariance.
+* **Identifiable**: 3 joint stds below the relevant change ``faults.min_change``.
+* **Supported**: identifiable in the reference (end of the baseline window) and now, relevant, and 4 joint stds away.
+* **Coupling**: the largest correlation between two modes' quantities; a weak mode holds the modes coupled to it.
+* Where gain and damping are not separable, the resonance peak ``g / (2 zeta)`` may be; its change is reported.
 """
 
 from __future__ import annotations

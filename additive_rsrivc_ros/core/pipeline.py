@@ -1,40 +1,17 @@
-"""MonitorPipeline: sample validation + recursive additive SRIVC + fault diagnosis (ROS-free).
+"""MonitorPipeline: sample validation, recursive additive SRIVC and the fault decision (ROS-free).
 
-The one object the node (``rsrivc_monitor``) and the offline tool (``rsrivc_diagnose``) drive:
-
-0. **Alignment** (closed loop, Float64 signals): :class:`.alignment.InvariantAligner` checks the controller
-   invariant ``u = C_d(q)(r - y)`` sample by sample and re-pairs streams in which one lost or repeated a
-   message (a lost sample becomes an invalid grid sample, a surplus one is dropped); samples are released
-   ``alignment.lag_s`` late so a shift is corrected before the estimator sees it; :meth:`flush` releases the
-   rest at the end of a record. What it found and could not decide is reported on health.
-1. **Validation** of each incoming sample ``(t, r, u, y)``: non-finite, out-of-order and duplicate stamps
-   are dropped; non-finite values, values of absurd magnitude (:class:`MagnitudeGuard`: above ``1e6`` x the
-   99th percentile of ``|value|`` seen so far or ``1e15``; counted as ``outliers``) and outputs that exactly repeat the
-   previous value (a dropped sample held by the receiver) are given to the estimator as *invalid* (no update; the
-   kernel holds a non-finite input and replaces the output by the model prediction), which keeps the sample grid;
-   a spacing above ``(1 + faults.health.gap_tolerance) / loop_rate_hz`` is a data gap: a short one (at most 5 %
-   of the shortest modelled period) is filled with invalid samples, a longer one re-primes the estimator's
-   filters (``mark_gap``, 000 Algorithm 2 step 1), as does the end of a stuck-sensor episode (an output constant
-   for ``faults.health.stuck_s``; samples withheld). Garbage never reaches the estimator as data.
-1b. **Automatic start** (no mode guesses, ``cfg.auto_modes``; :mod:`.autostart`): the first
-   ``max(init_duration_s, 2 s)`` of samples that passed steps 0-1 are searched for modes
-   (:func:`.modefind.autostart_config`); until modes are found there is no estimator, reports have K = 0, phase
-   ``finding modes`` and say so on health (a failed window: why, and a retry on new data). The estimator and the
-   fault and health monitors are then built for the K found and the buffered samples go through step 2 as they
-   would have with those modes as guesses.
-2. **Initialization**: the first ``init_duration_s`` of valid contiguous data go to the estimator's
-   offline initialization (000 Algorithm 2 step 1, 001 eq. 29); then samples are fed in blocks. A model is
-   valid only if it is finite and, in closed loop, ``C_d`` (with the input delay) stabilizes it (checked after
-   every initialization and at every report); without a valid model the reports carry NaN and
-   ``estimating=False`` with the reason on health (``no_model_reason``), and the estimator initializes again on
-   new data -- the guesses are never published as estimates.
-3. **Diagnosis** at ``publish_rate_hz``: :class:`..faults.HealthMonitor` (estimator health) and
-   :class:`..faults.FaultMonitor` (baseline, sequential tests) produce a :class:`Report`. Data problems hold the
-   tests (health ``hold``, reason ``fault tests held (blind) since ...``) and never reset the baseline: a baseline
-   window in progress is paused and resumed (``faults.py``); a partial baseline is flagged untrusted.
-
-Times: ``push`` takes sample times in seconds on any fixed origin (ROS time, bag log time); reports
-give ``time_s`` since the first sample ever pushed (kept across :meth:`get_state`/:meth:`set_state`).
+The one object the node, ``rsrivc_diagnose`` and ``rsrivc_fleet`` drive: 0. **Alignment** (closed loop):
+   :class:`.alignment.InvariantAligner` checks ``u = C_d(q)(r - y)`` and re-pairs streams that lost or repeated a
+   message before the estimator sees them.
+1. **Validation**: bad stamps dropped; non-finite, absurd (:class:`MagnitudeGuard`) and repeated outputs kept on the
+   grid as invalid samples; short gaps filled, long ones and stuck sensors re-prime the filters
+   ([RA-SRIVC] Algorithm 2 step 1). Garbage never reaches the estimator as data.
+1b. **Automatic start** without guesses (:mod:`.autostart`): reports have K = 0 until modes are found.
+2. **Initialization** on ``init_duration_s`` ([A-SRIVC] eq. 29), then recursion; a model is published only if it is
+   finite and ``C_d`` stabilizes it (checked at every report), else NaN with the reason on health.
+3. **Diagnosis** at ``publish_rate_hz``: health, baseline and tests (:mod:`.faults`), each mode's decision state
+   (:mod:`.decision`) in a :class:`Report`.
+Reports give ``time_s`` since the first sample ever pushed (kept across :meth:`get_state`/:meth:`set_state`).
 """
 
 from __future__ import annotations
@@ -71,7 +48,7 @@ class PipelineError(ValueError):
 
 @dataclass
 class Report:
-    """Everything published at one output instant (see ../shared/CONTRACT.md /diagnostics and CSVs)."""
+    """Everything published at one output instant (docs/INTERFACE.md: /diagnostics and CSVs)."""
 
     time_s: float                     # since the first sample
     modal: np.ndarray                 # (K, 6): f_hz, zeta, gain, f_std, zeta_std, gain_std (NaN before init)
@@ -105,7 +82,7 @@ class Report:
         return Level(int(self.health["level"]))
 
     def mode_dict(self, i: int) -> dict[str, Any]:
-        """Mode ``i`` (0-based) with the CONTRACT diagnostics keys (numbers; flags bool)."""
+        """Mode ``i`` (0-based) with the /diagnostics mode keys (docs/INTERFACE.md) (numbers; flags bool)."""
         m, b = self.modal[i], self.baseline[i]
         return {
             **{k: float(m[j]) for j, k in enumerate(MODE_FIELDS)},
@@ -219,7 +196,7 @@ class MonitorPipeline:
     """Validation + :class:`RecursiveAdditiveSRIVC` + fault logic; see the module docstring.
 
     ``push(t, r, u, y)`` accepts any number of samples and returns the reports that fell due. Mode
-    numbering in events is 1-based (CONTRACT ``mode <i>``).
+    numbering in events is 1-based (the status name ``mode <i>``).
     """
 
     def __init__(self, cfg: MonitorSettings, *, state: Mapping[str, Any] | None = None,
@@ -609,7 +586,8 @@ class MonitorPipeline:
         return fin & ~absurd, absurd
 
     def _on_break(self, why: str, kind: str | None, t_abs: float) -> None:
-        """The sample grid is broken: re-prime the estimator (000 Algorithm 2 step 1) or restart the init buffer."""
+        """The sample grid is broken: re-prime the estimator ([RA-SRIVC] Algorithm 2 step 1) or restart the init
+        buffer."""
         if kind is not None:
             self.health.note(kind, self._rel(t_abs), f"{why} (estimator re-primed)")
         if self.initialized:
@@ -690,7 +668,7 @@ class MonitorPipeline:
 
     def _restart_from_data(self, r: np.ndarray, u: np.ndarray, y: np.ndarray, t_end: float, res: Any,
                            initial: bool = False) -> None:
-        """The model-order check found the model wrong for the data (issue 12 item 4: ``misfit`` or ``too_low``; a
+        """The model-order check found the model wrong for the data (``misfit`` or ``too_low``; a
         wrong optimum can look like either): the modes are found again on the check's window (:mod:`.modefind`; K
         automatic when the run found its modes itself, else the configured K and integrators) and adopted only if
         the same check on that window passes them; the estimator is then initialized on the window and the fault
@@ -814,9 +792,9 @@ class MonitorPipeline:
         self._marked_gaps = 0
 
     def _initialize(self, r: np.ndarray, u: np.ndarray, y: np.ndarray, t_end: float) -> None:
-        """Offline initialization + filter priming on the buffered data (000 Algorithm 2 step 1).
+        """Offline initialization + filter priming on the buffered data ([RA-SRIVC] Algorithm 2 step 1).
 
-        Guesses are a start, not the answer (issue 12 item 4): when they give no valid model (the fit fails, or
+        Guesses are a start, not the answer: when they give no valid model (the fit fails, or
         ``C_d`` does not stabilize it), the modes are found in the same window instead (:mod:`.modefind`, K and
         ``modes.integrators`` as configured: the structure is knowledge, the numbers are guesses), once per run,
         with a health note; a model from the data that fails too leaves the pipeline
@@ -917,7 +895,8 @@ class MonitorPipeline:
     def _model_problem(self, which: str, modal: np.ndarray | None = None) -> str | None:
         """Why the current model is no valid model, or None: it must be finite and, in closed loop, the controller
         ``C_d`` (with the input delay) must stabilize it -- the model's noise-free closed loop generates the
-        instrument (000 eq. 33) and a plant that ``C_d`` does not stabilize cannot have produced the bounded data.
+        instrument ([RA-SRIVC] eq. 33) and a plant that ``C_d`` does not stabilize cannot have produced the bounded
+        data.
         ``modal``: the current estimate's ``(K, 6)`` when the caller has it (else it is computed)."""
         if modal is None:
             modal = np.asarray(self.est.modal(), dtype=float).reshape(self.K, 6)
