@@ -137,3 +137,21 @@ def test_readme_workflow_with_automatic_modes_flags_mode_2(repo, tmp_path):
     events = list(csv.DictReader((out / "events.csv").open()))
     assert [(e["mode"], e["quantity"], e["direction"]) for e in events] == [("2", "natural_frequency", "down")]
     assert 19.0 <= float(events[0]["onset_time_s"]) <= 20.5
+
+
+def test_repeated_output_counts_belong_to_their_report_window(repo):
+    """Held sensor samples (every third output repeats the previous one for 3 s): the health line counts the repeats
+    of the report's own window, never more repeats than samples."""
+    import re
+    cfg = load_config(repo / "config" / "beam_fault.yaml")
+    sig = read_signals(repo / "bags" / "beam_fault", cfg)
+    y = sig.y.copy()
+    idx = np.flatnonzero((sig.t - sig.t[0] >= 12.0) & (sig.t - sig.t[0] < 15.0))[::3]
+    y[idx] = y[idx - 1]
+    reps = _run(cfg, sig.t[: int(16 * 4096)], sig.r[: int(16 * 4096)], sig.u[: int(16 * 4096)], y[: int(16 * 4096)])
+    counts = [tuple(map(int, m.groups())) for rep in reps for line in rep.health["reasons"]
+              if (m := re.search(r"repeats its previous value in (\d+) of (\d+) samples", line))]
+    assert counts, "the held samples were not reported"
+    assert all(n <= total for n, total in counts), counts
+    # a third of each window repeats
+    assert all(abs(n / total - 1 / 3) < 0.05 for n, total in counts if total >= 400), counts

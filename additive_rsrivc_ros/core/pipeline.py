@@ -512,10 +512,8 @@ class MonitorPipeline:
             if self.stuck:
                 self.stuck = False
                 self._on_break("sensor recovered", None, float(ta[a]))
-            nrep = int(rep[a:b].sum())
-            c.repeated += nrep
-            self._win_rep += nrep
-            self._advance(ta, ra, ua, ya, valid, a, b, feed=True, reports=reports)
+            c.repeated += int(rep[a:b].sum())
+            self._advance(ta, ra, ua, ya, valid, a, b, feed=True, reports=reports, repeated=rep)
         self.t_last = float(ta[-1])
         return reports
 
@@ -599,7 +597,8 @@ class MonitorPipeline:
             if self.finding_modes:           # the search needs contiguous data too: its window starts again
                 self.search.clear()
 
-    def _advance(self, ta, ra, ua, ya, valid, a: int, b: int, *, feed: bool, reports: list[Report]) -> None:
+    def _advance(self, ta, ra, ua, ya, valid, a: int, b: int, *, feed: bool, reports: list[Report],
+                 repeated: np.ndarray | None = None) -> None:
         """Feed samples ``[a, b)`` (or only pass their time when ``feed`` is False), reporting on the way.
 
         A report at instant T is made once every accepted sample before T was processed; instants that
@@ -613,6 +612,8 @@ class MonitorPipeline:
             if j > a:
                 if feed:
                     self._consume(ra[a:j], ua[a:j], ya[a:j], valid[a:j], float(ta[j - 1]))
+                    if repeated is not None:    # counted in the report window the samples belong to
+                        self._win_rep += int(repeated[a:j].sum())
                 a = j
                 continue
             self._report(reports, self._rel(float(ta[a])))
