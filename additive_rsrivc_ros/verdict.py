@@ -26,6 +26,7 @@ STARTUP_ISSUES = ("initializing",)       # health issue kinds of a normal start 
 STARTUP_REASONS = ("initializing", "starting: finding modes", "no mode guesses: found")   # their reasons
 ADVISORY_ISSUES = ("residual_jump", "projection_storm")   # = core.faults.HealthMonitor.ADVISORY_KINDS: never hold
 ADVISORY_REASONS = ("residual variance jumped", "projection storm")   # their reason texts (when no 'issues')
+WINDOW_BROKEN = ("baseline window restarted", "baseline window paused")   # a data problem broke the baseline window
 _SUFFIX = re.compile(r"\s*\((recovering|hold-off)[^)]*\)\s*$")
 
 
@@ -120,7 +121,10 @@ def _state(rep: Any, seen: dict[str, bool]) -> tuple[str, str]:
         if seen["baseline_window"] or bad:
             # the cause: what held the tests, else what the health reports (e.g. a residual jump restarted it)
             cause = bad or [r for r in map(_clean, health.get("reasons", [])) if not r.startswith(STARTUP_REASONS)]
-            return "settling", f"baseline window restarted after: {cause[0]}" if cause else "baseline window restarted"
+            # paused (what was learned is kept) or, with nothing learned yet, restarted
+            verb = "paused" if any("baseline window paused" in str(r) for r in health.get("reasons", [])) \
+                else "restarted"
+            return "settling", f"baseline window {verb} after: {cause[0]}" if cause else f"baseline window {verb}"
         return "settling", "settling: estimator converging before the baseline is learned"
     if phase == "learning":
         seen["baseline_window"] = True
@@ -186,8 +190,8 @@ def coverage(reports: Sequence[Any], duration_s: float) -> Coverage:
         if kind == "monitored" or b <= a:
             continue
         if blind and blind[-1].kind == kind and math.isclose(blind[-1].end_s, a, abs_tol=1e-9) and \
-                (kind != "settling" or blind[-1].reason == reason or reason.startswith("baseline window restarted")
-                 and blind[-1].reason.startswith("baseline window restarted")):
+                (kind != "settling" or blind[-1].reason == reason or reason.startswith(WINDOW_BROKEN)
+                 and blind[-1].reason.startswith(WINDOW_BROKEN)):
             blind[-1].end_s = b
             continue
         blind.append(BlindInterval(a, b, kind, reason))
@@ -228,7 +232,7 @@ def _mark_startup(blind: list[BlindInterval], first_mon: float | None) -> None:
         if first_mon is not None and b.start_s >= first_mon:
             break
         rank = order.get(b.kind)
-        if rank is None or rank < last or b.reason.startswith("baseline window restarted"):
+        if rank is None or rank < last or b.reason.startswith(WINDOW_BROKEN):
             break
         b.startup, last = True, rank
 

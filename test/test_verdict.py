@@ -117,6 +117,13 @@ def test_disruption_before_the_first_baseline_is_degraded() -> None:
     assert v.level == "DEGRADED" and v.monitored_s == pytest.approx(11.0, abs=1e-6)
     assert "baseline window restarted after: 40 non-finite" in v.text
     _partition_ok(v, 20.0)
+    # the pipeline kept what was learned (its hold reason says so): the window was paused, not restarted
+    paused = {**nan, "reasons": [*nan["reasons"], "fault tests held (blind) since t=5.0 s; baseline window paused "
+                                 "(1.0 s learned, kept)"]}
+    reps = (_run(0, 2, "initializing", False, INIT) + _run(2, 4, "settling") + _run(4, 5, "learning")
+            + _run(5, 7, "settling", True, paused) + _run(7, 9, "learning") + _run(9, 20, "monitoring"))
+    v = assess(reps, 20.0)
+    assert "baseline window paused after: 40 non-finite" in v.text and "restarted" not in v.text
 
 
 def test_never_monitored_is_degraded_not_ok() -> None:
