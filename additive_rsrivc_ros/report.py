@@ -48,6 +48,7 @@ class DiagnosisSeries:
     issues: list[list[str] | None] = field(default_factory=list)             # health issue kinds (None: unknown)
     model_order: list[dict[str, str]] = field(default_factory=list)         # model-order check: state, message
     decisions: list[list[dict[str, Any]]] = field(default_factory=list)     # per report: the modes' decision states
+    alignment_residual: list[float] = field(default_factory=list)           # controller invariant, relative
 
     @property
     def K(self) -> int:
@@ -85,6 +86,9 @@ class DiagnosisSeries:
             out.issues.append(None if iss is None else [str(x) for x in iss])
             mo = h.get("model_order") or {}
             out.model_order.append({k: str(mo[k]) for k in ("state", "message") if k in mo})
+            al = h.get("alignment") or {}
+            rel = al.get("relative_residual") if isinstance(al, Mapping) else None
+            out.alignment_residual.append(float(rel) if isinstance(rel, int | float) else math.nan)
             out.decisions.append([{k: d.get(k) for k in ("mode", "state", "reason", "holds")}
                                   for d in h.get("modes") or ()])
         return out
@@ -101,6 +105,8 @@ class DiagnosisSeries:
                 h["issues"] = self.issues[j]
             if j < len(self.model_order) and self.model_order[j]:
                 h["model_order"] = self.model_order[j]
+            if j < len(self.alignment_residual) and math.isfinite(self.alignment_residual[j]):
+                h["alignment"] = {"relative_residual": float(self.alignment_residual[j])}
             if j < len(self.decisions) and self.decisions[j]:
                 h["modes"] = self.decisions[j]
             out.append(SimpleNamespace(time_s=float(self.time_s[j]), phase=self.phase[j],

@@ -26,6 +26,7 @@ STARTUP_ISSUES = ("initializing",)       # health issue kinds of a normal start 
 STARTUP_REASONS = ("initializing", "starting: finding modes", "no mode guesses: found")   # their reasons
 ADVISORY_ISSUES = ("residual_jump", "projection_storm")   # = core.faults.HealthMonitor.ADVISORY_KINDS: never hold
 ADVISORY_REASONS = ("residual variance jumped", "projection storm")   # their reason texts (when no 'issues')
+CONTROLLER_MISMATCH_RELATIVE = 1e-6   # = core.pipeline.ALIGN_APPROXIMATE_RELATIVE (float32 control ~1e-7)
 WINDOW_BROKEN = ("baseline window restarted", "baseline window paused")   # a data problem broke the baseline window
 _SUFFIX = re.compile(r"\s*\((recovering|hold-off)[^)]*\)\s*$")
 
@@ -99,10 +100,19 @@ def _disruption(health: Mapping[str, Any]) -> list[str]:
 
 
 def model_flag(health: Mapping[str, Any]) -> str:
-    """The model-order check's finding when it flags the model (see the module docstring), else ``''``."""
+    """The model-order check's finding when it flags the model (see the module docstring), or the controller
+    invariant ``u = C_d(q)(r - y)`` failing on the data (the configured controller is not the loop's: the closed-loop
+    instrument is built from a wrong controller and the pairing of the streams is unverified), else ``''``."""
     mo = health.get("model_order") or {}
     state = str(mo.get("state", "")) if isinstance(mo, Mapping) else ""
-    return str(mo.get("message") or state) if state in MODEL_ORDER_FLAGGED else ""
+    if state in MODEL_ORDER_FLAGGED:
+        return str(mo.get("message") or state)
+    al = health.get("alignment") or {}
+    rel = al.get("relative_residual") if isinstance(al, Mapping) else None
+    if isinstance(rel, int | float) and math.isfinite(rel) and rel > CONTROLLER_MISMATCH_RELATIVE:
+        return (f"controller invariant u = C_d(q)(r - y) holds only to {rel:.2g} relative: the configured controller "
+                "is not the loop's (check controller.numerator/denominator); stream alignment unverified")
+    return ""
 
 
 def _state(rep: Any, seen: dict[str, bool]) -> tuple[str, str]:
@@ -299,8 +309,9 @@ def _flag_text(cov: Coverage) -> str:
     if cov.flag is None:
         return ""
     t, finding = cov.flag
-    ran = (f"{cov.flagged_model_s:.1f} s of them against a model the model-order check flagged"
-           if cov.flagged_model_s > 0 else "the model-order check flagged the model")
+    who = "the model-order check" if "controller invariant" not in finding else "the controller invariant"
+    ran = (f"{cov.flagged_model_s:.1f} s of them against a model {who} flagged"
+           if cov.flagged_model_s > 0 else f"{who} flagged the model")
     return f"{ran} (from {t:.1f} s: {finding})"
 
 

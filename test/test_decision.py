@@ -100,7 +100,8 @@ def test_a_glitch_just_before_a_fault_does_not_hide_it(repo):
     events = [e for rep in reps for e in rep.events_opened]
     assert [(e.mode, e.quantity, e.direction) for e in events] == [(2, "natural_frequency", "down")]
     assert 20.0 - 0.1 <= events[0].onset_time_s <= 20.5 and events[0].alarm_time_s <= 21.5
-    assert assess(reps, 30.0).level == "FAULT"
+    verdict = assess(reps, 30.0)
+    assert verdict.level == "FAULT" and "controller invariant" not in verdict.text    # the right controller
     assert all(len(rep.decisions) == 2 for rep in reps if rep.estimating)
 
 
@@ -155,3 +156,18 @@ def test_repeated_output_counts_belong_to_their_report_window(repo):
     assert all(n <= total for n, total in counts), counts
     # a third of each window repeats
     assert all(abs(n / total - 1 / 3) < 0.05 for n, total in counts if total >= 400), counts
+
+
+def test_a_wrong_controller_is_said_in_the_verdict(repo, tmp_path):
+    """A params file whose controller is 3x the loop's: the invariant u = C_d(q)(r - y) fails on the data; the verdict
+    itself says so (a flagged model, never a silent OK), not only a key in summary.json."""
+    text = (repo / "config" / "beam_fault.yaml").read_text()
+    good = "numerator: [5.83935593878, -11.6642129388, 5.82499587872]"
+    assert good in text
+    params = tmp_path / "three_times.yaml"
+    params.write_text(text.replace(good, "numerator: [17.51806781634, -34.9926388164, 17.47498763616]"))
+    out = tmp_path / "diag"
+    diagnose.main([str(repo / "bags" / "beam_fault"), "--params-file", str(params), "--out", str(out), "--no-report",
+                   "--quiet"])
+    summary = json.loads((out / "summary.json").read_text())
+    assert "controller invariant" in summary["verdict_text"] and summary["flagged_model_s"] > 0
