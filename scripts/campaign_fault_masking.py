@@ -20,7 +20,7 @@ the verdict is not OK and the changed mode's blind time (global or its own) cove
 Prints one row per run, the violations with their reason, the detection delays in memory lengths (median, worst
 five) and the counts. Usage::
 
-    python scripts/campaign_fault_masking.py [--runs 300] [--seed 0] [--memory 1 50] [--bound 4]
+    python scripts/campaign_fault_masking.py [--runs 300] [--seed 0] [--memory 1 50] [--bound 5]
 
 Heavy: a run simulates ~15 memory lengths of data (a 50 s memory at 8 kHz is 6 M samples); ``--memory 0.5 3`` and
 fewer runs give a quick look.
@@ -218,7 +218,7 @@ def main() -> None:
     ap.add_argument("--runs", type=int, default=300)
     ap.add_argument("--seed", type=int, default=0)
     ap.add_argument("--memory", type=float, nargs=2, default=(1.0, 50.0), metavar=("MIN_S", "MAX_S"))
-    ap.add_argument("--bound", type=float, default=4.0, help="detection bound in memory lengths (default 4)")
+    ap.add_argument("--bound", type=float, default=5.0, help="detection bound in memory lengths (default 5)")
     ap.add_argument("--problem", choices=PROBLEMS, help="only this data problem")
     args = ap.parse_args()
     print(f"{'seed':>5} {'K':>2} {'rate':>5} {'mem s':>6} {'exc':6} {'problem':10} {'change':28} {'before':>6} "

@@ -171,3 +171,20 @@ def test_a_wrong_controller_is_said_in_the_verdict(repo, tmp_path):
                    "--quiet"])
     summary = json.loads((out / "summary.json").read_text())
     assert "controller invariant" in summary["verdict_text"] and summary["flagged_model_s"] > 0
+
+
+@pytest.mark.parametrize("step_s", [0.002, 0.05])
+def test_a_clock_step_back_before_a_fault_is_re_based_and_hides_nothing(repo, step_s):
+    """Every stamp from 18.5 s on is earlier by 2 ms (8 samples) or 50 ms: the samples are not out of order, the
+    stamps are re-based onto the grid (nothing dropped), the step is reported, and the fault at 20 s is flagged with
+    its true onset and nothing else."""
+    cfg = load_config(repo / "config" / "beam_fault.yaml")
+    sig = read_signals(repo / "bags" / "beam_fault", cfg)
+    t = sig.t.copy()
+    t[np.searchsorted(t, t[0] + 18.5):] -= step_s
+    reps = _run(cfg, t, sig.r, sig.u, sig.y)
+    events = [e for rep in reps for e in rep.events_opened]
+    assert [(e.mode, e.quantity, e.direction) for e in events] == [(2, "natural_frequency", "down")]
+    assert 20.0 - 0.1 <= events[0].onset_time_s <= 20.5
+    assert any("stepped back by" in line for rep in reps for line in rep.health["reasons"])
+    assert reps[-1].health["out_of_order"] == 0 and reps[-1].health["clock_steps"] == 1

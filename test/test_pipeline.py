@@ -100,7 +100,8 @@ def test_chunking_and_bad_stamps_do_not_change_the_estimate():
     assert np.array_equal(pipe.est.get_state()["theta"], ref.est.get_state()["theta"])
     assert pipe.counters.duplicates + pipe.counters.out_of_order == 40
     assert pipe.counters.samples_dropped == 40
-    assert "out_of_order" in reps[-1].health["issues"] or "duplicate_stamps" in reps[-1].health["issues"]
+    # reported (a short hold: dropped stamps do not move the estimate, so the issue lapses after the hold-off)
+    assert any({"out_of_order", "duplicate_stamps"} & set(x.health["issues"]) for x in reps)
 
 
 def test_sensor_problems_are_health_not_structural(healthy_sim):

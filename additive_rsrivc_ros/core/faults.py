@@ -1083,10 +1083,11 @@ class HealthMonitor:
     """
 
     ERROR_KINDS = ("divergence", "stuck_sensor", "reinitializing", "no_valid_model")
-    SHORT_KINDS = ("nonfinite", "outlier", "data_gap", "repriming")
+    SHORT_KINDS = ("nonfinite", "outlier", "data_gap", "repriming", "duplicate_stamps", "out_of_order", "clock_step")
     """Data problems that do not move the estimate: skipped samples (no update; the kernel holds the input and
-    predicts the output) and breaks whose filter transient the estimator's own re-prime hold covers. They hold the
-    tests while they last plus ``health.holdoff_min_s``, not for the re-convergence hold-off."""
+    predicts the output), samples dropped for their stamps (a recorder duplicate, a clock stepped back: the grid goes
+    on as after a short gap) and breaks whose filter transient the estimator's own re-prime hold covers. They hold
+    the tests while they last plus ``health.holdoff_min_s``, not for the re-convergence hold-off."""
     ADVISORY_KINDS = ("residual_jump", "projection_storm")
     """Also the signature of a genuine abrupt structural change: they do not hold structural alarms back,
     they only require that a confirmed fault began together with them (FaultMonitor ``suspect_since``)."""

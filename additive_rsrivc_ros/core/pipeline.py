@@ -107,6 +107,7 @@ class _Counters:
     samples_skipped: int = 0          # given as invalid (non-finite or repeated output): no update
     samples_dropped: int = 0          # never given to the estimator (bad stamps, stuck sensor)
     out_of_order: int = 0
+    clock_steps: int = 0
     duplicates: int = 0
     nonfinite: int = 0
     outliers: int = 0                 # finite samples of absurd magnitude, given as invalid (MagnitudeGuard)
@@ -263,6 +264,7 @@ class MonitorPipeline:
         self.t0: float | None = None          # absolute time of the first sample
         self.t_last: float | None = None      # absolute time of the last accepted sample
         self.t_stamp_last: float | None = None  # last stamp accepted by step 1 (the aligner may hold samples back)
+        self.clock_offset = 0.0                 # added to every stamp since a recorder clock stepped back (s)
         self.next_publish = 0.0               # time (since t0) of the next report
         self.initialized = False
         self._data_start_tried = False        # guesses replaced by modes from the data (once per run)
@@ -401,6 +403,7 @@ class MonitorPipeline:
                 c.samples_dropped += t.size
                 return t[:0], r[:0], u[:0], y[:0]
             self.t0 = float(t[np.argmax(finite_t)])
+        t = self._rebase_clock_steps(t)
         start = -np.inf if self.t_stamp_last is None else self.t_stamp_last
         prev = np.maximum.accumulate(np.concatenate(([start], np.where(finite_t, t, -np.inf))))[:-1]
         ok_t = finite_t & (t > prev)
@@ -420,6 +423,30 @@ class MonitorPipeline:
         if idx.size:
             self.t_stamp_last = float(t[idx[-1]])
         return t[idx], r[idx], u[idx], y[idx]
+
+    def _rebase_clock_steps(self, t: np.ndarray) -> np.ndarray:
+        """A recorder clock stepped back: from a sample on, every stamp is earlier by the same amount while the
+        spacing stays the loop's. Those samples are not out of order; their stamps are re-based onto the grid (the
+        offset is kept for later batches) and the step is reported, so no data is dropped or shifted."""
+        t = t + self.clock_offset if self.clock_offset else t.copy()
+        h = 1.0 / self.rate
+        last = -np.inf if self.t_stamp_last is None else self.t_stamp_last
+        with np.errstate(invalid="ignore"):
+            back = np.flatnonzero(np.diff(np.concatenate(([last], t))) < 0.0)    # candidates only: a cheap scan
+        for j in back:
+            prev = last if j == 0 else float(t[j - 1])
+            if not (math.isfinite(t[j]) and math.isfinite(prev)) or t[j] >= prev:
+                continue
+            regular = j + 1 < t.size and abs((t[j + 1] - t[j]) - h) <= CLOCK_STEP_SPACING_TOL * h
+            if not regular:
+                continue            # a lone out-of-order stamp: dropped by the caller
+            step = prev + h - float(t[j])
+            t[j:] += step
+            self.clock_offset += step
+            self.counters.clock_steps += 1
+            self.health.note("clock_step", self._rel(prev), f"time stamps stepped back by {1e3 * step:.4g} ms at "
+                             f"t={self._rel(prev):.3f} s: re-based onto the sample grid (no sample dropped)")
+        return t
 
     def _ingest_aligned(self, blk: AlignedBlock) -> list[Report]:
         """Samples released by the aligner: its findings become health notes, then the usual validation."""
@@ -1140,6 +1167,7 @@ class MonitorPipeline:
                          "counters": self.counters.to_dict(), "memory_s": self.memory_s.tolist(),
                          "stuck": self.stuck, "last_y": self.last_y, "run_len": self.run_len,
                          "run_start_t": self.run_start_t, "t_stamp_last": self.t_stamp_last,
+                         "clock_offset": self.clock_offset,
                          "aligner": None if self.aligner is None else self.aligner.get_state(),
                          "magnitude": {k: g.get_state() for k, g in self.magnitude.items()},
                          "no_model": self.no_model},
@@ -1213,6 +1241,7 @@ class MonitorPipeline:
             self.run_len, self.run_start_t = int(p["run_len"]), float(p["run_start_t"])
             ts = p.get("t_stamp_last", p["t_last"])
             self.t_stamp_last = None if ts is None else float(ts)
+            self.clock_offset = float(p.get("clock_offset", 0.0))
             if self.aligner is not None and p.get("aligner") is not None:
                 self.aligner.set_state(p["aligner"])
             for k, g in (p.get("magnitude") or {}).items():
@@ -1225,6 +1254,7 @@ class MonitorPipeline:
             raise PipelineError(f"saved state is incomplete or corrupt ({type(exc).__name__}: {exc})") from None
 
 
+CLOCK_STEP_SPACING_TOL = 0.1        # a stamp before its predecessor, then a spacing this regular: a clock step
 ALIGN_APPROXIMATE_RELATIVE = 1e-6    # above this the invariant is reported as approximate (float32 control ~1e-7)
 ALIGN_NOTE_HOLD_S = 5.0             # a re-alignment stays in the health reasons this long (report time)
 ALIGN_UNDECIDED_FRACTION = 0.5       # report when more than this fraction of a report period is undecidable
