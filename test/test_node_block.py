@@ -16,6 +16,7 @@ from __future__ import annotations
 
 import math
 import threading
+import time
 from pathlib import Path
 
 import numpy as np
@@ -470,3 +471,56 @@ def test_block_input_runtime_change_applies_the_silence_as_at_start_up():
     assert (s.silent_ns, s.gap_ns) == (fresh.silent_ns, fresh.gap_ns) == (300_000_000, 200_000_000)
     assert (s.max_backlog, s.quiet_ns, s.hold_ns, s.persist_ns) == before
 
+
+
+def test_blocks_slower_than_loop_rate_hz_are_a_rate_error():
+    """120-row blocks every 0.12 s (a 1 kHz loop) into an input configured for 4096 Hz: the arrival rate is judged per
+    row although blocks arrive more than the data gap (0.1 s) apart, and the mismatch is the input's rate error
+    (nothing is published then); the same blocks at 1 kHz configured are fine."""
+    for rate, bad in ((4096.0, True), (1000.0, False)):
+        s = BlockSync(rate, closed_loop=True, label="/block", convert=block_rows, reorder_s=0.05)
+        now = 1_000 * MS
+        for j in range(60):                        # 7.2 s of blocks
+            now += 120 * MS
+            _feed(s, [_blk(120 * j, 120)], now, ros_now_s=100.0 + 0.12 * j)
+            if j % 10 == 9:
+                s.check_rates(now)
+        assert s.measured_rate[0] == pytest.approx(1000.0, rel=0.02)
+        assert bool(s.rate_error) is bad
+        if bad:
+            assert "loop_rate_hz disagrees with the data's timing" in s.rate_error and "1000 Hz" in s.rate_error
+
+
+def test_node_block_input_slower_than_configured_is_an_error_with_nothing_published(ros_env):
+    """The node configured for 4096 Hz, fed 100-row blocks of a 1 kHz loop in real time: an ERROR naming the rate,
+    mode statuses without numbers, and no number on ~/modes once the rate is judged (a 2 s window)."""
+    dom = int(ros_env["ROS_DOMAIN_ID"])
+    sc = scenarios.build("beam_fault", duration_s=12.0, seed=1)
+    proc = start_node(ros_env, str(REPO / "config" / "beam_fault.yaml"), "block.topic:=block", "init_duration_s:=0.5",
+                      "stale_timeout_s:=30.0")
+    cli = Client(dom, Float64MultiArray)
+    block = cli.node.create_publisher(Float64MultiArray, "/block", QoSProfile(depth=100,
+                                                                            reliability=ReliabilityPolicy.RELIABLE))
+    try:
+        cli.wait_for(lambda: block.get_subscription_count() > 0, 30, "the node's /block subscription")
+        k = np.arange(sc.t.size, dtype=float)
+        t_next, n_at_error = time.monotonic(), None
+        for j in range(0, 100 * 100, 100):          # 10 s of a 1 kHz loop, one block per 0.1 s
+            block.publish(block_message(k[j:j + 100], sc.r[j:j + 100], sc.u[j:j + 100], sc.y[j:j + 100]))
+            t_next += 0.1
+            time.sleep(max(0.0, t_next - time.monotonic()))
+            est = cli.status("estimator")
+            if n_at_error is None and est is not None and est["level"] == 2:
+                n_at_error = len(cli.modes)
+        est = cli.status("estimator")
+        assert est is not None and est["level"] == 2 and "loop_rate_hz disagrees" in est["message"], est
+        mode = cli.status("mode 2")
+        assert mode["level"] == 2 and mode["values"]["natural_frequency_hz"] == "nan", mode
+        # found within the rate window (2 s of arrivals, two windows); from then on no estimate is published
+        assert n_at_error is not None
+        later = np.array([m.data for m in cli.modes[n_at_error + 2:]], dtype=float)
+        assert later.size == 0 or not np.isfinite(later).any(), later
+    finally:
+        cli.close()
+        rc, out = stop_node(proc, "TERM")
+    assert rc == 0 and "Traceback" not in out, out

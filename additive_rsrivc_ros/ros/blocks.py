@@ -175,6 +175,12 @@ class BlockSync(InputSync):
             self._event(now_ns, reason)
         self._span_warned = bool(reason)
 
+    def _arrival_gap_ns(self, arrivals_ns: np.ndarray) -> int:
+        """Blocks arrive once per block, not once per sample: a pause is a spacing of more than three typical
+        block periods (or the data gap, if longer)."""
+        d = np.diff(arrivals_ns)
+        return max(self.gap_ns, int(3 * np.median(d))) if d.size else self.gap_ns
+
     def _span_reason(self) -> str:
         span, silent = self.last_block_rows / self.rate, self.silent_ns * 1e-9
         if silent <= 0.0 or span <= silent:

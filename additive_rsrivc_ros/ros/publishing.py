@@ -156,7 +156,10 @@ class PublishingMixin:
         if self.sync is None or modes_pub is None or not self._active:
             return
         while self._modes_queue:
-            modes_pub.publish(cv.modes_array(self._modes_queue.popleft()))
+            rep = self._modes_queue.popleft()
+            if self.sync.rate_error:       # estimates on a wrong time scale: none is published
+                continue
+            modes_pub.publish(cv.modes_array(rep))
             self._reports_published += 1
 
     def _publish_diagnostics(self) -> None:
@@ -184,7 +187,13 @@ class PublishingMixin:
         n_modes = self.cfg.K if modal is None else len(modal)
         silent_text = "no data on " + ", ".join(self.topics[s] for s in silent) if silent else ""
         out = []
+        rate_error = self.sync is not None and bool(self.sync.rate_error)
         for i in range(n_modes):
+            if rate_error:               # estimates on a wrong time scale: no number; the estimator status says why
+                out.append(StatusRecord(f"{self.status_prefix()}: mode {i + 1}", Level.ERROR,
+                                        "no estimate published: loop_rate_hz disagrees with the data's timing",
+                                        {f: math.nan for f in cv.MODE_FIELDS}))
+                continue
             vals = {f: math.nan for f in cv.MODE_FIELDS} if modal is None else \
                 {f: float(modal[i, j]) for j, f in enumerate(cv.MODE_FIELDS)}
             found = None
@@ -303,6 +312,8 @@ class PublishingMixin:
             silent="no data on " + ", ".join(f"{self.topics[s]} for more than {self._stale_timeout_s:g} s"
                                              for s in silent) if silent else "",
             wrong_types="wrong message type: " + "; ".join(self._wrong_types) if self._wrong_types else "")
+        if sync.rate_error:         # the configured time scale contradicts the data: an error, nothing published
+            level, text = Level.ERROR, "; ".join(t for t in (sync.rate_error, text) if t)
         vals["reasons"] = text
         msg = text or (vals["phase"] if rep is not None else "no data")
         return StatusRecord(f"{self.status_prefix()}: estimator", level, msg, vals)

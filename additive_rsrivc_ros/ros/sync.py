@@ -322,6 +322,20 @@ class InputSync:
                     self._event(now_ns, f"arrival rate on {label} matches loop_rate_hz again ({rate:.0f} Hz)")
         return new
 
+    def _arrival_gap_ns(self, arrivals_ns: np.ndarray) -> int:
+        """Longest arrival spacing that is not a pause of the topic (one message per sample: the data gap)."""
+        return self.gap_ns
+
+    @property
+    def rate_error(self) -> str:
+        """One line when an input's arrival rate contradicts ``loop_rate_hz`` (the model's time scale would be
+        wrong: nothing is published then), else ``''``."""
+        if not self.rate_mismatch:
+            return ""
+        label, rate = next(iter(self.rate_mismatch.items()))
+        return (f"loop_rate_hz disagrees with the data's timing ({self.rate_reason(label, rate, self.expected_rate)}):"
+                " no estimate is published until they agree")
+
     def lasting_reasons(self) -> list[str]:
         """Lasting problems specific to the input kind (none for topics; block input: the controller invariant)."""
         return []
@@ -345,9 +359,10 @@ class InputSync:
         a = np.array([p[0] for p in sel], dtype=np.int64)
         c = np.array([p[1] for p in sel], dtype=float)
         span = int(a[-1] - a[0])
-        if span < 0.75 * self.rate_window_ns or now_ns - int(a[-1]) > self.gap_ns:
+        gap_ns = self._arrival_gap_ns(a)
+        if span < 0.75 * self.rate_window_ns or now_ns - int(a[-1]) > gap_ns:
             return float("nan")
-        if int(np.max(np.diff(a))) > self.gap_ns or self._stalled_between(int(a[0]), now_ns) > 0:
+        if int(np.max(np.diff(a))) > gap_ns or self._stalled_between(int(a[0]), now_ns) > 0:
             return float("nan")                       # a pause of the topic or a stall of the node
         x = (a - a[0]) * 1e-9
         x -= x.mean()
@@ -357,7 +372,7 @@ class InputSync:
         # bursts (a lagging publisher catching up, an executor serving topic by topic) are not a rate: judge
         # only windows whose arrivals stay within half a gap of a straight line
         resid_s = np.max(np.abs(c - c.mean() - slope * x)) / slope
-        if resid_s > 0.5 * self.gap_ns * 1e-9:
+        if resid_s > 0.5 * gap_ns * 1e-9:
             return float("nan")
         return slope
 
