@@ -981,7 +981,7 @@ class FaultMonitor:
                         test.reset(t)
                     continue
                 if test.state == "fault" or abs(self.joint_streak[i, q]) < 2 or not self.applicable(i, q) \
-                        or not self.joint_needed(i, q):     # the recursion's tests decide
+                        or not (self.joint_armed_modes[i] or self.anomaly_since is not None):   # recursion alone
                     continue
                 sigma = math.hypot(float(verdict.std[i, q]), float(ref.std[i, q]))
                 dev = float(verdict.value[i, q] - ref.value[i, q])
