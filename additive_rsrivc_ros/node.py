@@ -77,6 +77,32 @@ def _own_arguments(args: list[str]) -> int | None:
     return None
 
 
+#: the ROS 2 Python packages the node imports (rclpy and the interfaces of ros-jazzy-common-interfaces)
+ROS_MODULES = ("rclpy", "std_msgs", "diagnostic_msgs", "sensor_msgs", "std_srvs")
+INSTALL_ROS = ("source /opt/ros/jazzy/setup.bash (apt: ros-jazzy-ros-base), or pip install "
+               "'additive_rsrivc_ros[ros]' (the ros-jazzy-* wheels)")
+
+
+def _missing_ros() -> str:
+    """One line naming the ROS 2 Python modules the node needs and cannot find and how to get them ('' = found).
+    Looked up without importing them; the offline tools (rsrivc_diagnose, ...) need none of them."""
+    import importlib.util
+
+    missing = []
+    for module in ROS_MODULES:
+        try:
+            found = importlib.util.find_spec(module) is not None
+        except (ImportError, ValueError):
+            found = False
+        if not found:
+            missing.append(module)
+    if not missing:
+        return ""
+    return (f"rsrivc_monitor: ROS 2 Jazzy is not installed for this Python ({sys.executable}: no module "
+            f"{', '.join(missing)}): {INSTALL_ROS}; the offline tools rsrivc_diagnose, rsrivc_identify, "
+            "rsrivc_simulate need no ROS")
+
+
 @console_entry
 def main(argv: list[str] | None = None) -> int:
     """Console script ``rsrivc_monitor``."""
@@ -86,6 +112,10 @@ def main(argv: list[str] | None = None) -> int:
         return code
     started_ns = time.monotonic_ns()
     _STOP_REQUESTED.install()  # first: a signal at any later moment only sets the flag
+    missing = _missing_ros()
+    if missing:
+        print(missing, file=sys.stderr)
+        return 1
     import rclpy
     from rclpy.executors import ExternalShutdownException
     from rclpy.experimental import EventsExecutor

@@ -3,10 +3,13 @@
 Numba's ``cache=True`` keys a cached kernel on its *own* source file's timestamp only: when an ``@njit``
 callee in another module changes, the caller's stale machine code is still loaded (this hid a change of
 ``core/zoh.py`` once). The package therefore caches in a directory keyed on a hash of every numba module's
-source, so a changed kernel anywhere means a fresh directory, never a stale load:
+source, so a changed kernel anywhere means a fresh directory, never a stale load, and on the install that runs
+them: the package's location, the Python environment (``sys.prefix``, interpreter version) and the installed
+numpy, numba and llvmlite. Two installs of one version (a second venv, a ``colcon build`` next to a ``pip
+install``, another numpy) never load or overwrite each other's kernels:
 
     ``$RSRIVC_CACHE_DIR`` (default ``$XDG_CACHE_HOME/additive_rsrivc_ros``, i.e. ``~/.cache/...``)
-    ``/numba-<package version>-<source hash>/``
+    ``/numba-<package version>-<source hash>-<install hash>/``
 
 It is user-writable, so read-only installs (``colcon build``, ``pip install``) cache too; when no candidate is
 writable the system temporary directory is used. The same directory holds the kernels compiled ahead of time
@@ -43,6 +46,31 @@ def source_hash() -> str:
     return h.hexdigest()[:12]
 
 
+#: the compiled dependencies whose installed release decides what a cached kernel was built against
+COMPILED_DEPENDENCIES = ("numpy", "numba", "llvmlite")
+
+
+def _installed(module: str) -> str:
+    """Where ``module`` is installed and when that was (its ``__init__``'s path and mtime): found without importing
+    it, in microseconds; a reinstall or another release changes it."""
+    import importlib.util
+
+    try:
+        spec = importlib.util.find_spec(module)
+        origin = spec.origin if spec is not None else None
+        return f"{origin}:{os.stat(origin).st_mtime_ns}" if origin else "-"
+    except (ImportError, ValueError, OSError):
+        return "-"
+
+
+def install_hash() -> str:
+    """SHA-256 (8 hex digits) of this install: the package's directory, the Python environment and interpreter,
+    the machine type and the installed :data:`COMPILED_DEPENDENCIES`."""
+    parts = [str(_PACKAGE), sys.prefix, sys.version, os.uname().machine,
+             *(_installed(m) for m in COMPILED_DEPENDENCIES)]
+    return hashlib.sha256("\n".join(parts).encode()).hexdigest()[:8]
+
+
 def _writable(directory: Path) -> bool:
     try:
         directory.mkdir(parents=True, exist_ok=True)
@@ -66,7 +94,7 @@ def cache_dir() -> Path:
     """The writable, source-keyed kernel cache directory (created if needed)."""
     from . import __version__
 
-    name = f"numba-{__version__}-{source_hash()}"
+    name = f"numba-{__version__}-{source_hash()}-{install_hash()}"
     for root in (default_root(), Path(tempfile.gettempdir()) / f"additive_rsrivc_ros-{os.getuid()}"):
         if _writable(root / name):
             return root / name

@@ -22,7 +22,7 @@ from sensor_msgs.msg import JointState  # noqa: E402
 from std_msgs.msg import Float64, String  # noqa: E402
 from test_node_helpers import Client, start_node, stop_node  # noqa: E402
 
-from additive_rsrivc_ros.config import MonitorConfig, load_params_file  # noqa: E402
+from additive_rsrivc_ros.config import MonitorConfig, load_params_file, render_params_yaml  # noqa: E402
 from additive_rsrivc_ros.core.pipeline import MonitorPipeline  # noqa: E402
 from additive_rsrivc_ros.ros.convert import MODE_KEYS  # noqa: E402
 from additive_rsrivc_ros.sim import scenarios  # noqa: E402
@@ -278,13 +278,20 @@ def test_cli_help_and_argument_errors_need_no_ros(ros_env):
     assert r.returncode != 0 and "rclpy" in r.stderr     # the check can fail: past the arguments ROS is needed
 
 
-@pytest.mark.parametrize("params", sorted(p.name for p in (REPO / "config").glob("*.yaml")
-                                          if not p.name.startswith("diagnostic_aggregator")))
-def test_every_bundled_params_file_configures_the_node(params, ros_env):
-    """The rcl YAML parser (not only config.load_params_file) accepts each file and the node activates; a file
-    without mode guesses (e.g. beam_plant.yaml) configures for the automatic start (test_node_autostart.py)."""
-    no_guesses = not load_params_file(REPO / "config" / params)["modes.natural_frequency_hz"]
-    proc = start_node(ros_env, str(REPO / "config" / params))
+@pytest.mark.parametrize("params", [*sorted(p.name for p in (REPO / "config").glob("*.yaml")
+                                             if not p.name.startswith("diagnostic_aggregator")), "written"])
+def test_every_bundled_params_file_configures_the_node_in_a_namespace(params, ros_env, tmp_path):
+    """The rcl YAML parser (not only config.load_params_file) accepts each file and its section reaches the node in
+    a namespace (/axis1, as ``monitor.launch.py namespace:=axis1`` starts it; the root namespace is what the other
+    node tests use): the node activates; a file without mode guesses (e.g. beam_plant.yaml) configures for the
+    automatic start (test_node_autostart.py). ``written``: a params file as rsrivc_identify --out-params writes it
+    (config.render_params_yaml, here of the paper example)."""
+    path = REPO / "config" / params
+    if params == "written":
+        path = tmp_path / "written.yaml"
+        path.write_text(render_params_yaml(load_params_file(PAPER), header="written by the test"))
+    no_guesses = not load_params_file(path)["modes.natural_frequency_hz"]
+    proc = start_node(ros_env, str(path), ros_args=("-r", "__ns:=/axis1"))
     lines = []
     t_end = time.monotonic() + 60
     try:

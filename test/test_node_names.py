@@ -162,10 +162,13 @@ def test_qos_override_and_diagnostics_period(ros_env, tmp_path):
     assert "/plant_output best_effort" in out and "/reference reliable" in out, out
 
 
-def test_missing_rate_under_a_namespace_names_the_params_key(ros_env):
-    """paper_example.yaml's key 'additive_rsrivc_monitor' reaches only the root namespace: under /axis1 the node
-    gets no parameters and must say which one is missing and which keys would work, in one line."""
-    r = subprocess.run(["rsrivc_monitor", "--ros-args", "-r", "__ns:=/axis1", "--params-file", str(PAPER)],
+def test_missing_rate_under_a_namespace_names_the_params_key(ros_env, tmp_path):
+    """A plain key 'additive_rsrivc_monitor' reaches only the root namespace: under /axis1 the node gets no
+    parameters and must say which one is missing and which keys would work, in one line."""
+    plain = tmp_path / "plain.yaml"
+    plain.write_text(PAPER.read_text().replace("/**/additive_rsrivc_monitor:", "additive_rsrivc_monitor:"))
+    assert "\nadditive_rsrivc_monitor:" in plain.read_text()
+    r = subprocess.run(["rsrivc_monitor", "--ros-args", "-r", "__ns:=/axis1", "--params-file", str(plain)],
                        capture_output=True, text=True, timeout=60, env=ros_env)
     lines = [ln for ln in r.stderr.splitlines() if ln.strip()]
     assert r.returncode == 1 and "Traceback" not in r.stderr + r.stdout, r.stderr

@@ -200,7 +200,7 @@ def test_ament_index_finds_installed_config(colcon_install):
 # `launch` and `launch_ros` are not installable here (no PyPI wheels): the files are checked by parsing them;
 # `ros2 launch` itself is not run (README says so).
 LAUNCH_ARGUMENTS = {"monitor.launch.py": {"params_file", "namespace", "use_sim_time", "autostart", "log_level"},
-                    "multi_axis.launch.py": {"params_file", "use_sim_time", "autostart", "log_level"}}
+                    "multi_axis.launch.py": {"axes", "params_file", "use_sim_time", "autostart", "log_level"}}
 
 
 def _launch_tree(name: str) -> ast.Module:
