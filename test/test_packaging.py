@@ -68,7 +68,18 @@ def _package_imports(paths=None) -> set[str]:
 
 def _depends(xml: str, tag: str = r"\w*depend") -> set[str]:
     """The keys of every ``<tag>`` element (default: all ``*_depend`` and ``depend``)."""
-    return {key for _, key in re.findall(rf"<({tag})>([^<]+)</\1>", xml)}
+    return {key for _, key in re.findall(rf"<({tag})(?:\s[^>]*)?>([^<]+)</\1>", xml)}
+
+
+def _floors_xml(xml: str) -> dict[str, str]:
+    """``version_gte`` of each package.xml key that has one."""
+    return dict((k, v) for v, k in re.findall(r'<\w*depend version_gte="([^"]+)">([^<]+)</', xml))
+
+
+def _floors_setup(setup_py: str) -> dict[str, str]:
+    """``name>=floor`` of each install_requires entry that has one."""
+    block = re.search(r"install_requires=\[(.*?)\]", setup_py, re.S).group(1)
+    return {n.lower(): v for n, v in re.findall(r'"([\w.-]+)>=([\w.]+)"', block)}
 
 
 def test_every_third_party_import_is_declared():
@@ -88,10 +99,24 @@ def test_every_third_party_import_is_declared():
         else:
             key, dist = THIRD_PARTY[name]
             assert key in exec_deps, f"{name}: add <exec_depend>{key}</exec_depend> to package.xml"
-            assert f'"{dist}"' in setup_py, f"{name}: add {dist} to install_requires in setup.py"
+            assert re.search(rf'"{re.escape(dist)}(>=[\w.]+)?"', setup_py), f"{name}: add {dist} to install_requires"
         dist = OPTIONAL.get(name) or THIRD_PARTY.get(name, (None, None))[1]
         if dist:
             assert re.search(rf"^{re.escape(dist)}\b", requirements, re.M | re.I), f"{dist} not in requirements"
+
+
+def test_declared_floors_agree_and_are_the_tested_oldest_stack():
+    """setup.py's floors, package.xml's version_gte and requirements/oldest.txt (what scripts/test_oldest.sh installs
+    and runs the smoke subset on) name the same version of each third-party dependency."""
+    xml_floors = _floors_xml((REPO / "package.xml").read_text())
+    setup_floors = _floors_setup((REPO / "setup.py").read_text())
+    pins = {n.lower(): v for n, v in re.findall(r"^([\w.-]+)==([\w.]+)", (REPO / "requirements" / "oldest.txt")
+                                                   .read_text(), re.M)}
+    for key, dist in THIRD_PARTY.values():
+        floor = setup_floors.get(dist)
+        assert floor, f"setup.py: {dist} has no floor (name>=version)"
+        assert xml_floors.get(key) and floor.startswith(xml_floors[key]), (key, xml_floors.get(key), floor)
+        assert pins.get(dist, "").startswith(floor), f"requirements/oldest.txt: {dist} {pins.get(dist)}, floor {floor}"
 
 
 def test_dependency_keys_are_the_checked_rosdep_keys():
