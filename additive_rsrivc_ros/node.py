@@ -46,6 +46,9 @@ if sys.argv and sys.argv[0].rsplit("/", 1)[-1] == "rsrivc_monitor" and threading
         threading.main_thread():
     _STOP_REQUESTED.install()
 
+#: how long the stop notice waits for /rosout readers to acknowledge it (they are matched by then)
+STOP_NOTICE_WAIT_S = 0.3
+
 USAGE = """usage: rsrivc_monitor [-h] [--ros-args [--params-file FILE.yaml] [-p NAME:=VALUE] [-r __node:=NAME]]
 
 ROS 2 lifecycle node: online closed-loop additive recursive SRIVC of mechanical resonances with fault
@@ -121,8 +124,8 @@ def main(argv: list[str] | None = None) -> int:
     from rclpy.experimental import EventsExecutor
     from rclpy.signals import SignalHandlerOptions
 
-    from .config import ParamError
     from .ros.monitor_node import MonitorNode, spin
+    from .ros.rosout import one_line_error
 
     rclpy.init(args=["rsrivc_monitor", *args], signal_handler_options=SignalHandlerOptions.NO)
     node = None
@@ -133,19 +136,22 @@ def main(argv: list[str] | None = None) -> int:
         executor.add_node(node)
         if node.get_parameter("autostart").value and not _STOP_REQUESTED.is_set():
             node.trigger_configure()
-            if node.pipeline is None:
+            if node.pipeline is None:       # the node logged the rejection (console and /rosout)
                 print(f"rsrivc_monitor: configuration rejected: {node.config_error}", file=sys.stderr)
                 return 1
             if not _STOP_REQUESTED.is_set():
                 node.trigger_activate()
         if not _STOP_REQUESTED.is_set():
             spin(node, executor, started_ns, _STOP_REQUESTED)
-        print(f"rsrivc_monitor: stopping ({_STOP_REQUESTED.signal_name or 'shutdown'})", file=sys.stderr)
+        stopping = f"stopping ({_STOP_REQUESTED.signal_name or 'shutdown'})"
+        print(f"rsrivc_monitor: {stopping}", file=sys.stderr)
+        node.last_words("info", stopping, wait_s=STOP_NOTICE_WAIT_S)
     except (KeyboardInterrupt, ExternalShutdownException):
         pass
     except Exception as exc:  # noqa: BLE001 - parameter declaration errors etc.: one line, non-zero exit
-        kind = "" if isinstance(exc, ParamError) else f"{type(exc).__name__}: "
-        print(f"rsrivc_monitor: {kind}{exc}", file=sys.stderr)
+        print(f"rsrivc_monitor: {one_line_error(exc)}", file=sys.stderr)
+        if node is not None:    # (an error in the node's constructor reached /rosout there)
+            node.last_words("fatal", one_line_error(exc))
         code = 1
     finally:
         if node is not None:

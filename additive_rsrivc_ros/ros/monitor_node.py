@@ -35,6 +35,7 @@ from ..warmup import is_warm, load_kernels
 from .inputs import InputsMixin, signal_names
 from .params import ParametersMixin, checked_config, split_unknown, unknown_warning
 from .publishing import PublishingMixin
+from .rosout import last_words_publisher, one_line_error, publish_last_words
 from .state import StateMixin
 from .sync import InputSync
 from .worker import STALL_NS, WorkerMixin
@@ -46,7 +47,12 @@ class MonitorNode(ParametersMixin, InputsMixin, StateMixin, WorkerMixin, Publish
     def __init__(self, node_name: str = DEFAULT_NODE_NAME, **kwargs: Any) -> None:
         super().__init__(node_name, **kwargs)
         self._table = param_table()
-        self._declare_all()
+        self._rosout = last_words_publisher(self)
+        try:
+            self._declare_all()
+        except Exception as exc:            # the node ends here: say why on /rosout too (the caller prints it)
+            self.last_words("fatal", one_line_error(exc))
+            raise
         self.add_pre_set_parameters_callback(self._pre_set)
         self.add_on_set_parameters_callback(self._on_set)
         self.add_post_set_parameters_callback(self._post_set)
@@ -183,6 +189,10 @@ class MonitorNode(ParametersMixin, InputsMixin, StateMixin, WorkerMixin, Publish
                 self.destroy_lifecycle_publisher(p)
         self._subs, self._srvs, self._modes_pub, self._diag_pub = [], [], None, None
         self.pipeline = self.sync = None
+
+    def last_words(self, level: str, text: str, wait_s: float = 1.0) -> bool:
+        """``text`` on /rosout at ``level`` before the process ends (:mod:`.rosout`); True when a reader got it."""
+        return publish_last_words(self, self._rosout, level, text, wait_s=wait_s)
 
     def close(self) -> None:
         """Stop the worker and save the state once; called on shutdown."""
