@@ -25,6 +25,7 @@ import rclpy
 from diagnostic_msgs.msg import DiagnosticArray
 from rclpy.executors import Executor
 from rclpy.lifecycle import LifecycleNode, LifecycleState, TransitionCallbackReturn
+from sensor_msgs.msg import PointCloud2
 from std_msgs.msg import Float64MultiArray
 from std_srvs.srv import Trigger
 
@@ -67,6 +68,7 @@ class MonitorNode(ParametersMixin, InputsMixin, StateMixin, WorkerMixin, Publish
         self._subs: list[Any] = []
         self._srvs: list[Any] = []
         self._modes_pub = None
+        self._modes_stamped_pub = None
         self._diag_pub = None
         self._worker: threading.Thread | None = None
         self._stop = threading.Event()
@@ -135,6 +137,7 @@ class MonitorNode(ParametersMixin, InputsMixin, StateMixin, WorkerMixin, Publish
 
     def _create_outputs(self) -> None:
         self._modes_pub = self.create_lifecycle_publisher(Float64MultiArray, "~/modes", 10)
+        self._modes_stamped_pub = self.create_lifecycle_publisher(PointCloud2, "~/modes_stamped", 10)
         self._diag_pub = self.create_lifecycle_publisher(DiagnosticArray, "/diagnostics", 10)
         self._srvs = [self.create_service(Trigger, "~/reset", self._srv_reset),
                       self.create_service(Trigger, "~/rebaseline", self._srv_rebaseline),
@@ -184,10 +187,11 @@ class MonitorNode(ParametersMixin, InputsMixin, StateMixin, WorkerMixin, Publish
             self.destroy_subscription(s)
         for s in self._srvs:
             self.destroy_service(s)
-        for p in (self._modes_pub, self._diag_pub):
+        for p in (self._modes_pub, self._modes_stamped_pub, self._diag_pub):
             if p is not None:
                 self.destroy_lifecycle_publisher(p)
         self._subs, self._srvs, self._modes_pub, self._diag_pub = [], [], None, None
+        self._modes_stamped_pub = None
         self.pipeline = self.sync = None
 
     def last_words(self, level: str, text: str, wait_s: float = 1.0) -> bool:

@@ -1,6 +1,7 @@
 """Outputs of the monitor node: ``~/modes`` and ``/diagnostics``, published by their own thread.
 
-A separate publisher thread publishes every report's estimate on ``~/modes`` (in order, once per
+A separate publisher thread publishes every report's estimate on ``~/modes`` and, with its data time and named
+fields, on ``~/modes_stamped`` (``sensor_msgs/msg/PointCloud2``, :func:`.convert.modes_stamped`) (in order, once per
 ``1/publish_rate_hz`` cycle) and one ``/diagnostics`` array per ``diagnostics_period_s`` (1 s by default) from the
 newest report, so publishing never holds up the consumption of the inputs (``~/modes`` messages are coalesced, and
 counted, only past ``MODES_QUEUE``). ``/diagnostics`` holds one ``<node>: mode <i>`` status per mode with exactly the
@@ -126,12 +127,16 @@ class PublishingMixin:
         return self._snapshot
 
     def _publish_modes(self) -> None:
-        """~/modes: every report's estimate not published yet, in order."""
-        modes_pub = self._modes_pub
+        """~/modes and ~/modes_stamped (the same estimate with its data time and named fields): every report's
+        estimate not published yet, in order."""
+        modes_pub, stamped_pub = self._modes_pub, self._modes_stamped_pub
         if self.sync is None or modes_pub is None or not self._active:
             return
         while self._modes_queue:
-            modes_pub.publish(cv.modes_array(self._modes_queue.popleft()))
+            t_s, modal = self._modes_queue.popleft()
+            modes_pub.publish(cv.modes_array(modal))
+            if stamped_pub is not None:
+                stamped_pub.publish(cv.modes_stamped(modal, round(t_s * 1e9)))
             self._reports_published += 1
 
     def _publish_diagnostics(self) -> None:
