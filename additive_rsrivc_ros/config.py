@@ -131,6 +131,8 @@ NODE_PARAMS: list[Param] = [
           "BEST_EFFORT (matches any publisher, may lose samples under load).", read_only=True),
     Param("diagnostics_period_s", "double", 1.0, "Period of the /diagnostics array (s); 1 s is the "
           "diagnostic_updater norm. ~/modes goes out at publish_rate_hz, independently.", 0.05, 60.0),
+    Param("hardware_id", "string", "", "hardware_id of the /diagnostics statuses (e.g. the axis or drive serial "
+          "number, what rqt_robot_monitor groups devices by); empty: the node's full name.", read_only=True),
     Param("block_period_s", "double", 0.002, "Period of the estimation worker: queued samples are aligned and "
           "fed to the estimator in blocks at this period.", 1e-4, 1.0, True),
     Param("sync.max_backlog_s", "double", 0.25, "Float64 topics: one topic ahead of another by more than this much "

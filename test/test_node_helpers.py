@@ -122,7 +122,7 @@ class Client:
                 if st.name == f"{self.target}: {suffix}":
                     return {"level": st.level[0] if isinstance(st.level, bytes) else int(st.level),
                             "message": st.message, "values": {kv.key: kv.value for kv in st.values},
-                            "keys": [kv.key for kv in st.values]}
+                            "keys": [kv.key for kv in st.values], "hardware_id": st.hardware_id}
         return None
 
     def _call(self, srv_type, name: str, req, timeout: float = 20.0):

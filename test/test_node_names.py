@@ -100,6 +100,7 @@ def test_two_axes_in_namespaces_from_one_params_file(ros_env, tmp_path):
             assert abs(modal[2, 0] - foreign[2, 0]) / foreign[2, 0] > 2 * tol[2, 0], (ax, modal[2, 0])
             est = cli.status("estimator")
             assert est is not None, f"no '{cli.target}: estimator' status on /diagnostics"
+            assert est["hardware_id"] == f"/{ax}/additive_rsrivc_monitor"      # the default: the full node name
             assert int(est["values"]["samples_aligned"]) == plants[ax].t.size, (ax, est["values"])
             assert est["values"]["wrong_types"] == ""
             # the replay has ended: the silence check names this axis's resolved topics, and only them
@@ -124,7 +125,8 @@ def test_qos_override_and_diagnostics_period(ros_env, tmp_path):
     sc = scenarios.build("paper_example", duration_s=130.0, seed=5)
     bag = sc.write_bag(tmp_path / "paper")
     proc = start_node(ros_env, str(PAPER), "use_sim_time:=true", "qos_depth:=5000", "publish_rate_hz:=10.0",
-                      "diagnostics_period_s:=1.0", "qos_overrides./plant_output.subscription.reliability:=best_effort")
+                      "diagnostics_period_s:=1.0", "qos_overrides./plant_output.subscription.reliability:=best_effort",
+                      "hardware_id:=axis-7 drive SN 0042")
     cli = Client(dom, Float64)
     play = None
     try:
@@ -152,6 +154,8 @@ def test_qos_override_and_diagnostics_period(ros_env, tmp_path):
         assert n_diag >= 2 and 40.0 <= n_modes / n_diag <= 250.0, (n_modes, n_diag)
         cli.wait_for(lambda: int(cli.status("estimator")["values"]["samples_aligned"]) >= 0.9 * sc.t.size, 30,
                      "the samples aligned (a best-effort plant_output still delivers on loopback)")
+        # the hardware_id parameter names the device of every status (default: the node's full name)
+        assert {cli.status(s)["hardware_id"] for s in ("estimator", "mode 1", "mode 3")} == {"axis-7 drive SN 0042"}
     finally:
         if play is not None and play.poll() is None:
             play.kill()

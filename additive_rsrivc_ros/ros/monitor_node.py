@@ -36,7 +36,7 @@ from ..warmup import is_warm, load_kernels
 from .inputs import InputsMixin, signal_names
 from .params import ParametersMixin, checked_config, split_unknown, unknown_warning
 from .publishing import PublishingMixin
-from .rosout import last_words_publisher, one_line_error, publish_last_words
+from .rosout import FATAL_WAIT_S, last_words_publisher, one_line_error, publish_last_words
 from .state import StateMixin
 from .sync import InputSync
 from .worker import STALL_NS, WorkerMixin
@@ -131,6 +131,7 @@ class MonitorNode(ParametersMixin, InputsMixin, StateMixin, WorkerMixin, Publish
         self._stale_timeout_s = values["stale_timeout_s"]
         self._publish_period_s = 1.0 / cfg.publish_rate_hz
         self._diag_period_s = values["diagnostics_period_s"]
+        self._hardware_id = values["hardware_id"]
         self._block_period_s = values["block_period_s"]
         self._block_batch_s, self._block_step_due = values["block.batch_s"], 0.0
         self._reset_stats()
@@ -194,7 +195,7 @@ class MonitorNode(ParametersMixin, InputsMixin, StateMixin, WorkerMixin, Publish
         self._modes_stamped_pub = None
         self.pipeline = self.sync = None
 
-    def last_words(self, level: str, text: str, wait_s: float = 1.0) -> bool:
+    def last_words(self, level: str, text: str, wait_s: float = FATAL_WAIT_S) -> bool:
         """``text`` on /rosout at ``level`` before the process ends (:mod:`.rosout`); True when a reader got it."""
         return publish_last_words(self, self._rosout, level, text, wait_s=wait_s)
 

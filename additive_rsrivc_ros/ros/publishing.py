@@ -146,7 +146,7 @@ class PublishingMixin:
             return
         rep, modal = self._current()
         silent = sync.silent(time.monotonic_ns(), self._stale_timeout_s, self.looking_since_ns)
-        hw = self.get_fully_qualified_name()
+        hw = self._hardware_id or self.get_fully_qualified_name()
         arr = DiagnosticArray()
         arr.header.stamp = self.get_clock().now().to_msg()
         arr.status = [cv.mode_status(r, hw) for r in self._mode_records(rep, modal, silent)]
