@@ -10,6 +10,10 @@ in each. Each monitor subscribes to its own ``/<axis>/reference``, ``/<axis>/pla
 axis never shows under another. The default params file (config/two_axes.yaml) shares the plant settings under
 ``/**/additive_rsrivc_monitor:`` (every axis) and overrides one axis under ``/axis2/additive_rsrivc_monitor:``
 (rcl's rules for params-file keys); an axis without a section of its own runs on the shared settings.
+
+``aggregator:=true`` also starts diagnostic_aggregator's ``aggregator_node`` with one branch per axis
+(``Resonance monitor/<axis>``, additive_rsrivc_ros.diagnostics_config; ``modes:=K`` lists each axis's modes 1..K as
+expected statuses), the same analyzers config/diagnostic_aggregator.yaml holds for axis1, axis2.
 """
 import os
 import re
@@ -18,7 +22,7 @@ from ament_index_python.packages import get_package_share_directory
 from launch import LaunchContext, LaunchDescription
 from launch.actions import DeclareLaunchArgument, OpaqueFunction
 from launch.substitutions import LaunchConfiguration
-from launch_ros.actions import LifecycleNode
+from launch_ros.actions import LifecycleNode, Node
 from launch_ros.parameter_descriptions import ParameterValue
 
 PACKAGE = "additive_rsrivc_ros"
@@ -52,9 +56,18 @@ def _monitor(axis: str) -> LifecycleNode:
     )
 
 
-def _monitors(context: LaunchContext) -> list[LifecycleNode]:
-    """One monitor per name of the ``axes`` argument."""
-    return [_monitor(axis) for axis in axis_names(LaunchConfiguration("axes").perform(context))]
+def _monitors(context: LaunchContext) -> list[Node]:
+    """One monitor per name of the ``axes`` argument (and the aggregator with a branch per axis if asked for)."""
+    axes = axis_names(LaunchConfiguration("axes").perform(context))
+    nodes: list[Node] = [_monitor(axis) for axis in axes]
+    if LaunchConfiguration("aggregator").perform(context) == "true":
+        from additive_rsrivc_ros.diagnostics_config import AGGREGATOR_NODE, aggregator_params
+
+        modes = int(LaunchConfiguration("modes").perform(context))
+        nodes.append(Node(package="diagnostic_aggregator", executable="aggregator_node", name=AGGREGATOR_NODE,
+                          output="screen", parameters=[aggregator_params(axes, DEFAULT_NODE_NAME, modes=modes)],
+                          ros_arguments=["--log-level", LaunchConfiguration("log_level")]))
+    return nodes
 
 
 def generate_launch_description() -> LaunchDescription:
@@ -69,6 +82,10 @@ def generate_launch_description() -> LaunchDescription:
                               description="follow /clock (e.g. rsrivc_replay --clock)"),
         DeclareLaunchArgument("autostart", default_value="true", choices=["true", "false"],
                               description="configure and activate the lifecycle nodes on start"),
+        DeclareLaunchArgument("aggregator", default_value="false", choices=["true", "false"],
+                              description="also start diagnostic_aggregator with one branch per axis"),
+        DeclareLaunchArgument("modes", default_value="0",
+                              description="with aggregator: modes per axis expected on /diagnostics (0: not listed)"),
         DeclareLaunchArgument("log_level", default_value="info",
                               choices=["debug", "info", "warn", "error", "fatal"], description="logger level"),
     ]
