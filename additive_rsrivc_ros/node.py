@@ -136,8 +136,9 @@ def main(argv: list[str] | None = None) -> int:
         executor.add_node(node)
         if node.get_parameter("autostart").value and not _STOP_REQUESTED.is_set():
             node.trigger_configure()
-            if node.pipeline is None:       # the node logged the rejection (console and /rosout)
+            if node.pipeline is None:       # logged as an error by the node; the process ends: FATAL on /rosout
                 print(f"rsrivc_monitor: configuration rejected: {node.config_error}", file=sys.stderr)
+                node.last_words("fatal", f"configuration rejected: {node.config_error}")
                 return 1
             if not _STOP_REQUESTED.is_set():
                 node.trigger_activate()
