@@ -1,9 +1,9 @@
 #!/usr/bin/env bash
 # The oldest supported stack (requirements/oldest.txt: the floors setup.py and package.xml declare), without ROS:
 # a second venv (.venv-oldest) with exactly those versions and this package installed from source (not editable),
-# then a smoke subset: rsrivc_diagnose on the bundled fault bag (the verdict must be FAULT), rsrivc_monitor's one-line
-# answer without ROS, and the core numerics tests. The kernels compile under that numba into their own cache (the
-# cache is keyed per install). Extra arguments go to pytest.
+# then a smoke subset: rsrivc_diagnose on the bundled fault bag (the verdict must be FAULT), rsrivc_monitor's and
+# rsrivc_replay's one-line answer without ROS, and the core numerics tests. The kernels compile under that numba
+# into their own cache (the cache is keyed per install). Extra arguments go to pytest.
 set -euo pipefail
 ROOT="$(cd "$(dirname "${BASH_SOURCE[0]}")/.." && pwd)"
 VENV="${RSRIVC_OLDEST_VENV:-$ROOT/.venv-oldest}"
@@ -51,6 +51,12 @@ if "$VENV/bin/rsrivc_monitor" --ros-args 2>"$out/monitor.err"; then
 fi
 [ "$(wc -l < "$out/monitor.err")" -eq 1 ] && grep -q "is not installed" "$out/monitor.err" \
   || { echo "[oldest] rsrivc_monitor without ROS did not answer in one line:" >&2; cat "$out/monitor.err" >&2; exit 1; }
+if "$VENV/bin/rsrivc_replay" "$ROOT/bags/beam_fault" 2>"$out/replay.err"; then
+  echo "[oldest] rsrivc_replay ran without ROS" >&2; exit 1
+fi
+[ "$(wc -l < "$out/replay.err")" -eq 1 ] && grep -q "ROS 2 Jazzy is not installed" "$out/replay.err" \
+  || { echo "[oldest] rsrivc_replay without ROS did not answer in one line:" >&2; cat "$out/replay.err" >&2; exit 1; }
+echo "[oldest] rsrivc_monitor and rsrivc_replay without ROS: one line each, saying what to install" >&2
 cd "$out"   # the installed package, not the source tree, is imported by the tests
 "$VENV/bin/python" -m pytest -p no:cacheprovider --rootdir "$ROOT/test" -c "$ROOT/pytest.ini" \
   "$ROOT/test/test_zoh.py" "$ROOT/test/test_kernel.py" "$ROOT/test/test_filters.py" \

@@ -185,6 +185,20 @@ def test_replay_into_subscriber(tmp_path: Path, ros_env: dict, storage: str) -> 
     assert "msg/s" in res.stdout and f"/plant_output: {n}" in res.stdout
 
 
+def test_without_ros_one_line_says_what_to_install(tmp_path: Path, ros_env: dict) -> None:
+    """With rclpy and the message packages unimportable, rsrivc_replay answers in one line naming the install."""
+    good = tmp_path / "good"
+    write_float_bag(good, 100.0, 0.1)
+    block = ("import sys\nfor m in ('rclpy', 'std_msgs', 'rosgraph_msgs', 'builtin_interfaces'):\n"
+             "    sys.modules[m] = None\nfrom additive_rsrivc_ros.cli.replay import main\n"
+             "sys.exit(main(sys.argv[1:]))\n")
+    r = subprocess.run([sys.executable, "-c", block, str(good)], capture_output=True, text=True, timeout=60,
+                       env=ros_env)
+    lines = [ln for ln in r.stderr.splitlines() if ln.strip()]
+    assert r.returncode == 2 and len(lines) == 1, r.stderr
+    assert "ROS 2 Jazzy is not installed" in lines[0] and "[ros]" in lines[0], r.stderr
+
+
 def test_wait_for_subscribers_on_a_simulated_bag_skips_its_truth_topics(tmp_path: Path, ros_env: dict) -> None:
     """A simulated bag also holds /truth/modes and /truth/fault, which no monitor reads: --wait-for-subscribers
     waits for the signal topics only, then plays every topic."""

@@ -28,6 +28,7 @@ from __future__ import annotations
 
 import argparse
 import importlib
+import importlib.util
 import sys
 import threading
 import time
@@ -326,6 +327,11 @@ def _msg_class(msgtype: str) -> Any:
     try:
         return getattr(importlib.import_module(f"{parts[0]}.{parts[1]}"), parts[2])
     except (ImportError, AttributeError):
+        if importlib.util.find_spec("rclpy") is None:       # no ROS 2 at all: say how to get it
+            from ..node import INSTALL_ROS
+
+            raise ReplayError(f"message type {msgtype} is not installed in this environment (ROS 2 Jazzy is not "
+                              f"installed for this Python: {INSTALL_ROS})") from None
         raise ReplayError(f"message type {msgtype} is not installed in this environment") from None
 
 
