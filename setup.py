@@ -44,8 +44,10 @@ setup(
         *_tree("bags", os.path.join(share, "bags")),
     ],
     install_requires=[
-        # third-party Python modules imported by the package (ROS interfaces: see package.xml)
-        "setuptools", "numpy", "scipy", "numba", "pyyaml", "rosbags",
+        # third-party Python modules imported by the package (ROS interfaces: see package.xml, or the extra "ros");
+        # the floors are package.xml's, those of Ubuntu 24.04 (requirements/oldest.txt, tested by
+        # scripts/test_oldest.sh)
+        "setuptools", "numpy>=1.26", "scipy>=1.11", "numba>=0.58.1", "pyyaml>=6.0", "rosbags>=0.10.9",
     ],
     # optional fast bag reading: the MCAP bulk reader (mcap_fast.py; without it bags are read by rosbags,
     # bagio._read_fast) and the libyaml parser of rosbags' metadata (ruamel.yaml's pure-Python one otherwise)
@@ -54,6 +56,9 @@ setup(
         # rsrivc_fleet only (rosdistro has no dask key; the node never needs it)
         "fleet": ["dask[distributed]"],
         "test": ["pytest", "ruff", "mcap", "mcap-ros2-support"],
+        # rsrivc_monitor without a ROS 2 installation: ROS 2 Jazzy's Python packages as wheels (rosdep users have
+        # them from /opt/ros/jazzy; package.xml's exec_depends)
+        "ros": ["ros-jazzy-rclpy", "ros-jazzy-common-interfaces", "ros-jazzy-rmw-fastrtps-cpp"],
     },
     cmdclass={"build_py": BuildPyWithConfig},
     zip_safe=True,

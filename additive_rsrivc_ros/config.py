@@ -31,6 +31,13 @@ from .core.params import ESTIMATOR_PARAMS, FAULT_PARAMS, EstimatorOptions, Param
 DEFAULT_NODE_NAME = "additive_rsrivc_monitor"
 
 
+def params_key(node_name: str = DEFAULT_NODE_NAME) -> str:
+    """The top-level key a written params file gives the node: ``/**/<name>`` for a plain name (rcl applies it to a
+    node of that name in any namespace, the root one included), a name with a namespace as given (absolute)."""
+    name = node_name.strip().strip("/")
+    return f"/{name}" if "/" in name else f"/**/{name}"
+
+
 class ParamError(ValueError):
     """A parameter file or value that cannot be used; the message names the parameter."""
 
@@ -124,6 +131,8 @@ NODE_PARAMS: list[Param] = [
           "BEST_EFFORT (matches any publisher, may lose samples under load).", read_only=True),
     Param("diagnostics_period_s", "double", 1.0, "Period of the /diagnostics array (s); 1 s is the "
           "diagnostic_updater norm. ~/modes goes out at publish_rate_hz, independently.", 0.05, 60.0),
+    Param("hardware_id", "string", "", "hardware_id of the /diagnostics statuses (e.g. the axis or drive serial "
+          "number, what rqt_robot_monitor groups devices by); empty: the node's full name.", read_only=True),
     Param("block_period_s", "double", 0.002, "Period of the estimation worker: queued samples are aligned and "
           "fed to the estimator in blocks at this period.", 1e-4, 1.0, True),
     Param("sync.max_backlog_s", "double", 0.25, "Float64 topics: one topic ahead of another by more than this much "
@@ -553,7 +562,7 @@ def render_params_yaml(params: Mapping[str, Any], node_name: str = DEFAULT_NODE_
     table = param_table()
     writer = _YamlWriter(validate_params({k: v for k, v in params.items() if k in table}))
     writer.lines += [f"# {line}" if line else "#" for line in header.splitlines()]
-    writer.lines += [f"{node_name}:", "  ros__parameters:"]
+    writer.lines += [f"{params_key(node_name)}:", "  ros__parameters:"]
     writer.emit(_param_tree(all_params()), 2)
     return "\n".join(writer.lines) + "\n"
 
@@ -597,7 +606,7 @@ def render_template(header: str) -> str:
     default."""
     writer = _YamlWriter(validate_params(TEMPLATE_EXAMPLE), annotate=True, examples=TEMPLATE_COMMENTED_EXAMPLE,
                          group_notes=TEMPLATE_GROUP_NOTES)
-    writer.lines += [*header.splitlines(), f"{DEFAULT_NODE_NAME}:", "  ros__parameters:"]
+    writer.lines += [*header.splitlines(), f"{params_key()}:", "  ros__parameters:"]
     for i, (title, rows) in enumerate(SECTIONS):
         if i:
             writer.lines.append("")

@@ -31,6 +31,9 @@ if sys.argv and sys.argv[0].rsplit("/", 1)[-1] == "rsrivc_monitor" and threading
         threading.main_thread():
     _STOP_REQUESTED.install()
 
+#: how long the stop notice waits for /rosout readers to acknowledge it (they are matched by then)
+STOP_NOTICE_WAIT_S = 0.3
+
 USAGE = """usage: rsrivc_monitor [-h] [--ros-args [--params-file FILE.yaml] [-p NAME:=VALUE] [-r __node:=NAME]]
 
 ROS 2 lifecycle node: online closed-loop additive recursive SRIVC of mechanical resonances with fault
@@ -62,6 +65,32 @@ def _own_arguments(args: list[str]) -> int | None:
     return None
 
 
+#: the ROS 2 Python packages the node imports (rclpy and the interfaces of ros-jazzy-common-interfaces)
+ROS_MODULES = ("rclpy", "std_msgs", "diagnostic_msgs", "sensor_msgs", "std_srvs")
+INSTALL_ROS = ("source /opt/ros/jazzy/setup.bash (apt: ros-jazzy-ros-base), or pip install "
+               "'additive_rsrivc_ros[ros]' (the ros-jazzy-* wheels)")
+
+
+def _missing_ros() -> str:
+    """One line naming the ROS 2 Python modules the node needs and cannot find and how to get them ('' = found).
+    Looked up without importing them; the offline tools (rsrivc_diagnose, ...) need none of them."""
+    import importlib.util
+
+    missing = []
+    for module in ROS_MODULES:
+        try:
+            found = importlib.util.find_spec(module) is not None
+        except (ImportError, ValueError):
+            found = False
+        if not found:
+            missing.append(module)
+    if not missing:
+        return ""
+    return (f"rsrivc_monitor: ROS 2 Jazzy is not installed for this Python ({sys.executable}: no module "
+            f"{', '.join(missing)}): {INSTALL_ROS}; the offline tools rsrivc_diagnose, rsrivc_identify, "
+            "rsrivc_simulate need no ROS")
+
+
 @console_entry
 def main(argv: list[str] | None = None) -> int:
     """Console script ``rsrivc_monitor``."""
@@ -71,13 +100,17 @@ def main(argv: list[str] | None = None) -> int:
         return code
     started_ns = time.monotonic_ns()
     _STOP_REQUESTED.install()  # first: a signal at any later moment only sets the flag
+    missing = _missing_ros()
+    if missing:
+        print(missing, file=sys.stderr)
+        return 1
     import rclpy
     from rclpy.executors import ExternalShutdownException
     from rclpy.experimental import EventsExecutor
     from rclpy.signals import SignalHandlerOptions
 
-    from .config import ParamError
     from .ros.monitor_node import MonitorNode, spin
+    from .ros.rosout import one_line_error
 
     rclpy.init(args=["rsrivc_monitor", *args], signal_handler_options=SignalHandlerOptions.NO)
     node = None
@@ -88,19 +121,23 @@ def main(argv: list[str] | None = None) -> int:
         executor.add_node(node)
         if node.get_parameter("autostart").value and not _STOP_REQUESTED.is_set():
             node.trigger_configure()
-            if node.pipeline is None:
+            if node.pipeline is None:       # logged as an error by the node; the process ends: FATAL on /rosout
                 print(f"rsrivc_monitor: configuration rejected: {node.config_error}", file=sys.stderr)
+                node.last_words("fatal", f"configuration rejected: {node.config_error}")
                 return 1
             if not _STOP_REQUESTED.is_set():
                 node.trigger_activate()
         if not _STOP_REQUESTED.is_set():
             spin(node, executor, started_ns, _STOP_REQUESTED)
-        print(f"rsrivc_monitor: stopping ({_STOP_REQUESTED.signal_name or 'shutdown'})", file=sys.stderr)
+        stopping = f"stopping ({_STOP_REQUESTED.signal_name or 'shutdown'})"
+        print(f"rsrivc_monitor: {stopping}", file=sys.stderr)
+        node.last_words("info", stopping, wait_s=STOP_NOTICE_WAIT_S)
     except (KeyboardInterrupt, ExternalShutdownException):
         pass
     except Exception as exc:  # noqa: BLE001 - parameter declaration errors etc.: one line, non-zero exit
-        kind = "" if isinstance(exc, ParamError) else f"{type(exc).__name__}: "
-        print(f"rsrivc_monitor: {kind}{exc}", file=sys.stderr)
+        print(f"rsrivc_monitor: {one_line_error(exc)}", file=sys.stderr)
+        if node is not None:    # (an error in the node's constructor reached /rosout there)
+            node.last_words("fatal", one_line_error(exc))
         code = 1
     finally:
         if node is not None:

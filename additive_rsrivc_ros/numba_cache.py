@@ -2,11 +2,12 @@
 
 Numba's ``cache=True`` keys a kernel on its own source file only, so a changed ``@njit`` callee in another module leaves
 the caller's stale machine code loaded. The package therefore caches in a directory keyed on a hash of every kernel
-module's source, ``$RSRIVC_CACHE_DIR/numba-<version>-<source hash>/`` (default root
+module's source and on the install that runs them (package location, ``sys.prefix``, interpreter, installed numpy,
+numba and llvmlite): ``$RSRIVC_CACHE_DIR/numba-<version>-<source hash>-<install hash>/`` (default root
 ``$XDG_CACHE_HOME/additive_rsrivc_ros`` or ``~/.cache/additive_rsrivc_ros``; the system temporary directory when none is
-writable), which also holds the kernels compiled ahead of time (``core/compiled.py``). A ``NUMBA_CACHE_DIR`` set by the
-user is respected as is. :func:`configure` runs once, from the package's ``__init__``, before any kernel module is
-imported; ``rsrivc_warmup`` fills the cache.
+writable). Two installs never load or overwrite each other's kernels. The directory also holds the kernels compiled
+ahead of time (``core/compiled.py``). A ``NUMBA_CACHE_DIR`` set by the user is respected as is. :func:`configure` runs
+once, from the package's ``__init__``, before any kernel module is imported; ``rsrivc_warmup`` fills the cache.
 """
 
 from __future__ import annotations
@@ -38,6 +39,31 @@ def source_hash() -> str:
     return h.hexdigest()[:12]
 
 
+#: the compiled dependencies whose installed release decides what a cached kernel was built against
+COMPILED_DEPENDENCIES = ("numpy", "numba", "llvmlite")
+
+
+def _installed(module: str) -> str:
+    """Where ``module`` is installed and when that was (its ``__init__``'s path and mtime): found without importing
+    it, in microseconds; a reinstall or another release changes it."""
+    import importlib.util
+
+    try:
+        spec = importlib.util.find_spec(module)
+        origin = spec.origin if spec is not None else None
+        return f"{origin}:{os.stat(origin).st_mtime_ns}" if origin else "-"
+    except (ImportError, ValueError, OSError):
+        return "-"
+
+
+def install_hash() -> str:
+    """SHA-256 (8 hex digits) of this install: the package's directory, the Python environment and interpreter,
+    the machine type and the installed :data:`COMPILED_DEPENDENCIES`."""
+    parts = [str(_PACKAGE), sys.prefix, sys.version, os.uname().machine,
+             *(_installed(m) for m in COMPILED_DEPENDENCIES)]
+    return hashlib.sha256("\n".join(parts).encode()).hexdigest()[:8]
+
+
 def _writable(directory: Path) -> bool:
     try:
         directory.mkdir(parents=True, exist_ok=True)
@@ -59,7 +85,7 @@ def default_root() -> Path:
 
 def cache_dir() -> Path:
     """The writable, source-keyed kernel cache directory (created if needed)."""
-    name = f"numba-{__version__}-{source_hash()}"
+    name = f"numba-{__version__}-{source_hash()}-{install_hash()}"
     for root in (default_root(), Path(tempfile.gettempdir()) / f"additive_rsrivc_ros-{os.getuid()}"):
         if _writable(root / name):
             return root / name

@@ -6,9 +6,10 @@ Arguments: ``params_file`` (default: the installed ``config/beam.yaml``), ``name
 ``node_name`` (default ``additive_rsrivc_monitor``), ``use_sim_time``, ``autostart`` (configure and activate on
 start; ``false`` leaves the node unconfigured for a lifecycle manager), ``log_level``.
 
-The params file is handed to rcl as it is, so its top-level key must match the node's full name: a plain
-``additive_rsrivc_monitor:`` matches only the root namespace; use ``/**/additive_rsrivc_monitor:`` (any
-namespace) or ``/axis1/additive_rsrivc_monitor:`` under a namespace (config/two_axes.yaml shows both).
+The params file is handed to rcl as it is, so its top-level key must match the node's full name. The shipped
+files and those ``rsrivc_identify --out-params`` writes use ``/**/additive_rsrivc_monitor:`` (that node name in any
+namespace, the root one included); ``/axis1/additive_rsrivc_monitor:`` reaches one namespace only
+(config/two_axes.yaml shows both), and a plain ``additive_rsrivc_monitor:`` only the root namespace.
 """
 import os
 
@@ -45,6 +46,6 @@ def generate_launch_description() -> LaunchDescription:
         parameters=[LaunchConfiguration("params_file"),
                     {"use_sim_time": ParameterValue(LaunchConfiguration("use_sim_time"), value_type=bool),
                      "autostart": ParameterValue(LaunchConfiguration("autostart"), value_type=bool)}],
-        arguments=["--ros-args", "--log-level", LaunchConfiguration("log_level")],
+        ros_arguments=["--log-level", LaunchConfiguration("log_level")],
     )
     return LaunchDescription([*args, node])

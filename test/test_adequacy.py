@@ -115,7 +115,7 @@ def test_identify_reports_a_model_order_too_low(tmp_path, capsys):
 
     repo = Path(__file__).resolve().parents[1]
     doc = yaml.safe_load((repo / "config" / "beam_fault.yaml").read_text())
-    modes = doc["additive_rsrivc_monitor"]["ros__parameters"]["modes"]
+    modes = doc["/**/additive_rsrivc_monitor"]["ros__parameters"]["modes"]
     for key in modes:
         modes[key] = modes[key][:1]
     params = tmp_path / "k1.yaml"

@@ -64,7 +64,7 @@ def test_template_documents_every_parameter():
     text = (CONFIG_DIR / "template.yaml").read_text()
     import yaml
 
-    section = yaml.safe_load(text)["additive_rsrivc_monitor"]["ros__parameters"]
+    section = yaml.safe_load(text)["/**/additive_rsrivc_monitor"]["ros__parameters"]
 
     def has(name: str) -> bool:
         node = section

@@ -137,7 +137,7 @@ def test_magnitude_guard_bound_is_robust():
 def _destabilizing_params(tmp_path: Path) -> tuple[Path, MonitorConfig]:
     """Mode-2 gain guess x30: the noise-free loop of the initial model with C_d is unstable (|pole| ~1.05)."""
     raw = yaml.safe_load(PARAMS.read_text())
-    raw["additive_rsrivc_monitor"]["ros__parameters"]["modes"]["gain"] = [11.81, 4.77]
+    raw["/**/additive_rsrivc_monitor"]["ros__parameters"]["modes"]["gain"] = [11.81, 4.77]
     path = tmp_path / "destabilizing.yaml"
     path.write_text(yaml.safe_dump(raw))
     return path, MonitorConfig.from_params(load_params_file(path))

@@ -8,6 +8,7 @@ import time
 from collections.abc import Callable
 from typing import Any
 
+import numpy as np
 import rclpy
 from diagnostic_msgs.msg import DiagnosticArray
 from rcl_interfaces.msg import Parameter as ParameterMsg
@@ -16,6 +17,7 @@ from rclpy.context import Context
 from rclpy.executors import SingleThreadedExecutor
 from rclpy.parameter import Parameter
 from rclpy.qos import HistoryPolicy, QoSProfile, ReliabilityPolicy
+from sensor_msgs.msg import PointCloud2
 from std_msgs.msg import Float64MultiArray
 from std_srvs.srv import Trigger
 
@@ -51,6 +53,17 @@ def stop_node(proc: subprocess.Popen, sig: str = "TERM", timeout: float = 30.0) 
     return proc.returncode, out
 
 
+_POINT_TYPES = {6: "<u4", 8: "<f8"}     # sensor_msgs/PointField UINT32, FLOAT64
+
+
+def cloud_table(msg: PointCloud2) -> np.ndarray:
+    """A PointCloud2 as a numpy structured array built from its own field descriptions (names, types, offsets)."""
+    assert not msg.is_bigendian and msg.height == 1 and msg.row_step == msg.point_step * msg.width
+    dtype = np.dtype({"names": [f.name for f in msg.fields], "formats": [_POINT_TYPES[f.datatype] for f in msg.fields],
+                      "offsets": [f.offset for f in msg.fields], "itemsize": msg.point_step})
+    return np.frombuffer(bytes(msg.data), dtype=dtype, count=msg.width)
+
+
 READ_ONLY_SERVICES = ("GetState", "GetParameters", "ListParameters", "DescribeParameters", "GetParameterTypes")
 """Service types whose request may be sent again when its response was lost (it changes nothing)."""
 
@@ -69,6 +82,8 @@ class Client:
         self.modes: list[Float64MultiArray] = []
         self.node.create_subscription(DiagnosticArray, "/diagnostics", self.diags.append, 100)
         self.node.create_subscription(Float64MultiArray, f"{base}/{node}/modes", self.modes.append, 100)
+        self.stamped: list[PointCloud2] = []
+        self.node.create_subscription(PointCloud2, f"{base}/{node}/modes_stamped", self.stamped.append, 100)
         self.target = f"{ns}/{node}" if ns else node
         self._clients: dict[str, Any] = {}
         self.ex = SingleThreadedExecutor(context=self.ctx)
@@ -107,7 +122,7 @@ class Client:
                 if st.name == f"{self.target}: {suffix}":
                     return {"level": st.level[0] if isinstance(st.level, bytes) else int(st.level),
                             "message": st.message, "values": {kv.key: kv.value for kv in st.values},
-                            "keys": [kv.key for kv in st.values]}
+                            "keys": [kv.key for kv in st.values], "hardware_id": st.hardware_id}
         return None
 
     def _call(self, srv_type, name: str, req, timeout: float = 20.0):

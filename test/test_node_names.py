@@ -100,6 +100,7 @@ def test_two_axes_in_namespaces_from_one_params_file(ros_env, tmp_path):
             assert abs(modal[2, 0] - foreign[2, 0]) / foreign[2, 0] > 2 * tol[2, 0], (ax, modal[2, 0])
             est = cli.status("estimator")
             assert est is not None, f"no '{cli.target}: estimator' status on /diagnostics"
+            assert est["hardware_id"] == f"/{ax}/additive_rsrivc_monitor"      # the default: the full node name
             assert int(est["values"]["samples_aligned"]) == plants[ax].t.size, (ax, est["values"])
             assert est["values"]["wrong_types"] == ""
             # the replay has ended: the silence check names this axis's resolved topics, and only them
@@ -124,7 +125,8 @@ def test_qos_override_and_diagnostics_period(ros_env, tmp_path):
     sc = scenarios.build("paper_example", duration_s=130.0, seed=5)
     bag = sc.write_bag(tmp_path / "paper")
     proc = start_node(ros_env, str(PAPER), "use_sim_time:=true", "qos_depth:=5000", "publish_rate_hz:=10.0",
-                      "diagnostics_period_s:=1.0", "qos_overrides./plant_output.subscription.reliability:=best_effort")
+                      "diagnostics_period_s:=1.0", "qos_overrides./plant_output.subscription.reliability:=best_effort",
+                      "hardware_id:=axis-7 drive SN 0042")
     cli = Client(dom, Float64)
     play = None
     try:
@@ -152,6 +154,8 @@ def test_qos_override_and_diagnostics_period(ros_env, tmp_path):
         assert n_diag >= 2 and 40.0 <= n_modes / n_diag <= 250.0, (n_modes, n_diag)
         cli.wait_for(lambda: int(cli.status("estimator")["values"]["samples_aligned"]) >= 0.9 * sc.t.size, 30,
                      "the samples aligned (a best-effort plant_output still delivers on loopback)")
+        # the hardware_id parameter names the device of every status (default: the node's full name)
+        assert {cli.status(s)["hardware_id"] for s in ("estimator", "mode 1", "mode 3")} == {"axis-7 drive SN 0042"}
     finally:
         if play is not None and play.poll() is None:
             play.kill()
@@ -162,13 +166,57 @@ def test_qos_override_and_diagnostics_period(ros_env, tmp_path):
     assert "/plant_output best_effort" in out and "/reference reliable" in out, out
 
 
-def test_missing_rate_under_a_namespace_names_the_params_key(ros_env):
-    """paper_example.yaml's key 'additive_rsrivc_monitor' reaches only the root namespace: under /axis1 the node
-    gets no parameters and must say which one is missing and which keys would work, in one line."""
-    r = subprocess.run(["rsrivc_monitor", "--ros-args", "-r", "__ns:=/axis1", "--params-file", str(PAPER)],
-                       capture_output=True, text=True, timeout=60, env=ros_env)
-    lines = [ln for ln in r.stderr.splitlines() if ln.strip()]
-    assert r.returncode == 1 and "Traceback" not in r.stderr + r.stdout, r.stderr
-    assert lines == ["rsrivc_monitor: parameter 'loop_rate_hz' is required (no params for node "
-                     "'/axis1/additive_rsrivc_monitor': the YAML key must be '/**/additive_rsrivc_monitor' or "
-                     "'/axis1/additive_rsrivc_monitor')"], r.stderr
+def _rosout_listener(dom: int) -> tuple[Client, list]:
+    """A client node that records /rosout (rosout's QoS: reliable, transient local)."""
+    from rcl_interfaces.msg import Log
+
+    from additive_rsrivc_ros.ros.rosout import ROSOUT_QOS
+
+    cli = Client(dom, Float64)
+    logs: list = []
+    cli.node.create_subscription(Log, "/rosout", logs.append, ROSOUT_QOS)
+    return cli, logs
+
+
+def test_missing_rate_under_a_namespace_names_the_params_key(ros_env, tmp_path):
+    """A plain key 'additive_rsrivc_monitor' reaches only the root namespace: under /axis1 the node gets no
+    parameters and must say which one is missing and which keys would work, in one line on stderr, and the same
+    as a FATAL record of the node's logger on /rosout."""
+    from rcl_interfaces.msg import Log
+
+    plain = tmp_path / "plain.yaml"
+    plain.write_text(PAPER.read_text().replace("/**/additive_rsrivc_monitor:", "additive_rsrivc_monitor:"))
+    assert "\nadditive_rsrivc_monitor:" in plain.read_text()
+    cli, logs = _rosout_listener(int(ros_env["ROS_DOMAIN_ID"]))
+    try:
+        r = subprocess.run(["rsrivc_monitor", "--ros-args", "-r", "__ns:=/axis1", "--params-file", str(plain)],
+                           capture_output=True, text=True, timeout=60, env=ros_env)
+        lines = [ln for ln in r.stderr.splitlines() if ln.strip()]
+        assert r.returncode == 1 and "Traceback" not in r.stderr + r.stdout, r.stderr
+        reason = ("parameter 'loop_rate_hz' is required (no params for node '/axis1/additive_rsrivc_monitor': the "
+                  "YAML key must be '/**/additive_rsrivc_monitor' or '/axis1/additive_rsrivc_monitor')")
+        assert lines == [f"rsrivc_monitor: {reason}"], r.stderr
+        cli.wait_for(lambda: any(m.level == Log.FATAL for m in logs), 10.0, "the fatal error on /rosout")
+        fatal = [m for m in logs if m.level == Log.FATAL]
+        assert [(m.name, m.msg) for m in fatal] == [("axis1.additive_rsrivc_monitor", reason)]
+    finally:
+        cli.close()
+
+
+def test_stop_notice_reaches_rosout(ros_env):
+    """SIGINT: 'stopping (SIGINT)' on stderr and as an INFO record of the node's logger on /rosout."""
+    from rcl_interfaces.msg import Log
+
+    cli, logs = _rosout_listener(int(ros_env["ROS_DOMAIN_ID"]))
+    proc = start_node(ros_env, str(PAPER), ros_args=("-r", "__ns:=/axis1"))
+    try:
+        cli.wait_for(lambda: any("configured:" in m.msg for m in logs), 60.0, "the node's configured line")
+        rc, out = stop_node(proc, "INT")
+        assert rc == 0 and "rsrivc_monitor: stopping (SIGINT)" in out, out
+        cli.wait_for(lambda: any(m.msg == "stopping (SIGINT)" for m in logs), 10.0, "the stop notice on /rosout")
+        notice = [m for m in logs if m.msg == "stopping (SIGINT)"]
+        assert len(notice) == 1 and notice[0].level == Log.INFO and notice[0].name == "axis1.additive_rsrivc_monitor"
+    finally:
+        if proc.poll() is None:
+            stop_node(proc, "INT")
+        cli.close()

@@ -43,6 +43,7 @@ ROSDEP_KEYS = {
     "ament_index_python": "jazzy/distribution.yaml:359 (ament_index)",
     "launch": "jazzy/distribution.yaml:5101 (launch)",
     "launch_ros": "jazzy/distribution.yaml:5169 (launch_ros)",
+    "diagnostic_aggregator": "jazzy/distribution.yaml:2403 (diagnostics)",
     "python3-numpy": "rosdep/python.yaml:5923",
     "python3-scipy": "rosdep/python.yaml:8194",
     "python3-numba": "rosdep/python.yaml:5920",
@@ -68,7 +69,18 @@ def _package_imports(paths=None) -> set[str]:
 
 def _depends(xml: str, tag: str = r"\w*depend") -> set[str]:
     """The keys of every ``<tag>`` element (default: all ``*_depend`` and ``depend``)."""
-    return {key for _, key in re.findall(rf"<({tag})>([^<]+)</\1>", xml)}
+    return {key for _, key in re.findall(rf"<({tag})(?:\s[^>]*)?>([^<]+)</\1>", xml)}
+
+
+def _floors_xml(xml: str) -> dict[str, str]:
+    """``version_gte`` of each package.xml key that has one."""
+    return dict((k, v) for v, k in re.findall(r'<\w*depend version_gte="([^"]+)">([^<]+)</', xml))
+
+
+def _floors_setup(setup_py: str) -> dict[str, str]:
+    """``name>=floor`` of each install_requires entry that has one."""
+    block = re.search(r"install_requires=\[(.*?)\]", setup_py, re.S).group(1)
+    return {n.lower(): v for n, v in re.findall(r'"([\w.-]+)>=([\w.]+)"', block)}
 
 
 def test_every_third_party_import_is_declared():
@@ -88,10 +100,24 @@ def test_every_third_party_import_is_declared():
         else:
             key, dist = THIRD_PARTY[name]
             assert key in exec_deps, f"{name}: add <exec_depend>{key}</exec_depend> to package.xml"
-            assert f'"{dist}"' in setup_py, f"{name}: add {dist} to install_requires in setup.py"
+            assert re.search(rf'"{re.escape(dist)}(>=[\w.]+)?"', setup_py), f"{name}: add {dist} to install_requires"
         dist = OPTIONAL.get(name) or THIRD_PARTY.get(name, (None, None))[1]
         if dist:
             assert re.search(rf"^{re.escape(dist)}\b", requirements, re.M | re.I), f"{dist} not in requirements"
+
+
+def test_declared_floors_agree_and_are_the_tested_oldest_stack():
+    """setup.py's floors, package.xml's version_gte and requirements/oldest.txt (what scripts/test_oldest.sh installs
+    and runs the smoke subset on) name the same version of each third-party dependency."""
+    xml_floors = _floors_xml((REPO / "package.xml").read_text())
+    setup_floors = _floors_setup((REPO / "setup.py").read_text())
+    pins = {n.lower(): v for n, v in re.findall(r"^([\w.-]+)==([\w.]+)", (REPO / "requirements" / "oldest.txt")
+                                                   .read_text(), re.M)}
+    for key, dist in THIRD_PARTY.values():
+        floor = setup_floors.get(dist)
+        assert floor, f"setup.py: {dist} has no floor (name>=version)"
+        assert xml_floors.get(key) and floor.startswith(xml_floors[key]), (key, xml_floors.get(key), floor)
+        assert pins.get(dist, "").startswith(floor), f"requirements/oldest.txt: {dist} {pins.get(dist)}, floor {floor}"
 
 
 def test_dependency_keys_are_the_checked_rosdep_keys():
@@ -200,7 +226,10 @@ def test_ament_index_finds_installed_config(colcon_install):
 # `launch` and `launch_ros` are not installable here (no PyPI wheels): the files are checked by parsing them;
 # `ros2 launch` itself is not run (README says so).
 LAUNCH_ARGUMENTS = {"monitor.launch.py": {"params_file", "namespace", "use_sim_time", "autostart", "log_level"},
-                    "multi_axis.launch.py": {"params_file", "use_sim_time", "autostart", "log_level"}}
+                    "multi_axis.launch.py": {"axes", "params_file", "use_sim_time", "autostart", "log_level",
+                                             "aggregator", "modes"}}
+# nodes of other packages a launch file may start (package -> executable); each package is an exec_depend
+OTHER_LAUNCHED = {"diagnostic_aggregator": "aggregator_node"}
 
 
 def _launch_tree(name: str) -> ast.Module:
@@ -253,10 +282,13 @@ def test_launch_file_starts_an_installed_executable_with_existing_params(name):
     consts = _module_constants(tree)
     nodes = _calls(tree, "LifecycleNode") + _calls(tree, "Node")
     assert nodes, "no node action"
+    exec_deps = _depends((REPO / "package.xml").read_text(), "exec_depend")
     for call in nodes:
         kw = {k.arg: k.value for k in call.keywords}
-        assert _value(kw["package"], consts) == PKG
-        executable = _value(kw["executable"], consts)
+        package, executable = _value(kw["package"], consts), _value(kw["executable"], consts)
+        if package != PKG:
+            assert OTHER_LAUNCHED.get(package) == executable and package in exec_deps, (package, executable)
+            continue
         assert executable in _console_scripts() and executable in EXECUTABLES, executable
     assert consts["DEFAULT_NODE_NAME"] == DEFAULT_NODE_NAME
     yamls = {n.value for n in ast.walk(tree) if isinstance(n, ast.Constant) and str(n.value).endswith(".yaml")}

@@ -185,6 +185,53 @@ def test_replay_into_subscriber(tmp_path: Path, ros_env: dict, storage: str) -> 
     assert "msg/s" in res.stdout and f"/plant_output: {n}" in res.stdout
 
 
+def test_without_ros_one_line_says_what_to_install(tmp_path: Path, ros_env: dict) -> None:
+    """With rclpy and the message packages unimportable, rsrivc_replay answers in one line naming the install."""
+    good = tmp_path / "good"
+    write_float_bag(good, 100.0, 0.1)
+    block = ("import sys\nfor m in ('rclpy', 'std_msgs', 'rosgraph_msgs', 'builtin_interfaces'):\n"
+             "    sys.modules[m] = None\nfrom additive_rsrivc_ros.cli.replay import main\n"
+             "sys.exit(main(sys.argv[1:]))\n")
+    r = subprocess.run([sys.executable, "-c", block, str(good)], capture_output=True, text=True, timeout=60,
+                       env=ros_env)
+    lines = [ln for ln in r.stderr.splitlines() if ln.strip()]
+    assert r.returncode == 2 and len(lines) == 1, r.stderr
+    assert "ROS 2 Jazzy is not installed" in lines[0] and "[ros]" in lines[0], r.stderr
+
+
+def test_wait_for_subscribers_on_a_simulated_bag_skips_its_truth_topics(tmp_path: Path, ros_env: dict) -> None:
+    """A simulated bag also holds /truth/modes and /truth/fault, which no monitor reads: --wait-for-subscribers
+    waits for the signal topics only, then plays every topic."""
+    import rclpy
+    from rclpy.experimental import EventsExecutor
+    from rclpy.qos import QoSProfile, ReliabilityPolicy
+    from std_msgs.msg import Float64
+
+    from additive_rsrivc_ros import bagio
+    from additive_rsrivc_ros.sim import scenarios
+
+    assert set(replay.TRUTH_TOPICS) == {bagio.TRUTH_MODES_TOPIC, bagio.TRUTH_FAULT_TOPIC}
+    sc = scenarios.build("paper_example", duration_s=5.0, seed=1)
+    bag = sc.write_bag(tmp_path / "sim")
+    assert set(replay.inspect_bag(str(bag), None).topics) >= {*TOPICS, *replay.TRUTH_TOPICS}
+    ctx = rclpy.Context()
+    rclpy.init(context=ctx, domain_id=int(ros_env["ROS_DOMAIN_ID"]))
+    got: dict[str, list[float]] = {t: [] for t in TOPICS}
+    try:
+        node = rclpy.create_node("replay_truth_test_sub", context=ctx)
+        qos = QoSProfile(depth=1000, reliability=ReliabilityPolicy.RELIABLE)
+        for t in TOPICS:
+            node.create_subscription(Float64, t, lambda m, t=t: got[t].append(m.data), qos)
+        res = _replay_while_spinning(EventsExecutor(context=ctx), node, [
+            str(bag), "--rate", "20", "--wait-for-subscribers", "20"], ros_env,
+            lambda: all(len(v) >= sc.t.size for v in got.values()))
+        node.destroy_node()
+    finally:
+        rclpy.shutdown(context=ctx)
+    assert res.returncode == 0, res.stderr
+    np.testing.assert_array_equal(got["/plant_output"], sc.y)
+
+
 def test_sigterm_stops_cleanly(tmp_path: Path, ros_env: dict) -> None:
     bag = tmp_path / "bag"
     write_float_bag(bag, 1000.0, 0.5)

@@ -36,13 +36,39 @@ def test_user_cache_dir_is_respected_and_inherited_auto_dir_is_recomputed(tmp_pa
     env["RSRIVC_CACHE_DIR"] = str(tmp_path / "root")
     auto = _child_cache_dir(env)
     assert Path(auto).parent == tmp_path / "root" and Path(auto).is_dir()
-    assert Path(auto).name.endswith(numba_cache.source_hash())
+    assert Path(auto).name.endswith(f"-{numba_cache.source_hash()}-{numba_cache.install_hash()}")
     # a parent's automatic choice (e.g. from another checkout) is recomputed, not trusted
     stale = str(tmp_path / "root" / "numba-0-stale")
     assert _child_cache_dir({**env, "NUMBA_CACHE_DIR": stale, numba_cache.AUTO_MARKER: stale}) == auto
     # the user's own choice is kept as is
     mine = str(tmp_path / "mine")
     assert _child_cache_dir({**env, "NUMBA_CACHE_DIR": mine}) == mine
+
+
+def test_cache_dir_is_per_install(tmp_path, monkeypatch):
+    """Two installs of the same sources (another checkout or copy, another venv, another numpy) never share compiled
+    kernels: a copy of the package imported from elsewhere picks another directory under the same root."""
+    import shutil
+
+    env = {k: v for k, v in os.environ.items() if k not in ("NUMBA_CACHE_DIR", numba_cache.AUTO_MARKER)}
+    env["RSRIVC_CACHE_DIR"] = str(tmp_path / "root")
+    here = Path(_child_cache_dir(env))
+    copy = tmp_path / "elsewhere"
+    shutil.copytree(REPO / "additive_rsrivc_ros", copy / "additive_rsrivc_ros",
+                    ignore=shutil.ignore_patterns("__pycache__"))
+    code = "import additive_rsrivc_ros as p; print(p.__file__); print(p.NUMBA_CACHE_DIR)"
+    out = subprocess.run([sys.executable, "-c", code], env={**env, "PYTHONPATH": str(copy)}, capture_output=True,
+                         text=True, check=True, cwd=tmp_path).stdout.split()
+    assert Path(out[0]).is_relative_to(copy), out                 # the copy was imported, not this checkout
+    there = Path(out[1])
+    assert there.parent == here.parent and there != here, (here, there)
+    assert there.name.split("-")[2] == here.name.split("-")[2]    # same sources, another install
+    base = numba_cache.install_hash()
+    monkeypatch.setattr(sys, "prefix", str(tmp_path / "venv2"))  # another environment
+    assert numba_cache.install_hash() != base
+    monkeypatch.undo()
+    monkeypatch.setattr(numba_cache, "_installed", lambda m: f"{m}-0.0")   # another numpy/numba/llvmlite
+    assert numba_cache.install_hash() != base
 
 
 def test_unwritable_cache_root_falls_back(tmp_path, monkeypatch):

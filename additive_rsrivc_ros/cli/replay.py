@@ -14,6 +14,7 @@ from __future__ import annotations
 
 import argparse
 import importlib
+import importlib.util
 import sys
 import threading
 import time
@@ -27,6 +28,10 @@ import numpy as np
 
 from ..process_exit import console_entry
 from ..signal_stop import SignalStop, StopFlag
+
+#: the simulation's truth topics (bagio.TRUTH_MODES_TOPIC, TRUTH_FAULT_TOPIC; bagio is not imported here: it loads
+#: rosbags): replayed, but --wait-for-subscribers does not wait for them (no monitor reads them)
+TRUTH_TOPICS = ("/truth/modes", "/truth/fault")
 
 PROG = "rsrivc_replay"
 
@@ -308,6 +313,11 @@ def _msg_class(msgtype: str) -> Any:
     try:
         return getattr(importlib.import_module(f"{parts[0]}.{parts[1]}"), parts[2])
     except (ImportError, AttributeError):
+        if importlib.util.find_spec("rclpy") is None:       # no ROS 2 at all: say how to get it
+            from ..node import INSTALL_ROS
+
+            raise ReplayError(f"message type {msgtype} is not installed in this environment (ROS 2 Jazzy is not "
+                              f"installed for this Python: {INSTALL_ROS})") from None
         raise ReplayError(f"message type {msgtype} is not installed in this environment") from None
 
 
@@ -325,7 +335,9 @@ def _parser() -> argparse.ArgumentParser:
                          "node's 5 s reader history, so a subscriber stalled for seconds loses nothing)")
     ap.add_argument("--delay", type=float, default=0.0, help="seconds to wait after creating publishers")
     ap.add_argument("--wait-for-subscribers", type=float, default=None, metavar="TIMEOUT_S", const=30.0,
-                    nargs="?", help="before playing, wait until every topic has a subscriber (default 30 s)")
+                    nargs="?", help="before playing, wait until every signal topic has a subscriber (default 30 s; "
+                                    "the simulation's truth topics /truth/*, which no monitor reads, are not waited "
+                                    "for)")
     ap.add_argument("--block", type=int, default=0, metavar="N", help="publish the bag's r, u, y as "
                     "Float64MultiArray blocks of N rows (columns index, reference, input, output; the monitor's "
                     "block.topic input) instead of the recorded topics; --topics then names [reference] input output")
@@ -385,9 +397,10 @@ def main(argv: list[str] | None = None) -> int:
 
         if args.wait_for_subscribers is not None:
             t_end = time.monotonic() + args.wait_for_subscribers
-            while not stop.is_set() and any(p.get_subscription_count() == 0 for p in pubs.values()):
+            awaited = {t: p for t, p in pubs.items() if t not in TRUTH_TOPICS} or pubs
+            while not stop.is_set() and any(p.get_subscription_count() == 0 for p in awaited.values()):
                 if time.monotonic() > t_end:
-                    missing = [t for t, p in pubs.items() if p.get_subscription_count() == 0]
+                    missing = [t for t, p in awaited.items() if p.get_subscription_count() == 0]
                     print(f"{PROG}: error: no subscriber on {', '.join(missing)} within "
                           f"{args.wait_for_subscribers:g} s", file=sys.stderr)
                     return 3

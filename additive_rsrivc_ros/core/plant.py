@@ -37,8 +37,9 @@ def _expm_small(m: np.ndarray) -> np.ndarray:
             row += abs(m[i, j])
         norm = max(norm, row)
     s = 0
-    if norm > 0.25:
-        s = int(math.ceil(math.log2(norm / 0.25)))
+    if norm > 0.25:                 # s = ceil(log2(norm / 0.25)), exactly: frexp gives x = f 2^e, f in [0.5, 1)
+        f, e = math.frexp(norm / 0.25)      # (math.log2 compiles only with numba >= 0.60)
+        s = e - 1 if f == 0.5 else e
     a = m / (2.0**s)
     result = np.eye(n)
     term = np.eye(n)

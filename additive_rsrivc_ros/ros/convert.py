@@ -103,6 +103,42 @@ def modes_array(modal: Any) -> Float64MultiArray:
     return msg
 
 
+#: ``~/modes_stamped`` (sensor_msgs/msg/PointCloud2, one point per mode): field name, PointField datatype, offset
+MODES_STAMPED_FIELDS = (("mode", 6, 0),                           # UINT32: the mode's number 1..K
+                        *((name, 8, 8 * (j + 1)) for j, name in enumerate(MODE_FIELDS[:6])))   # FLOAT64
+MODES_STAMPED_POINT_STEP = 8 * 7
+
+
+def modes_stamped(modal: Any, stamp_ns: int, frame_id: str = "") -> Any:
+    """``~/modes_stamped``: the ``~/modes`` estimate as a ``sensor_msgs/msg/PointCloud2`` table, one point per mode
+    with the named fields :data:`MODES_STAMPED_FIELDS` (``mode`` uint32, then the six ``~/modes`` fields float64,
+    little endian), ``header.stamp`` the data time of the estimate (the time of the last sample it includes, on the
+    clock of the input samples: ROS time, or the inputs' stamps). ``is_dense`` is false when a value is NaN (an
+    unknown std). Read it with ``sensor_msgs_py.point_cloud2.read_points`` or a numpy dtype built from its fields."""
+    import numpy as np
+    from sensor_msgs.msg import PointCloud2, PointField
+
+    rows = np.asarray(modal, dtype=float).reshape(-1, np.shape(modal)[-1])[:, :6]
+    k = rows.shape[0]
+    table = np.zeros(k, dtype=np.dtype({"names": [f[0] for f in MODES_STAMPED_FIELDS],
+                                        "formats": ["<u4"] + ["<f8"] * 6,
+                                        "offsets": [f[2] for f in MODES_STAMPED_FIELDS],
+                                        "itemsize": MODES_STAMPED_POINT_STEP}))
+    table["mode"] = np.arange(1, k + 1)
+    for j, name in enumerate(MODE_FIELDS[:6]):
+        table[name] = rows[:, j]
+    msg = PointCloud2()
+    msg.header.stamp.sec, msg.header.stamp.nanosec = divmod(int(stamp_ns), 1_000_000_000)
+    msg.header.frame_id = frame_id
+    msg.height, msg.width = 1, k
+    msg.fields = [PointField(name=name, offset=off, datatype=dt, count=1) for name, dt, off in MODES_STAMPED_FIELDS]
+    msg.is_bigendian = False
+    msg.point_step, msg.row_step = MODES_STAMPED_POINT_STEP, MODES_STAMPED_POINT_STEP * k
+    msg.data = table.tobytes()
+    msg.is_dense = bool(np.all(np.isfinite(rows)))
+    return msg
+
+
 BLOCK_TYPE = "std_msgs/msg/Float64MultiArray"
 BLOCK_COLUMNS = ("index", "reference", "input", "output")
 

@@ -20,6 +20,7 @@ import rclpy
 from diagnostic_msgs.msg import DiagnosticArray
 from rclpy.executors import Executor
 from rclpy.lifecycle import LifecycleNode, LifecycleState, TransitionCallbackReturn
+from sensor_msgs.msg import PointCloud2
 from std_msgs.msg import Float64MultiArray
 from std_srvs.srv import Trigger
 
@@ -30,6 +31,7 @@ from ..warmup import is_warm, load_kernels
 from .inputs import InputsMixin, signal_names
 from .params import ParametersMixin, checked_config, split_unknown, unknown_warning
 from .publishing import PublishingMixin
+from .rosout import FATAL_WAIT_S, last_words_publisher, one_line_error, publish_last_words
 from .state import StateMixin
 from .sync import InputSync
 from .worker import STALL_NS, WorkerMixin
@@ -41,7 +43,12 @@ class MonitorNode(ParametersMixin, InputsMixin, StateMixin, WorkerMixin, Publish
     def __init__(self, node_name: str = DEFAULT_NODE_NAME, **kwargs: Any) -> None:
         super().__init__(node_name, **kwargs)
         self._table = param_table()
-        self._declare_all()
+        self._rosout = last_words_publisher(self)
+        try:
+            self._declare_all()
+        except Exception as exc:            # the node ends here: say why on /rosout too (the caller prints it)
+            self.last_words("fatal", one_line_error(exc))
+            raise
         self.add_pre_set_parameters_callback(self._pre_set)
         self.add_on_set_parameters_callback(self._on_set)
         self.add_post_set_parameters_callback(self._post_set)
@@ -56,6 +63,7 @@ class MonitorNode(ParametersMixin, InputsMixin, StateMixin, WorkerMixin, Publish
         self._subs: list[Any] = []
         self._srvs: list[Any] = []
         self._modes_pub = None
+        self._modes_stamped_pub = None
         self._diag_pub = None
         self._worker: threading.Thread | None = None
         self._stop = threading.Event()
@@ -119,12 +127,14 @@ class MonitorNode(ParametersMixin, InputsMixin, StateMixin, WorkerMixin, Publish
         self._stale_timeout_s = values["stale_timeout_s"]
         self._publish_period_s = 1.0 / cfg.publish_rate_hz
         self._diag_period_s = values["diagnostics_period_s"]
+        self._hardware_id = values["hardware_id"]
         self._block_period_s = values["block_period_s"]
         self._block_batch_s, self._block_step_due = values["block.batch_s"], 0.0
         self._reset_stats()
 
     def _create_outputs(self) -> None:
         self._modes_pub = self.create_lifecycle_publisher(Float64MultiArray, "~/modes", 10)
+        self._modes_stamped_pub = self.create_lifecycle_publisher(PointCloud2, "~/modes_stamped", 10)
         self._diag_pub = self.create_lifecycle_publisher(DiagnosticArray, "/diagnostics", 10)
         self._srvs = [self.create_service(Trigger, "~/reset", self._srv_reset),
                       self.create_service(Trigger, "~/rebaseline", self._srv_rebaseline),
@@ -174,11 +184,16 @@ class MonitorNode(ParametersMixin, InputsMixin, StateMixin, WorkerMixin, Publish
             self.destroy_subscription(s)
         for s in self._srvs:
             self.destroy_service(s)
-        for p in (self._modes_pub, self._diag_pub):
+        for p in (self._modes_pub, self._modes_stamped_pub, self._diag_pub):
             if p is not None:
                 self.destroy_lifecycle_publisher(p)
         self._subs, self._srvs, self._modes_pub, self._diag_pub = [], [], None, None
+        self._modes_stamped_pub = None
         self.pipeline = self.sync = None
+
+    def last_words(self, level: str, text: str, wait_s: float = FATAL_WAIT_S) -> bool:
+        """``text`` on /rosout at ``level`` before the process ends (:mod:`.rosout`); True when a reader got it."""
+        return publish_last_words(self, self._rosout, level, text, wait_s=wait_s)
 
     def close(self) -> None:
         """Stop the worker and save the state once; called on shutdown."""

@@ -1,6 +1,7 @@
 """Outputs of the monitor node: ``~/modes`` and ``/diagnostics``, published by their own thread.
 
-A separate publisher thread publishes every report's estimate on ``~/modes`` (in order, once per
+A separate publisher thread publishes every report's estimate on ``~/modes`` and, with its data time and named
+fields, on ``~/modes_stamped`` (``sensor_msgs/msg/PointCloud2``, :func:`.convert.modes_stamped`) (in order, once per
 ``1/publish_rate_hz`` cycle) and one ``/diagnostics`` array per ``diagnostics_period_s`` (1 s by default) from the
 newest report, so publishing never holds up the consumption of the inputs (``~/modes`` messages are coalesced, and
 counted, only past ``MODES_QUEUE``). ``/diagnostics`` holds one ``<node>: mode <i>`` status per mode with exactly the
@@ -151,15 +152,18 @@ class PublishingMixin:
         return self._snapshot
 
     def _publish_modes(self) -> None:
-        """~/modes: every report's estimate not published yet, in order."""
-        modes_pub = self._modes_pub
+        """~/modes and ~/modes_stamped (the same estimate with its data time and named fields): every report's
+        estimate not published yet, in order."""
+        modes_pub, stamped_pub = self._modes_pub, self._modes_stamped_pub
         if self.sync is None or modes_pub is None or not self._active:
             return
         while self._modes_queue:
-            rep = self._modes_queue.popleft()
+            t_s, modal = self._modes_queue.popleft()
             if self.sync.rate_error:       # estimates on a wrong time scale: none is published
                 continue
-            modes_pub.publish(cv.modes_array(rep))
+            modes_pub.publish(cv.modes_array(modal))
+            if stamped_pub is not None:
+                stamped_pub.publish(cv.modes_stamped(modal, round(t_s * 1e9)))
             self._reports_published += 1
 
     def _publish_diagnostics(self) -> None:
@@ -169,7 +173,7 @@ class PublishingMixin:
             return
         rep, modal = self._current()
         silent = sync.silent(time.monotonic_ns(), self._stale_timeout_s, self.looking_since_ns)
-        hw = self.get_fully_qualified_name()
+        hw = self._hardware_id or self.get_fully_qualified_name()
         arr = DiagnosticArray()
         arr.header.stamp = self.get_clock().now().to_msg()
         arr.status = [cv.mode_status(r, hw) for r in self._mode_records(rep, modal, silent)]

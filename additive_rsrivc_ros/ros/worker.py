@@ -124,7 +124,8 @@ class WorkerMixin:
             self.delays_ms.extend((time.monotonic_ns() - blk.arrival_ns) * 1e-6)
         if reports:
             self._reports_made += len(reports)
-            self._modes_queue.extend(r.modal for r in reports if r.K)   # ~/modes once K is known
+            t0 = pipe.t0 or 0.0                # the data time of a report: origin + time since the first sample
+            self._modes_queue.extend((t0 + r.time_s, r.modal) for r in reports if r.K)   # ~/modes once K is known
             self._latest_report = reports[-1]
             self._snapshot = (reports[-1], reports[-1].modal)
         for note in (n for r in reports for n in r.notices):   # automatic start: found / failed

@@ -19,7 +19,7 @@ MODES = ((5.0, 0.05, 1.0), (20.0, 0.02, 0.2))
 T0_NS = 1_750_000_000 * 10**9
 MACHINE_PARAMS = """\
 # Simulated machine of additive_rsrivc_ros.sim.fleetsim: open loop, 1 kHz, two modes (5 Hz and 20 Hz).
-additive_rsrivc_monitor:
+/**/additive_rsrivc_monitor:
   ros__parameters:
     loop_rate_hz: 1000.0
     closed_loop: false
