@@ -1,0 +1,209 @@
+"""rsrivc_joints as a subprocess over real DDS (localhost, own domain): one process, three joints with different plants
+read from the two shared JointState topics a robot publishes.
+
+Reference: each joint's own offline :class:`MonitorPipeline` fed that joint's samples (the node is a shell around one
+pipeline per joint; with stamped inputs and no loss its ~/<joint>/modes must equal the offline reports to rounding).
+A wrong column (another joint's data, effort and position swapped) gives another plant and fails the equality; the
+offline pipelines themselves are checked against the simulation truth (the plants differ by 20-50 % in frequency) and
+against the fault schedule (flagged on the faulty joint only), so the test data can show what it claims.
+"""
+import math
+import subprocess
+import sys
+import time
+
+import numpy as np
+import pytest
+import rclpy
+from diagnostic_msgs.msg import DiagnosticArray
+from rclpy.context import Context
+from rclpy.executors import SingleThreadedExecutor
+from sensor_msgs.msg import JointState
+from std_msgs.msg import Float64MultiArray
+from test_node_helpers import DATA_QOS, stop_node
+
+from additive_rsrivc_ros.config import MonitorConfig, _flatten, validate_params
+from additive_rsrivc_ros.core.pipeline import MonitorPipeline
+from additive_rsrivc_ros.ros.convert import MODE_KEYS
+from additive_rsrivc_ros.sim import arm
+
+NODE = "additive_rsrivc_joints"
+RATE = 1000.0
+JOINTS = ["shoulder", "elbow", "wrist"]
+MEMORY = [4.0, 2.0]                  # short memories: the baseline is learned by 42 s (settle 3 x 4 s, learn 5 x 4 s)
+FAULT_JOINT, FAULT_S, DURATION_S = "elbow", 50.0, 62.0
+MISSING = (30_000, 30_100)           # samples whose /joint_states message lacks the wrist
+T0_NS = 1_000 * 10**9
+
+
+def _params_file(tmp_path) -> str:
+    import yaml
+
+    p = arm.arm_params(JOINTS, RATE)
+    for j in JOINTS:
+        p[j]["modes"]["memory_s"] = list(MEMORY)
+    p["diagnostics_period_s"] = 0.2
+    p["qos_depth"] = 100_000
+    path = tmp_path / "joints.yaml"
+    path.write_text(yaml.safe_dump({NODE: {"ros__parameters": p}}))
+    return str(path)
+
+
+def _offline(t: np.ndarray, j: arm.ArmJoint, keep: np.ndarray):
+    """The joint's own pipeline over the samples the node gets (``keep``), as the node configures it."""
+    p = arm.arm_params(JOINTS, RATE)
+    flat = _flatten({key: v for key, v in p.items() if key not in JOINTS and key != "joints"})
+    flat.update(_flatten({"modes": {**p[j.name]["modes"], "memory_s": MEMORY}}))
+    flat.update({f"{s}.type": "sensor_msgs/msg/JointState" for s in ("reference", "input", "output")})
+    pipe = MonitorPipeline(MonitorConfig.from_params(validate_params(flat)))
+    return pipe.push(t[keep], j.r[keep], j.u[keep], j.y[keep])
+
+
+class Robot:
+    """Publishes /joint_commands and /joint_states; listens to /diagnostics and every ~/<joint>/modes."""
+
+    def __init__(self, domain: int) -> None:
+        self.ctx = Context()
+        rclpy.init(context=self.ctx, domain_id=domain)
+        self.node = rclpy.create_node("robot", context=self.ctx)
+        self.cmd = self.node.create_publisher(JointState, "/joint_commands", DATA_QOS)
+        self.states = self.node.create_publisher(JointState, "/joint_states", DATA_QOS)
+        self.diags: list[DiagnosticArray] = []
+        self.modes: dict[str, list] = {j: [] for j in JOINTS}
+        self.node.create_subscription(DiagnosticArray, "/diagnostics", self.diags.append, 100)
+        for j in JOINTS:
+            self.node.create_subscription(Float64MultiArray, f"/{NODE}/{j}/modes", self.modes[j].append, 100)
+        self.ex = SingleThreadedExecutor(context=self.ctx)
+        self.ex.add_node(self.node)
+        import threading
+        self.th = threading.Thread(target=self._spin, daemon=True)
+        self.th.start()
+
+    def _spin(self) -> None:
+        try:
+            while self.ctx.ok():
+                self.ex.spin_once(timeout_sec=0.05)
+        except Exception:  # noqa: BLE001 - context shut down
+            pass
+
+    def status(self, joint: str, suffix: str) -> dict | None:
+        for arr in reversed(self.diags):
+            for st in arr.status:
+                if st.name == f"{NODE}/{joint}: {suffix}":
+                    return {"level": st.level[0], "message": st.message, "keys": [kv.key for kv in st.values],
+                            "values": {kv.key: kv.value for kv in st.values}}
+        return None
+
+    def wait_for(self, pred, timeout: float, what: str) -> None:
+        t_end = time.monotonic() + timeout
+        while time.monotonic() < t_end:
+            if pred():
+                return
+            time.sleep(0.1)
+        raise AssertionError(f"timed out after {timeout} s waiting for {what}")
+
+    def close(self) -> None:
+        rclpy.try_shutdown(context=self.ctx)
+        self.th.join(timeout=5)
+
+
+def _publish(robot: Robot, joints: list[arm.ArmJoint], stamps: np.ndarray) -> None:
+    """Commands name the joints in another order than the states, and the states carry a joint nobody monitors."""
+    cmd_order = [2, 0, 1]
+    n = stamps.size
+    for k in range(n):
+        sec, nsec = int(stamps[k] // 10**9), int(stamps[k] % 10**9)
+        c = JointState()
+        c.header.stamp.sec, c.header.stamp.nanosec = sec, nsec
+        c.name = [JOINTS[i] for i in cmd_order]
+        c.position = [float(joints[i].r[k]) for i in cmd_order]
+        s = JointState()
+        s.header.stamp.sec, s.header.stamp.nanosec = sec, nsec
+        idx = [0, 1] if MISSING[0] <= k < MISSING[1] else [0, 1, 2]
+        s.name = [JOINTS[i] for i in idx] + ["gripper"]
+        s.position = [float(joints[i].y[k]) for i in idx] + [0.01]
+        s.effort = [float(joints[i].u[k]) for i in idx] + [-1.0]
+        robot.cmd.publish(c)
+        robot.states.publish(s)
+        if k % 100 == 99:
+            time.sleep(0.03)         # about 3x real time
+
+
+def test_three_joints_from_shared_joint_state_topics(ros_env, tmp_path):
+    dom = int(ros_env["ROS_DOMAIN_ID"])
+    joints = arm.simulate_arm(JOINTS, RATE, DURATION_S, seed=5, fault_joint=FAULT_JOINT, fault_time_s=FAULT_S)
+    n = joints[0].r.size
+    stamps = T0_NS + np.arange(n, dtype=np.int64) * 1_000_000
+    t = stamps * 1e-9
+    keep = {j: np.ones(n, dtype=bool) for j in JOINTS}
+    keep["wrist"][MISSING[0]:MISSING[1]] = False
+    ref = {j.name: _offline(t, j, keep[j.name]) for j in joints}
+    # the test data show what they claim: each offline pipeline on its own plant, the fault on the elbow only
+    for j in joints:
+        last = ref[j.name][-1]
+        assert last.phase == "monitoring", (j.name, last.phase)
+        rel = np.abs(last.modal[1, :3] - j.truth[1, -1]) / j.truth[1, -1]
+        assert rel[0] < 0.01, (j.name, last.modal[1], j.truth[1, -1])   # flexible-mode frequency within 1 %
+        assert bool(last.flags.any()) == (j.name == FAULT_JOINT), (j.name, last.flags)
+
+    proc = subprocess.Popen(["rsrivc_joints", "--ros-args", "--params-file", _params_file(tmp_path)], env=ros_env,
+                            stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True)
+    robot = Robot(dom)
+    try:
+        robot.wait_for(lambda: robot.cmd.get_subscription_count() > 0 and robot.states.get_subscription_count() > 0,
+                       60, "the node's two subscriptions")
+        robot.wait_for(lambda: all(robot.status(j, "mode 2") is not None for j in JOINTS), 30, "STALE statuses")
+        assert all(robot.status(j, "mode 1")["level"] == 3 for j in JOINTS)
+        assert robot.status("shoulder", "mode 1")["keys"] == list(MODE_KEYS)
+        _publish(robot, joints, stamps)
+
+        def caught_up(j: str) -> bool:
+            got = robot.modes[j]
+            return bool(got) and np.allclose(np.asarray(got[-1].data), ref[j][-1].modal.ravel(), rtol=1e-9, atol=0.0)
+        robot.wait_for(lambda: all(caught_up(j) for j in JOINTS), 120, "every joint's ~/modes equal to its own "
+                       "offline pipeline's last report")
+        robot.wait_for(lambda: all(int(robot.status(j, "estimator")["values"]["samples_aligned"]) == keep[j].sum()
+                                   for j in JOINTS), 20, "final counters")
+        for j in JOINTS:
+            est = robot.status(j, "estimator")["values"]
+            lost = MISSING[1] - MISSING[0] if j == "wrist" else 0
+            # nothing lost in DDS; the wrist's input and output are missing from `lost` messages, whose references
+            # then have no partner
+            assert int(est["samples_received"]) == 3 * n - 2 * lost, (j, est["samples_received"])
+            assert int(est["queue_dropped"]) == 0 and int(est["misaligned_events"]) == 0, j
+            assert int(est["malformed_messages"]) == 2 * lost and int(est["unmatched_messages"]) == lost, (j, est)
+            assert est["joint"] == j and math.isfinite(float(est["joint_cpu_fraction"]))
+            assert math.isfinite(float(est["delay_median_ms"]))
+            for i in range(2):
+                st = robot.status(j, f"mode {i + 1}")
+                flagged = [st["values"][k] for k in MODE_KEYS[-3:]]
+                want = ["true" if f else "false" for f in ref[j][-1].flags[i]]
+                assert flagged == want, (j, i, flagged, want)
+                assert (st["level"] == 2) == (j == FAULT_JOINT and i == 1), (j, i, st)
+                np.testing.assert_allclose(float(st["values"]["natural_frequency_hz"]), ref[j][-1].modal[i, 0],
+                                           rtol=1e-9)
+        assert "fault" in robot.status(FAULT_JOINT, "mode 2")["message"]
+    finally:
+        robot.close()
+        rc, out = stop_node(proc, "TERM")
+    assert rc == 0, out
+    assert "Traceback" not in out, out
+    assert out.count("joint 'wrist' not in") == 1, out    # the missing joint: one line for its one episode
+
+
+@pytest.mark.parametrize("override, expect", [
+    ("joints:=[shoulder, shoulder]", "names shoulder more than once"),
+    ("elbw.modes.memory_s:=[1.0, 1.0]", "'elbw' is not one of the joints"),
+    ("elbow.qos_depth:=10", "one value for the whole node"),
+    ("elbow.modes.memry_s:=[1.0, 1.0]", "did you mean elbow.modes.memory_s"),
+])
+def test_bad_joint_parameters_are_one_line_errors(ros_env, tmp_path, override, expect):
+    r = subprocess.run(["rsrivc_joints", "--ros-args", "--params-file", _params_file(tmp_path), "-p", override],
+                       env=ros_env, capture_output=True, text=True, timeout=60)
+    assert r.returncode == 1 and expect in r.stderr and "Traceback" not in r.stderr + r.stdout, r.stderr + r.stdout
+
+
+def test_help_needs_no_ros():
+    r = subprocess.run([sys.executable, "-m", "additive_rsrivc_ros.joints_node", "--help"], capture_output=True,
+                       text=True, timeout=60)
+    assert r.returncode == 0 and "~/<joint>/modes" in r.stdout
