@@ -38,7 +38,7 @@ JOINT_DEFAULTS: dict[str, Any] = {
     "reference.topic": "joint_commands", "reference.type": JOINT_STATE, "reference.field": "position",
     "input.topic": "joint_states", "input.type": JOINT_STATE, "input.field": "effort",
     "output.topic": "joint_states", "output.type": JOINT_STATE, "output.field": "position",
-    "block_period_s": 0.02,
+    "block_period_s": 0.05,
 }
 PER_JOINT_ONLY = ("reference.joint", "input.joint", "output.joint")   # default: the joint's name
 SIGNALS = ("reference", "input", "output")

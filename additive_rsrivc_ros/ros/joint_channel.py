@@ -156,11 +156,13 @@ class JointChannel(ParametersMixin, InputsMixin, StateMixin, WorkerMixin, Publis
             self.cpu_s += time.thread_time() - c0
 
     def _estimator_values(self, rep: Any, h: Mapping[str, Any], silent: list[str]) -> dict[str, Any]:
-        """The monitor's estimator values plus ``joint`` and ``joint_cpu_fraction`` (CPU of this joint's worker
-        steps per wall second since the node was activated; the process's is ``cpu_fraction``)."""
+        """The monitor's estimator values plus ``joint``, ``joint_cpu_s`` (thread CPU of this joint's worker steps
+        since the node was activated) and ``joint_cpu_fraction`` (that per wall second; the whole process's is
+        ``cpu_fraction``, which includes receiving and converting the shared messages)."""
         out = super()._estimator_values(rep, h, silent)
         wall = time.monotonic() - self.group.active_since
         out["joint"] = self.joint
+        out["joint_cpu_s"] = float(self.cpu_s)
         out["joint_cpu_fraction"] = self.cpu_s / wall if wall > 0 else float("nan")
         return out
 
