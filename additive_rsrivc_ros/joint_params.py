@@ -69,6 +69,13 @@ def check_joint_names(joints: Any) -> list[str]:
     return list(joints)
 
 
+def first_joints(joints: list[str], count: int) -> list[str]:
+    """The joints monitored: the first ``count`` of ``joints`` (``joint_count``; 0: all). ParamError beyond the list."""
+    if count < 0 or count > len(joints):
+        raise ParamError(f"parameter 'joint_count' = {count} but 'joints' lists {len(joints)} joint(s)")
+    return list(joints[:count]) if count else list(joints)
+
+
 def split_given(given: Mapping[str, Any], joints: Iterable[str]) -> tuple[dict[str, Any], dict[str, dict[str, Any]],
                                                                           list[str]]:
     """Given parameter values -> (shared, per joint, names to warn about). ParamError (one line) for a joint's value
@@ -82,7 +89,7 @@ def split_given(given: Mapping[str, Any], joints: Iterable[str]) -> tuple[dict[s
     groups = table_groups()
     for name, value in given.items():
         head, _, rest = name.partition(".")
-        if name == "joints" or name.startswith("qos_overrides."):
+        if name in ("joints", "joint_count") or name.startswith("qos_overrides."):
             continue
         if name in table:
             if name in PER_JOINT_ONLY:

@@ -207,3 +207,26 @@ def test_help_needs_no_ros():
     r = subprocess.run([sys.executable, "-m", "additive_rsrivc_ros.joints_node", "--help"], capture_output=True,
                        text=True, timeout=60)
     assert r.returncode == 0 and "~/<joint>/modes" in r.stdout
+
+
+def test_bundled_arm_params_configure_the_first_n_joints(ros_env, repo):
+    """rcl parses config/joints/arm.yaml (the launch file's default) and joint_count (launch argument count) picks
+    the first N joints; their per-joint sections reach them, the others are left out."""
+    proc = subprocess.Popen(["rsrivc_joints", "--ros-args", "--params-file", str(repo / "config" / "joints" / "arm.yaml"),
+                             "-p", "joint_count:=3"], env=ros_env, stdout=subprocess.PIPE, stderr=subprocess.STDOUT,
+                            text=True)
+    lines = []
+    t_end = time.monotonic() + 60
+    try:
+        while time.monotonic() < t_end:
+            line = proc.stdout.readline()
+            if not line:
+                break
+            lines.append(line)
+            if "configured:" in line:
+                break
+    finally:
+        rc, out = stop_node(proc, "INT")
+    text = "".join(lines) + out
+    assert rc == 0 and "configured: 3 joints (joint1, joint2, joint3)" in text and "Traceback" not in text, text
+    assert "/joint_states (6 signals)" in text, text

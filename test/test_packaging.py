@@ -13,7 +13,7 @@ import pytest
 REPO = Path(__file__).resolve().parents[1]
 PKG = "additive_rsrivc_ros"
 EXECUTABLES = ["rsrivc_monitor", "rsrivc_diagnose", "rsrivc_simulate", "rsrivc_replay", "rsrivc_identify",
-               "rsrivc_bench", "rsrivc_fleet", "rsrivc_warmup"]
+               "rsrivc_bench", "rsrivc_fleet", "rsrivc_warmup", "rsrivc_joints"]
 
 # import name -> (package.xml key, pip distribution name or None for ROS packages)
 THIRD_PARTY = {
@@ -200,7 +200,9 @@ def test_ament_index_finds_installed_config(colcon_install):
 # `launch` and `launch_ros` are not installable here (no PyPI wheels): the files are checked by parsing them;
 # `ros2 launch` itself is not run (README says so).
 LAUNCH_ARGUMENTS = {"monitor.launch.py": {"params_file", "namespace", "use_sim_time", "autostart", "log_level"},
-                    "multi_axis.launch.py": {"params_file", "use_sim_time", "autostart", "log_level"}}
+                    "multi_axis.launch.py": {"params_file", "use_sim_time", "autostart", "log_level"},
+                    "joints.launch.py": {"params_file", "joints", "count", "namespace", "use_sim_time", "autostart",
+                                         "log_level"}}
 
 
 def _launch_tree(name: str) -> ast.Module:
@@ -248,6 +250,7 @@ def test_launch_file_declares_and_uses_its_arguments(name):
 @pytest.mark.parametrize("name", sorted(LAUNCH_ARGUMENTS))
 def test_launch_file_starts_an_installed_executable_with_existing_params(name):
     from additive_rsrivc_ros.config import DEFAULT_NODE_NAME
+    from additive_rsrivc_ros.joint_params import JOINT_GROUP_NODE_NAME
 
     tree = _launch_tree(name)
     consts = _module_constants(tree)
@@ -258,7 +261,8 @@ def test_launch_file_starts_an_installed_executable_with_existing_params(name):
         assert _value(kw["package"], consts) == PKG
         executable = _value(kw["executable"], consts)
         assert executable in _console_scripts() and executable in EXECUTABLES, executable
-    assert consts["DEFAULT_NODE_NAME"] == DEFAULT_NODE_NAME
+    assert consts["DEFAULT_NODE_NAME"] == (JOINT_GROUP_NODE_NAME if consts["EXECUTABLE"] == "rsrivc_joints"
+                                           else DEFAULT_NODE_NAME)
     yamls = {n.value for n in ast.walk(tree) if isinstance(n, ast.Constant) and str(n.value).endswith(".yaml")}
     assert yamls, "no default params file named"
     for y in yamls:

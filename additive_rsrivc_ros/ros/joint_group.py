@@ -80,19 +80,24 @@ class JointGroupNode(LifecycleNode):
         self.declare_parameter("joints", Parameter.Type.STRING_ARRAY, ParameterDescriptor(
             name="joints", type=Parameter.Type.STRING_ARRAY.value, read_only=True,
             description="Names of the joints to monitor; a joint's own parameters go under '<joint>.'"))
+        self.declare_parameter("joint_count", 0, ParameterDescriptor(
+            name="joint_count", type=Parameter.Type.INTEGER.value, read_only=True,
+            description="Monitor the first N joints of 'joints' (0: all of them)"))
         for p in all_params():
             if p.name not in jp.PER_JOINT_ONLY:
                 self._declare_row(p.name, p, jp.JOINT_DEFAULTS.get(p.name, p.default))
         try:
-            self.joints = jp.check_joint_names(self.get_parameter("joints").value)
+            listed = jp.check_joint_names(self.get_parameter("joints").value)
             given = {n: cv.plain(v.value) for n, v in ov.items()}
-            _, own, foreign = jp.split_given(given, self.joints)
+            _, own, foreign = jp.split_given(given, listed)
+            self.joints = jp.first_joints(listed, int(self.get_parameter("joint_count").value))
         except ParamError as exc:
             self._declare_error = str(exc)
             return
         if foreign:
             self.get_logger().warning(unknown_warning(foreign, self._table))
-        for j, names in own.items():
+        for j in self.joints:
+            names = own[j]
             self._own[j] = set(names)
             for name in names:
                 self._declare_row(jp.joint_param_name(j, name), self._table[name], self._table[name].default)
