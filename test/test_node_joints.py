@@ -212,9 +212,9 @@ def test_help_needs_no_ros():
 def test_bundled_arm_params_configure_the_first_n_joints(ros_env, repo):
     """rcl parses config/joints/arm.yaml (the launch file's default) and joint_count (launch argument count) picks
     the first N joints; their per-joint sections reach them, the others are left out."""
-    proc = subprocess.Popen(["rsrivc_joints", "--ros-args", "--params-file", str(repo / "config" / "joints" / "arm.yaml"),
-                             "-p", "joint_count:=3"], env=ros_env, stdout=subprocess.PIPE, stderr=subprocess.STDOUT,
-                            text=True)
+    params = str(repo / "config" / "joints" / "arm.yaml")
+    proc = subprocess.Popen(["rsrivc_joints", "--ros-args", "--params-file", params, "-p", "joint_count:=3"],
+                            env=ros_env, stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True)
     lines = []
     t_end = time.monotonic() + 60
     try:
