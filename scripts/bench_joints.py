@@ -5,7 +5,8 @@ Cases (``--cases``, default all three):
 
 * ``joints1k``: N joints (``--joints``, default 7) of the simulated arm (sim/arm.py), published as a robot does: every
   joint in one ``sensor_msgs/JointState`` per sample on ``/joint_commands`` (position = reference) and
-  ``/joint_states`` (position = output, effort = input), 1 kHz, ``--duration`` s.
+  ``/joint_states`` (position = output, effort = input), 1 kHz, ``--duration`` s; the memories are 4 s and 2 s
+  (config/joints/arm.yaml: 20 s and 5 s) so that every joint is monitoring (fault tests running) from 42 s on.
 * ``joints4k``: the same at 4 kHz (the arm's controller re-derived for the rate).
 * ``blocks``: M block-input axes (``--axes``, default 8), each the 4096 Hz beam (config/beam.yaml) on its own block
   topic ``/axisK/block`` (rows of ``--block`` samples), all in one ``rsrivc_joints`` process.
@@ -49,6 +50,7 @@ from additive_rsrivc_ros.sim import arm  # noqa: E402
 REPO = Path(__file__).resolve().parents[1]
 T0_NS = 1_700_000_000 * 10**9
 TARGETS = {"joints1k": 0.4, "joints4k": 1.0, "blocks": 0.3}
+ARM_MEMORY_S = (4.0, 2.0)     # rigid body, flexible mode: baseline learned and fault tests running from 42 s
 
 
 # ------------------------------------------------------------------------------------------------ bags
@@ -235,6 +237,8 @@ def joints_case(rate: float, args: argparse.Namespace, tmp: Path, env: dict, dom
     bag = write_joint_bag(tmp / f"arm_{rate:g}", joints, rate)
     n = joints[0].r.size
     params = {**arm.arm_params(names, rate), **({"block_period_s": args.period} if args.period else {})}
+    for j in names:               # short memories: every joint monitors (fault tests on) from 42 s of data on
+        params[j]["modes"]["memory_s"] = list(ARM_MEMORY_S)
     pfile = tmp / f"arm_{rate:g}.yaml"
     pfile.write_text(yaml.safe_dump({NODE: {"ros__parameters": params}}))
     print(f"\narm: {len(names)} joints, {args.duration:g} s at {rate:g} Hz: {2 * n} JointState messages on 2 topics "
