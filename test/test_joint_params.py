@@ -4,6 +4,7 @@ import array
 from collections import deque
 from types import SimpleNamespace
 
+import numpy as np
 import pytest
 
 from additive_rsrivc_ros import joint_params as jp
@@ -110,3 +111,73 @@ def test_fan_out_counts_the_queue_bound_for_every_reader():
         topic.enqueue(_msg(k, ["a"], [float(k)], [0.0]), k)
     topic.fan_out(0)
     assert a.sync.overflow[1] == 2 and [v for v, _, _ in a.sync.queues[1]] == [2.0, 3.0, 4.0]
+
+
+def _random_joint_states(n: int, seed: int) -> list:
+    from sensor_msgs.msg import JointState
+
+    rng = np.random.default_rng(seed)
+    out = []
+    for _ in range(n):
+        m = JointState()
+        m.header.stamp.sec, m.header.stamp.nanosec = int(rng.integers(0, 2**31)), int(rng.integers(0, 10**9))
+        m.header.frame_id = "f" * int(rng.integers(0, 7))
+        width = int(rng.integers(1, 6))
+        m.name = [f"j{'x' * int(rng.integers(0, 5))}{i}" for i in range(width)]
+        for f in ("position", "velocity", "effort"):
+            size = width if rng.random() < 0.7 else int(rng.integers(0, width + 1))
+            setattr(m, f, rng.normal(size=size).tolist())
+        out.append(m)
+    return out
+
+
+def test_cdr_layouts_decode_like_rclpy():
+    """Serialized JointStates of random layouts (frame ids, name lengths, fields shorter than the names): the layout
+    parse and the one-pass decode give rclpy's values; equal layouts match, other ones do not."""
+    from rclpy.serialization import serialize_message
+
+    from additive_rsrivc_ros.ros import joint_cdr
+
+    msgs = _random_joint_states(300, 3)
+    for m in msgs:
+        raw = serialize_message(m)
+        lay = joint_cdr.parse_layout(raw)
+        assert lay is not None and list(lay.names) == list(m.name) and lay.matches(raw)
+        stamps, mats = joint_cdr.decode_run([raw], lay, joint_cdr.FIELDS)
+        assert stamps == [m.header.stamp.sec * 10**9 + m.header.stamp.nanosec]
+        for f in joint_cdr.FIELDS:
+            mat, ok = mats[f]
+            vals = list(getattr(m, f))
+            if len(vals) == len(m.name):
+                assert ok is None and mat[0].tolist() == vals
+            else:
+                assert not ok.any()
+    raws = [serialize_message(m) for m in msgs[:40]]
+    same = [joint_cdr.parse_layout(a).signature == joint_cdr.parse_layout(b).signature and len(a) == len(b)
+            for a, b in zip(raws, raws[1:], strict=False)]
+    assert [joint_cdr.parse_layout(a).matches(b) for a, b in zip(raws, raws[1:], strict=False)] == same
+    assert joint_cdr.parse_layout(b"\x01\x00\x00\x00" + raws[0][4:]) is None       # big endian: rclpy decodes it
+    assert joint_cdr.checked_against_rclpy()
+
+
+def test_raw_fan_out_equals_the_object_fan_out():
+    from rclpy.serialization import serialize_message
+    from sensor_msgs.msg import JointState
+
+    msgs = _random_joint_states(200, 4)
+    for m in msgs[50:120]:               # a long run of one layout, as a robot publishes
+        m.name, m.header.frame_id = ["j0", "j1", "j2"], "base"
+        m.position, m.effort = np.arange(3.0).tolist(), np.arange(3.0, 6.0).tolist()
+    got = []
+    for raw in (False, True):
+        chans = {j: _channel() for j in ("j0", "j1", "jx2")}
+        topic = SharedJointTopic("/joint_states", 1000, raw=raw, msg_type=JointState)
+        for j, ch in chans.items():
+            topic.add_reader(Reader(ch, 0, "input", j, "effort"))
+            topic.add_reader(Reader(ch, 1, "output", j, "position"))
+        for k, m in enumerate(msgs):
+            topic.enqueue(serialize_message(m) if raw else m, k)
+        topic.fan_out(0)
+        got.append({j: ([list(q) for q in ch.sync.queues], ch._malformed, ch.sync.events) for j, ch in chans.items()})
+        assert topic.deserialized == 0
+    assert got[0] == got[1] and sum(len(q) for q in got[0]["j1"][0]) > 140

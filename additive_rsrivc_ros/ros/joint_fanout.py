@@ -1,7 +1,8 @@
 """One shared ``sensor_msgs/JointState`` topic fanned out to the input stages of the joints that read it.
 
-The subscription's callback only appends ``(msg, arrival_ns)`` to a bounded deque (:meth:`SharedJointTopic.enqueue`).
-The group's worker converts what arrived in one pass per run of messages with the same name list
+The subscription's callback only appends ``(msg, arrival_ns)`` to a bounded deque (:meth:`SharedJointTopic.enqueue`);
+``msg`` is the serialized message (``raw``: decoded by :mod:`.joint_cdr`, no Python message object) or a message
+object. The group's worker converts what arrived in one pass per run of messages with the same layout or name list
 (:meth:`SharedJointTopic.fan_out`): the stamps once, each field needed (position, velocity, effort) into an
 ``(M, joints)`` matrix once, the column of each reading joint looked up once per name list (cached), and each joint's
 column appended to that joint's own :class:`..sync.InputSync` queue as the single-joint callback would
@@ -18,6 +19,9 @@ from dataclasses import dataclass
 from typing import Any
 
 import numpy as np
+from rclpy.serialization import deserialize_message
+
+from .joint_cdr import Layout, decode_run, parse_layout
 
 
 @dataclass
@@ -61,8 +65,12 @@ def field_matrix(arrays: list[Any], width: int) -> tuple[np.ndarray, np.ndarray 
 class SharedJointTopic:
     """A JointState topic read by several joints; see the module docstring."""
 
-    def __init__(self, topic: str, max_queue: int) -> None:
+    def __init__(self, topic: str, max_queue: int, *, raw: bool = False, msg_type: Any = None) -> None:
         self.topic = topic
+        self.raw = raw                # the subscription hands serialized bytes (decoded here, :mod:`.joint_cdr`)
+        self.msg_type = msg_type      # for the messages without a layout (rclpy deserializes them)
+        self._layout: Layout | None = None
+        self.deserialized = 0
         self.max_queue = int(max_queue)
         self.queue: deque = deque()
         self.readers: list[Reader] = []
@@ -116,6 +124,9 @@ class SharedJointTopic:
             return 0
         items = [q.popleft() for _ in range(m)]
         self.received += m
+        if self.raw:
+            self._fan_out_raw(items, now_ns)
+            return m
         start = 0
         while start < m:
             names = items[start][0].name
@@ -126,13 +137,43 @@ class SharedJointTopic:
             start = end
         return m
 
+    def _fan_out_raw(self, items: list[tuple[bytes, int]], now_ns: int) -> None:
+        """Serialized messages: runs of one layout decoded in one pass (:mod:`.joint_cdr`); a message without a
+        layout is deserialized by rclpy."""
+        run: list[tuple[bytes, int]] = []
+        for item in items:
+            raw = item[0]
+            if self._layout is not None and self._layout.matches(raw):
+                run.append(item)
+                continue
+            self._feed_raw(run, now_ns)
+            run = []
+            self._layout = parse_layout(raw)
+            if self._layout is not None:
+                run.append(item)
+            else:
+                self.deserialized += 1
+                msg = deserialize_message(raw, self.msg_type)
+                self._feed([(msg, item[1])], msg.name, now_ns)
+        self._feed_raw(run, now_ns)
+
+    def _feed_raw(self, run: list[tuple[bytes, int]], now_ns: int) -> None:
+        if run:
+            stamps, mats = decode_run([r for r, _ in run], self._layout, self.fields)
+            self._feed_run(list(self._layout.names), stamps, [a for _, a in run], mats, now_ns)
+
     def _feed(self, run: list[tuple[Any, int]], names: list[str], now_ns: int) -> None:
-        """One run of messages with the same name list -> every reader's queue."""
-        n = len(run)
+        """One run of message objects with the same name list -> every reader's queue."""
         width = len(names)
         stamps = [stamp_ns(msg) for msg, _ in run]
-        arrivals = [a for _, a in run]
         mats = {f: field_matrix([getattr(msg, f) for msg, _ in run], width) for f in self.fields}
+        self._feed_run(names, stamps, [a for _, a in run], mats, now_ns)
+
+    def _feed_run(self, names: list[str], stamps: list[int], arrivals: list[int],
+                  mats: dict[str, tuple[np.ndarray, np.ndarray | None]], now_ns: int) -> None:
+        """Messages with one name list, converted: each reader's column to its joint's queue."""
+        n = len(stamps)
+        width = len(names)
         missed: dict[str, tuple[Any, int, str]] = {}
         for r, col in zip(self.readers, self.columns(names), strict=True):
             if col < 0:

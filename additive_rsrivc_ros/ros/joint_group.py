@@ -33,6 +33,7 @@ from ..config import MonitorConfig, ParamError, all_params, param_table
 from ..core.pipeline import PipelineError
 from ..warmup import is_warm, load_kernels
 from . import convert as cv
+from . import joint_cdr
 from .inputs import first_line, reader_depth
 from .joint_channel import JointChannel
 from .joint_fanout import Reader, SharedJointTopic
@@ -65,7 +66,8 @@ class JointGroupNode(LifecycleNode):
         self._threads: list[threading.Thread] = []
         self._graph: dict[str, list[str]] = {}
         self._graph_ns = 0
-        self._period_s = 0.02
+        self._period_s = 0.05
+        self._raw = False
         self._closed = False
 
     # ------------------------------------------------------------------------------------ parameters
@@ -196,7 +198,8 @@ class JointGroupNode(LifecycleNode):
         blocks = [j for j, ch in self.channels.items() if ch.cfg.block_input]
         self.get_logger().info(
             f"configured: {len(self.channels)} joints ({', '.join(self.channels)}); shared topics: {topics or 'none'}"
-            + (f"; block input: {', '.join(blocks)}" if blocks else "") + f"; worker period {self._period_s:g} s")
+            + (f"; block input: {', '.join(blocks)}" if blocks else "") + f"; worker period {self._period_s:g} s"
+            + ("" if self._raw or not self.shared else "; JointState deserialized by rclpy (CDR self-check failed)"))
         return TransitionCallbackReturn.SUCCESS
 
     def _checked_joints(self) -> dict[str, tuple[dict[str, Any], MonitorConfig]]:
@@ -239,6 +242,7 @@ class JointGroupNode(LifecycleNode):
     def _subscribe(self, checked: dict[str, tuple[dict[str, Any], MonitorConfig]]) -> None:
         """One subscription per shared JointState topic (readers: every joint signal on it); one per block topic."""
         opts = QoSOverridingOptions.with_default_policies()
+        self._raw = joint_cdr.checked_against_rclpy()
         rate: dict[str, float] = {}
         for ch in self.channels.values():
             r = ch.cfg.loop_rate_hz
@@ -248,24 +252,25 @@ class JointGroupNode(LifecycleNode):
             for i, s in enumerate(ch.signals):
                 topic = ch.topic_of[s]
                 if topic not in self.shared:
-                    self.shared[topic] = SharedJointTopic(topic, ch.sync.max_queue)
+                    self.shared[topic] = SharedJointTopic(topic, ch.sync.max_queue, raw=self._raw,
+                                                          msg_type=JointState)
                 self.shared[topic].max_queue = max(self.shared[topic].max_queue, ch.sync.max_queue)
                 sc = ch.cfg.signals[s]
                 self.shared[topic].add_reader(Reader(ch, i, s, sc.joint, sc.field))
                 rate[topic] = max(rate.get(topic, 0.0), r)
         for topic, shared in self.shared.items():
-            self._create_sub(JointState, topic, self._shared_cb(shared), self._qos(rate[topic]), opts)
+            self._create_sub(JointState, topic, self._shared_cb(shared), self._qos(rate[topic]), opts, raw=self._raw)
 
-    def _create_sub(self, kind: Any, topic: str, cb: Any, qos: QoSProfile, opts: Any) -> None:
+    def _create_sub(self, kind: Any, topic: str, cb: Any, qos: QoSProfile, opts: Any, raw: bool = False) -> None:
         try:
-            self._subs.append(self.create_subscription(kind, topic, cb, qos, qos_overriding_options=opts))
+            self._subs.append(self.create_subscription(kind, topic, cb, qos, qos_overriding_options=opts, raw=raw))
         except Exception as exc:  # noqa: BLE001 - rclpy raises several types for a bad override value
             raise ParamError(f"QoS override for {topic} rejected: {first_line(exc)}") from None
 
     def _shared_cb(self, shared: SharedJointTopic) -> Any:
         enqueue, mono = shared.enqueue, time.monotonic_ns
 
-        def cb(msg: JointState) -> None:
+        def cb(msg: bytes | JointState) -> None:
             if self._active:
                 enqueue(msg, mono())
         return cb
