@@ -274,3 +274,37 @@ def test_block_input_axes_in_one_process(ros_env, tmp_path):
         rc, out = stop_node(proc, "TERM")
     assert rc == 0 and "Traceback" not in out, out
     assert "block input: axis1, axis2" in out, out
+
+
+def test_runtime_parameters_and_services_per_joint(ros_env, tmp_path):
+    """A shared runtime change reaches every joint without its own value; a joint's own value is checked against
+    that joint (the rejection names it); read-only stays read-only; each joint has its own services."""
+    from rclpy.parameter import Parameter
+    from test_node_helpers import Client
+
+    path = _params_file(tmp_path)
+    proc = subprocess.Popen(["rsrivc_joints", "--ros-args", "--params-file", path, "-p",
+                             "elbow.faults.min_change.natural_frequency:=0.04"], env=ros_env,
+                            stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True)
+    cli = Client(int(ros_env["ROS_DOMAIN_ID"]), JointState, node=NODE)
+    try:
+        ok = cli.set_params([Parameter("faults.min_change.natural_frequency", Parameter.Type.DOUBLE, 0.03)])
+        assert ok[0].successful, ok[0].reason
+        got = cli.get_params(["faults.min_change.natural_frequency", "elbow.faults.min_change.natural_frequency"])
+        assert [g.double_value for g in got] == [0.03, 0.04]
+        bad = cli.set_params([Parameter("elbow.modes.memory_s", Parameter.Type.DOUBLE_ARRAY, [1.0, 1.0, 1.0])])[0]
+        assert not bad.successful and "joint 'elbow'" in bad.reason and "entries" in bad.reason, bad.reason
+        assert cli.set_params([Parameter("elbow.modes.memory_s", Parameter.Type.DOUBLE_ARRAY, [3.0, 1.5])])[0] \
+            .successful
+        ro = cli.set_params([Parameter("loop_rate_hz", Parameter.Type.DOUBLE, 500.0)])[0]
+        assert not ro.successful and "read-only" in ro.reason
+        for j in JOINTS:
+            r = cli.trigger(f"{j}/reset")
+            assert r.success, (j, r.message)
+        assert not cli.trigger("elbow/save_state").success      # no state_file: says so
+    finally:
+        cli.close()
+        rc, out = stop_node(proc, "TERM")
+    assert rc == 0 and "Traceback" not in out, out
+    assert "[additive_rsrivc_joints.elbow]: applied modes.memory_s=[3.0, 1.5]" in out, out
+    assert out.count("applied faults.min_change.natural_frequency=0.03") == 2, out      # shoulder and wrist only
