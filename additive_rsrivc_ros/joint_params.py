@@ -41,6 +41,7 @@ JOINT_DEFAULTS: dict[str, Any] = {
     "block_period_s": 0.05,
 }
 PER_JOINT_ONLY = ("reference.joint", "input.joint", "output.joint")   # default: the joint's name
+NODE_EXTRA = ("use_sim_time", "start_type_description_service")      # rclpy's own parameters
 SIGNALS = ("reference", "input", "output")
 _TOKEN = re.compile(r"^[A-Za-z][A-Za-z0-9_]*$")
 
@@ -89,7 +90,7 @@ def split_given(given: Mapping[str, Any], joints: Iterable[str]) -> tuple[dict[s
     groups = table_groups()
     for name, value in given.items():
         head, _, rest = name.partition(".")
-        if name in ("joints", "joint_count") or name.startswith("qos_overrides."):
+        if name in ("joints", "joint_count", *NODE_EXTRA) or name.startswith("qos_overrides."):
             continue
         if name in table:
             if name in PER_JOINT_ONLY:

@@ -138,7 +138,8 @@ class Listener:
     def _diag(self, msg: Any) -> None:
         for st in msg.status:
             if st.name.endswith(": estimator"):
-                who = st.name[: -len(": estimator")].rsplit("/", 1)[-1]
+                parts = st.name[: -len(": estimator")].split("/")      # node/joint, or ns/monitor (baseline)
+                who = parts[-2] if parts[-1] == "additive_rsrivc_monitor" and len(parts) > 1 else parts[-1]
                 self.est[who] = {kv.key: kv.value for kv in st.values}
                 cpu = self.est[who].get("joint_cpu_s")
                 if cpu is not None:
@@ -257,7 +258,7 @@ def joints_case(rate: float, args: argparse.Namespace, tmp: Path, env: dict, dom
                                     "output": ("/joint_states", "position")}.items():
                 p[s] = {"topic": topic, "type": "sensor_msgs/msg/JointState", "joint": j, "field": fld}
             f = tmp / f"mon_{rate:g}_{k}.yaml"
-            f.write_text(yaml.safe_dump({"additive_rsrivc_monitor": {"ros__parameters": p}}))
+            f.write_text(yaml.safe_dump({"/**/additive_rsrivc_monitor": {"ros__parameters": p}}))
             cmds.append(["rsrivc_monitor", "--ros-args", "--params-file", str(f), "-r", f"__ns:=/{j}"])
         base = run_case(cmds, replay, names, env, domain, None)
         print_table(f"baseline: {len(names)} rsrivc_monitor processes (3 JointState subscriptions each), same bag",
@@ -286,8 +287,10 @@ def blocks_case(args: argparse.Namespace, tmp: Path, env: dict, domain: int) -> 
     print_table(f"one rsrivc_joints process, {len(axes)} block-input axes at {sc.rate_hz:g} Hz", res, n,
                 TARGETS["blocks"], True)
     if args.baseline:
-        cmds = [["rsrivc_monitor", "--ros-args", "--params-file", str(REPO / "config" / "beam.yaml"), "-r",
-                 f"__ns:=/{a}", "-p", f"block.topic:=/{a}/block"] for a in axes]
+        mon = tmp / "beam_any_ns.yaml"
+        mon.write_text(yaml.safe_dump({"/**/additive_rsrivc_monitor": {"ros__parameters": beam}}))
+        cmds = [["rsrivc_monitor", "--ros-args", "--params-file", str(mon), "-r", f"__ns:=/{a}", "-p",
+                 f"block.topic:=/{a}/block"] for a in axes]
         base = run_case(cmds, replays, axes, env, domain, None)
         print_table(f"baseline: {len(axes)} rsrivc_monitor processes with block input, same bags", base, n, None,
                     False)

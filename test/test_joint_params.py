@@ -15,7 +15,7 @@ from additive_rsrivc_ros.ros.joint_fanout import Reader, SharedJointTopic, field
 def test_joint_values_layer_group_defaults_shared_and_own():
     shared, own, foreign = jp.split_given({"joints": ["a", "b"], "loop_rate_hz": 1000.0, "modes.memory_s": [5.0],
                                            "b.modes.memory_s": [2.0], "b.output.joint": "b_link",
-                                           "other_node.gain": 3}, ["a", "b"])
+                                           "other_node.gain": 3, "use_sim_time": True}, ["a", "b"])
     assert foreign == ["other_node.gain"]
     va, vb = jp.joint_values("a", shared, own["a"]), jp.joint_values("b", shared, own["b"])
     assert va["modes.memory_s"] == [5.0] and vb["modes.memory_s"] == [2.0]
