@@ -70,11 +70,16 @@ def check_joint_names(joints: Any) -> list[str]:
     return list(joints)
 
 
-def first_joints(joints: list[str], count: int) -> list[str]:
-    """The joints monitored: the first ``count`` of ``joints`` (``joint_count``; 0: all). ParamError beyond the list."""
-    if count < 0 or count > len(joints):
-        raise ParamError(f"parameter 'joint_count' = {count} but 'joints' lists {len(joints)} joint(s)")
-    return list(joints[:count]) if count else list(joints)
+def monitored_joints(joints: list[str], subset: list[str], count: int) -> list[str]:
+    """The joints monitored: ``monitor_joints`` (a subset of ``joints``, in its order; empty: all of ``joints``), then
+    the first ``joint_count`` of them (0: all). ParamError (one line) for a name not in ``joints`` or a count beyond."""
+    unknown = [j for j in subset if j not in joints]
+    if unknown:
+        raise ParamError(f"parameter 'monitor_joints': {', '.join(unknown)} not in 'joints' [{', '.join(joints)}]")
+    chosen = list(dict.fromkeys(subset)) if subset else list(joints)
+    if count < 0 or count > len(chosen):
+        raise ParamError(f"parameter 'joint_count' = {count} but {len(chosen)} joint(s) are listed")
+    return chosen[:count] if count else chosen
 
 
 def split_given(given: Mapping[str, Any], joints: Iterable[str]) -> tuple[dict[str, Any], dict[str, dict[str, Any]],
@@ -90,7 +95,7 @@ def split_given(given: Mapping[str, Any], joints: Iterable[str]) -> tuple[dict[s
     groups = table_groups()
     for name, value in given.items():
         head, _, rest = name.partition(".")
-        if name in ("joints", "joint_count", *NODE_EXTRA) or name.startswith("qos_overrides."):
+        if name in ("joints", "monitor_joints", "joint_count", *NODE_EXTRA) or name.startswith("qos_overrides."):
             continue
         if name in table:
             if name in PER_JOINT_ONLY:

@@ -6,8 +6,8 @@
 The node subscribes once to ``joint_commands`` and once to ``joint_states`` (relative names: remap with
 ``-r``/``remappings``, or set ``reference.topic`` ... in the params file) and runs one monitor per joint, each with its
 own section of the params file (``<joint>.modes`` ...), its ``/diagnostics`` statuses ``<node>/<joint>: ...`` and
-``~/<joint>/modes``. Which joints: ``joints`` (comma-separated names) replaces the params file's ``joints`` list;
-``count:=N`` monitors the first N of the list (the node's parameter ``joint_count``; 0: all). The params file's
+``~/<joint>/modes``. Which joints: ``joints:=a,b`` monitors those of the params file's ``joints`` list (the node's
+parameter ``monitor_joints``), ``count:=N`` the first N (``joint_count``; 0: all). The params file's
 top-level key is the node's name (``additive_rsrivc_joints:`` or ``/**:``); see config/joints/arm.yaml and
 docs/joints.md.
 """
@@ -33,7 +33,7 @@ def _node(context) -> list[LifecycleNode]:
                  "autostart": ParameterValue(LaunchConfiguration("autostart"), value_type=bool),
                  "joint_count": ParameterValue(LaunchConfiguration("count"), value_type=int)}
     if joints:
-        overrides["joints"] = joints
+        overrides["monitor_joints"] = joints
     return [LifecycleNode(
         package=PACKAGE, executable=EXECUTABLE, name=DEFAULT_NODE_NAME, namespace=LaunchConfiguration("namespace"),
         output="screen", parameters=[LaunchConfiguration("params_file"), overrides],
@@ -47,9 +47,9 @@ def generate_launch_description() -> LaunchDescription:
         DeclareLaunchArgument("params_file", default_value=default_params,
                               description="params YAML: joints, shared values, one section per joint"),
         DeclareLaunchArgument("joints", default_value="",
-                              description="comma-separated joint names (default: the params file's joints list)"),
+                              description="names of the params file's joints to monitor, a,b,c (default: all)"),
         DeclareLaunchArgument("count", default_value="0",
-                              description="monitor the first N joints of the params file's list (0: all)"),
+                              description="monitor the first N of those joints (0: all)"),
         DeclareLaunchArgument("namespace", default_value="", description="namespace of the node and its topics"),
         DeclareLaunchArgument("use_sim_time", default_value="false", choices=["true", "false"],
                               description="follow /clock (e.g. rsrivc_replay --clock)"),

@@ -48,9 +48,13 @@ def test_joint_names_are_checked(joints, text):
 
 
 def test_joint_count_and_group_checks():
-    assert jp.first_joints(["a", "b", "c"], 2) == ["a", "b"] and jp.first_joints(["a", "b"], 0) == ["a", "b"]
-    with pytest.raises(ParamError, match="lists 2 joint"):
-        jp.first_joints(["a", "b"], 3)
+    assert jp.monitored_joints(["a", "b", "c"], [], 2) == ["a", "b"]
+    assert jp.monitored_joints(["a", "b", "c"], ["c", "a"], 0) == ["c", "a"]
+    assert jp.monitored_joints(["a", "b", "c"], ["c", "a"], 1) == ["c"]
+    with pytest.raises(ParamError, match="2 joint"):
+        jp.monitored_joints(["a", "b"], [], 3)
+    with pytest.raises(ParamError, match="x not in 'joints'"):
+        jp.monitored_joints(["a", "b"], ["x"], 0)
     base = validate_params({**jp.JOINT_DEFAULTS, "loop_rate_hz": 100.0})
     jp.check_group({"a": base, "b": base})
     with pytest.raises(ParamError, match="same state_file"):

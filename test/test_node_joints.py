@@ -210,10 +210,11 @@ def test_help_needs_no_ros():
 
 
 def test_bundled_arm_params_configure_the_first_n_joints(ros_env, repo):
-    """rcl parses config/joints/arm.yaml (the launch file's default) and joint_count (launch argument count) picks
-    the first N joints; their per-joint sections reach them, the others are left out."""
+    """rcl parses config/joints/arm.yaml (the launch file's default) under a namespace; monitor_joints and joint_count
+    (the launch arguments joints and count) pick the joints; the other joints' sections are no error."""
     params = str(repo / "config" / "joints" / "arm.yaml")
-    proc = subprocess.Popen(["rsrivc_joints", "--ros-args", "--params-file", params, "-p", "joint_count:=3"],
+    proc = subprocess.Popen(["rsrivc_joints", "--ros-args", "-r", "__ns:=/arm", "--params-file", params, "-p",
+                             "monitor_joints:=[joint6, joint2, joint4]", "-p", "joint_count:=2"],
                             env=ros_env, stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True)
     lines = []
     t_end = time.monotonic() + 60
@@ -228,8 +229,8 @@ def test_bundled_arm_params_configure_the_first_n_joints(ros_env, repo):
     finally:
         rc, out = stop_node(proc, "INT")
     text = "".join(lines) + out
-    assert rc == 0 and "configured: 3 joints (joint1, joint2, joint3)" in text and "Traceback" not in text, text
-    assert "/joint_states (6 signals)" in text, text
+    assert rc == 0 and "configured: 2 joints (joint6, joint2)" in text and "Traceback" not in text, text
+    assert "/arm/joint_states (4 signals)" in text and "ignoring" not in text, text
 
 
 def test_block_input_axes_in_one_process(ros_env, tmp_path):

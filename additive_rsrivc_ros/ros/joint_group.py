@@ -37,7 +37,7 @@ from . import joint_cdr
 from .inputs import first_line, reader_depth
 from .joint_channel import JointChannel
 from .joint_fanout import Reader, SharedJointTopic
-from .params import checked_config, unknown_warning
+from .params import REQUIRED_PARAMS, checked_config, missing_required, unknown_warning
 
 
 class JointGroupNode(LifecycleNode):
@@ -73,18 +73,22 @@ class JointGroupNode(LifecycleNode):
     # ------------------------------------------------------------------------------------ parameters
     def _declare_all(self) -> None:
         """Declare ``joints``, every shared row (group defaults, :data:`..joint_params.JOINT_DEFAULTS`) and each
-        joint's own rows that the params give; a problem is kept for ``configure`` to report (one line)."""
+        joint's own rows that the params give; a problem is kept for ``configure`` to report (one line). A missing
+        shared ``loop_rate_hz`` raises ParamError naming the params-file keys that would reach the node."""
         ov = self._parameter_overrides
+        for name in REQUIRED_PARAMS:      # shared by the joints (a joint may still give its own)
+            if name not in ov:
+                raise ParamError(missing_required(name, self.get_fully_qualified_name(), ov, self._table)
+                                 .replace("parameter '", "shared parameter '", 1))
         for name in list(ov):
             row = self._table.get(name.partition(".")[2]) if name not in self._table else self._table[name]
             if row is not None:
                 ov[name] = cv.coerce_int_to_double(row, ov[name])
-        self.declare_parameter("joints", Parameter.Type.STRING_ARRAY, ParameterDescriptor(
-            name="joints", type=Parameter.Type.STRING_ARRAY.value, read_only=True,
-            description="Names of the joints to monitor; a joint's own parameters go under '<joint>.'"))
+        self._declare_names("joints", "Names of the joints to monitor; a joint's own parameters go under '<joint>.'")
+        self._declare_names("monitor_joints", "Monitor only these of 'joints' (empty: all); the launch argument joints")
         self.declare_parameter("joint_count", 0, ParameterDescriptor(
             name="joint_count", type=Parameter.Type.INTEGER.value, read_only=True,
-            description="Monitor the first N joints of 'joints' (0: all of them)"))
+            description="Monitor the first N of the joints (0: all of them); the launch argument count"))
         for p in all_params():
             if p.name not in jp.PER_JOINT_ONLY:
                 self._declare_row(p.name, p, jp.JOINT_DEFAULTS.get(p.name, p.default))
@@ -92,7 +96,8 @@ class JointGroupNode(LifecycleNode):
             listed = jp.check_joint_names(self.get_parameter("joints").value)
             given = {n: cv.plain(v.value) for n, v in ov.items()}
             _, own, foreign = jp.split_given(given, listed)
-            self.joints = jp.first_joints(listed, int(self.get_parameter("joint_count").value))
+            subset = list(self.get_parameter("monitor_joints").value or [])
+            self.joints = jp.monitored_joints(listed, subset, int(self.get_parameter("joint_count").value))
         except ParamError as exc:
             self._declare_error = str(exc)
             return
@@ -103,6 +108,13 @@ class JointGroupNode(LifecycleNode):
             self._own[j] = set(names)
             for name in names:
                 self._declare_row(jp.joint_param_name(j, name), self._table[name], self._table[name].default)
+
+    def _declare_names(self, name: str, description: str) -> None:
+        """A read-only string[] parameter, [] when not given (an untyped empty list cannot be declared)."""
+        self.declare_parameter(name, Parameter.Type.STRING_ARRAY, ParameterDescriptor(
+            name=name, type=Parameter.Type.STRING_ARRAY.value, read_only=True, description=description))
+        if self.get_parameter_or(name).type_ == Parameter.Type.NOT_SET:
+            self._parameters[name] = Parameter(name, Parameter.Type.STRING_ARRAY, [])
 
     def _declare_row(self, full: str, p: Any, default: Any) -> None:
         desc = cv.descriptor(p)
