@@ -309,3 +309,40 @@ def test_runtime_parameters_and_services_per_joint(ros_env, tmp_path):
     assert rc == 0 and "Traceback" not in out, out
     assert "[additive_rsrivc_joints.elbow]: applied modes.memory_s=[3.0, 1.5]" in out, out
     assert out.count("applied faults.min_change.natural_frequency=0.03") == 2, out      # shoulder and wrist only
+
+
+def test_lifecycle_transitions_rebuild_every_joint(ros_env, tmp_path):
+    """autostart false: unconfigured and silent; configure, activate, deactivate, cleanup, configure, activate again
+    through the lifecycle services: every joint's statuses come back and the process ends cleanly."""
+    from lifecycle_msgs.msg import Transition
+    from lifecycle_msgs.srv import ChangeState, GetState
+    from test_node_helpers import Client
+
+    proc = subprocess.Popen(["rsrivc_joints", "--ros-args", "--params-file", _params_file(tmp_path), "-p",
+                             "autostart:=false"], env=ros_env, stdout=subprocess.PIPE, stderr=subprocess.STDOUT,
+                            text=True)
+    cli = Client(int(ros_env["ROS_DOMAIN_ID"]), JointState, node=NODE)
+    robot = Robot(int(ros_env["ROS_DOMAIN_ID"]))
+
+    def change(tid: int) -> bool:
+        req = ChangeState.Request()
+        req.transition.id = tid
+        return cli._call(ChangeState, f"/{NODE}/change_state", req).success
+    try:
+        assert cli._call(GetState, f"/{NODE}/get_state", GetState.Request()).current_state.label == "unconfigured"
+        time.sleep(1.0)
+        assert not robot.diags, "an unconfigured node must not publish"
+        T = Transition
+        for tids in ((T.TRANSITION_CONFIGURE, T.TRANSITION_ACTIVATE),
+                     (T.TRANSITION_DEACTIVATE, T.TRANSITION_CLEANUP, T.TRANSITION_CONFIGURE, T.TRANSITION_ACTIVATE)):
+            robot.diags.clear()
+            assert all(change(t) for t in tids)
+            robot.wait_for(lambda: all(robot.status(j, "estimator") is not None for j in JOINTS), 20,
+                           "every joint's status after activation")
+        assert cli._call(GetState, f"/{NODE}/get_state", GetState.Request()).current_state.label == "active"
+    finally:
+        robot.close()
+        cli.close()
+        rc, out = stop_node(proc, "INT")
+    assert rc == 0 and "Traceback" not in out, out
+    assert out.count("configured: 3 joints") == 2, out
