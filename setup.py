@@ -40,6 +40,7 @@ setup(
         ("share/ament_index/resource_index/packages", ["resource/" + package_name]),
         (share, ["package.xml"]),
         (os.path.join(share, "config"), sorted(glob("config/*.yaml"))),
+        (os.path.join(share, "config", "joints"), sorted(glob("config/joints/*.yaml"))),
         (os.path.join(share, "launch"), sorted(glob("launch/*.launch.py"))),
         *_tree("bags", os.path.join(share, "bags")),
     ],
@@ -71,6 +72,7 @@ setup(
     entry_points={
         "console_scripts": [
             "rsrivc_monitor = additive_rsrivc_ros.node:main",
+            "rsrivc_joints = additive_rsrivc_ros.joints_node:main",
             "rsrivc_diagnose = additive_rsrivc_ros.cli.diagnose:main",
             "rsrivc_simulate = additive_rsrivc_ros.cli.simulate:main",
             "rsrivc_replay = additive_rsrivc_ros.cli.replay:main",

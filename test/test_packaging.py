@@ -13,7 +13,7 @@ import pytest
 REPO = Path(__file__).resolve().parents[1]
 PKG = "additive_rsrivc_ros"
 EXECUTABLES = ["rsrivc_monitor", "rsrivc_diagnose", "rsrivc_simulate", "rsrivc_replay", "rsrivc_identify",
-               "rsrivc_bench", "rsrivc_fleet", "rsrivc_warmup"]
+               "rsrivc_bench", "rsrivc_fleet", "rsrivc_warmup", "rsrivc_joints"]
 
 # import name -> (package.xml key, pip distribution name or None for ROS packages)
 THIRD_PARTY = {
@@ -218,7 +218,7 @@ def test_ament_index_finds_installed_config(colcon_install):
     assert res.returncode == 0, res.stderr
     share, listing = res.stdout.splitlines()[:2]
     assert Path(share).resolve() == (colcon_install / PKG / "share" / PKG).resolve()
-    expected = sorted(p.name for p in (REPO / "config").glob("*.yaml"))
+    expected = sorted(p.name for p in (REPO / "config").iterdir() if p.suffix == ".yaml" or p.is_dir())  # + joints/
     assert listing == str(expected)
 
 
@@ -227,7 +227,9 @@ def test_ament_index_finds_installed_config(colcon_install):
 # `ros2 launch` itself is not run (README says so).
 LAUNCH_ARGUMENTS = {"monitor.launch.py": {"params_file", "namespace", "use_sim_time", "autostart", "log_level"},
                     "multi_axis.launch.py": {"axes", "params_file", "use_sim_time", "autostart", "log_level",
-                                             "aggregator", "modes"}}
+                                             "aggregator", "modes"},
+                    "joints.launch.py": {"params_file", "joints", "count", "namespace", "use_sim_time", "autostart",
+                                         "log_level"}}
 # nodes of other packages a launch file may start (package -> executable); each package is an exec_depend
 OTHER_LAUNCHED = {"diagnostic_aggregator": "aggregator_node"}
 
@@ -277,6 +279,7 @@ def test_launch_file_declares_and_uses_its_arguments(name):
 @pytest.mark.parametrize("name", sorted(LAUNCH_ARGUMENTS))
 def test_launch_file_starts_an_installed_executable_with_existing_params(name):
     from additive_rsrivc_ros.config import DEFAULT_NODE_NAME
+    from additive_rsrivc_ros.joint_params import JOINT_GROUP_NODE_NAME
 
     tree = _launch_tree(name)
     consts = _module_constants(tree)
@@ -290,7 +293,8 @@ def test_launch_file_starts_an_installed_executable_with_existing_params(name):
             assert OTHER_LAUNCHED.get(package) == executable and package in exec_deps, (package, executable)
             continue
         assert executable in _console_scripts() and executable in EXECUTABLES, executable
-    assert consts["DEFAULT_NODE_NAME"] == DEFAULT_NODE_NAME
+    assert consts["DEFAULT_NODE_NAME"] == (JOINT_GROUP_NODE_NAME if consts["EXECUTABLE"] == "rsrivc_joints"
+                                           else DEFAULT_NODE_NAME)
     yamls = {n.value for n in ast.walk(tree) if isinstance(n, ast.Constant) and str(n.value).endswith(".yaml")}
     assert yamls, "no default params file named"
     for y in yamls:

@@ -175,6 +175,11 @@ class BlockSync(InputSync):
             self._event(now_ns, reason)
         self._span_warned = bool(reason)
 
+    @property
+    def arrival_is_the_clock(self) -> bool:
+        """Block indices count samples but carry no time: the arrival rate is the only check of ``loop_rate_hz``."""
+        return True
+
     def _arrival_gap_ns(self, arrivals_ns: np.ndarray) -> int:
         """Blocks arrive once per block, not once per sample: a pause is a spacing of more than three typical
         block periods (or the data gap, if longer)."""

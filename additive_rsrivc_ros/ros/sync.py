@@ -327,10 +327,16 @@ class InputSync:
         return self.gap_ns
 
     @property
+    def arrival_is_the_clock(self) -> bool:
+        """The samples' times come from their arrival (Float64 topics): an arrival rate that contradicts
+        ``loop_rate_hz`` is then a wrong time scale. Header-stamped samples carry their own time."""
+        return not self.stamped
+
+    @property
     def rate_error(self) -> str:
-        """One line when an input's arrival rate contradicts ``loop_rate_hz`` (the model's time scale would be
-        wrong: nothing is published then), else ``''``."""
-        if not self.rate_mismatch:
+        """One line when the arrival rate of an input whose arrival is its clock contradicts ``loop_rate_hz`` (the
+        model's time scale would be wrong: nothing is published then), else ``''``."""
+        if not self.rate_mismatch or not self.arrival_is_the_clock:
             return ""
         label, rate = next(iter(self.rate_mismatch.items()))
         return (f"loop_rate_hz disagrees with the data's timing ({self.rate_reason(label, rate, self.expected_rate)}):"
