@@ -79,7 +79,8 @@ def test_drift_across_recordings_is_flagged(drift_run: dict) -> None:
     findings = json.loads((out / "fleet.json").read_text())
     assert len(findings) == 1, findings           # mode 2's frequency only: nothing on mode 1, damping or gains
     f = findings[0]
-    assert list(f) == ["mode", "quantity", "direction", "first_bag", "change_percent"]
+    assert list(f) == ["machine", "mode", "quantity", "direction", "first_bag", "change_percent"]
+    assert f["machine"] == str(drift_run["params"].resolve())      # one params file: one machine
     assert (f["mode"], f["quantity"], f["direction"]) == (2, "natural_frequency", "down")
     # true cumulative change at the k-th recording: -0.5 k %; the threshold 1.75 % is first reached at rec_04
     assert f["first_bag"] == "rec_04"
@@ -172,7 +173,7 @@ def test_healthy_fleet_has_no_drift_and_short_bag_is_excluded(cluster, tmp_path:
     assert not any(t["flagged"] for t in trend["tests"])
     assert sum(1 for t in trend["tests"] if len(t["indices"]) == N_BAGS) == 6          # 2 modes x 3 quantities
     (row,) = [b for b in trend["bags"] if b["bag"] == short.name]
-    assert not row["used"] and "never ran" in row["exclusion"]       # a bag never monitored does not feed the trend
+    assert not row["used"] and "no settled estimate" in row["exclusion"]   # a bag that never settled: no level
     assert f"not in the drift test: {short.name}" in so
     assert trend["machine"] == "*/healthy/*"
     assert not (out / bags[0].name / "report.html").exists()          # --no-report passed to rsrivc_diagnose

@@ -4,17 +4,23 @@ A slow change (wear, loosening, temperature) can move a mode by a fraction of a 
 little for the per-bag fault logic (:mod:`.faults`), which compares each recording with a baseline learned in
 that same recording. This module compares recordings with each other.
 
-**Per bag, a robust level** (:func:`bag_level`). From the bag's estimates while its fault tests ran (the
-monitored part of the record: after the start-up, outside health holds and gaps; :mod:`..verdict`), per mode
-and quantity ``q`` (natural frequency, damping ratio, gain):
+**Per bag, a robust level** (:func:`bag_level`). From the bag's estimates over its settled part (after the
+estimator's start-up and settling, outside health holds and gaps; ``rsrivc_fleet`` takes it from the verdict's
+blind intervals, :mod:`..verdict`, so a recording too short for the fault tests to learn a baseline still counts),
+per mode and quantity ``q`` (natural frequency, damping ratio, gain):
 
-* level ``m = median(q_k)`` over the ``n`` monitored output instants;
-* one-estimate scatter ``s = max(1.4826 MAD(q_k), median(sigma_k))``: the estimate's own spread, never below
-  the published delta-method std ``sigma_k`` (000 eq. 32 scaled by the residual variance);
-* standard error ``se = sqrt(pi/2) s / sqrt(n_eff)`` (median of ``n_eff`` independent values), with
-  ``n_eff = max(1, T / (2 T_m))``: ``T`` the monitored time, ``T_m`` the mode's forgetting memory
-  (``memory_s``). Estimates with forgetting factor ``lambda`` are AR(1)-like with correlation ``lambda`` per
-  sample; their integrated autocorrelation time is ``(1 + lambda)/(1 - lambda) ~ 2 T_m``.
+* level ``m = median(q_k)`` over the ``n`` settled output instants (time ``T``);
+* one-estimate scatter ``s = max(1.4826 MAD(q_k) / sqrt(1 - g), median(sigma_k))``: the estimate's own spread,
+  never below the published delta-method std ``sigma_k`` (000 eq. 32 scaled by the residual variance);
+* standard error ``se = sqrt(pi ln2 / 2) s sqrt(g)``, ``g = g(T / T_m)`` with
+  ``g(x) = 2 (x - 1 + exp(-x)) / x^2`` the variance of the time average of a process with autocorrelation
+  ``exp(-|tau| / T_m)`` relative to its own variance: estimates with forgetting factor ``lambda`` are AR(1)-like
+  with correlation ``lambda`` per sample, i.e. time constant the mode's forgetting memory ``T_m`` (``memory_s``).
+  ``g ~ 2 T_m / T`` for long recordings (``n_eff = 1 / g`` independent values), ``g -> 1`` for short ones; the
+  scatter about the recording's own median over ``T`` misses the fraction ``g`` of the variance, hence
+  ``1 / sqrt(1 - g)``. The median of such a series has ``(pi / 2) ln 2`` times the variance of its mean (its signs
+  have autocorrelation ``(2 / pi) arcsin(rho)``, whose integral is ``2 T_m ln 2`` against ``2 T_m``), not the
+  ``pi / 2`` of independent values.
 
 **Across bags, a trend test** (:func:`drift_test`), per machine, mode and quantity, on the levels ordered by
 the recordings' first sample time, against recording order ``x_j = 0, 1, ...``:
@@ -49,22 +55,31 @@ from .vocabulary import QUANTITIES
 MIN_RECORDINGS = 4            # a line through fewer recordings leaves < 2 degrees of freedom for its scatter
 DEFAULT_ALPHA = 0.01          # family-wise false-alarm probability per machine (all modes and quantities)
 _MAD_TO_STD = 1.482602218505602
-_MEDIAN_EFFICIENCY = math.sqrt(math.pi / 2.0)
+_MEDIAN_EFFICIENCY = math.sqrt(math.pi * math.log(2.0) / 2.0)   # median vs mean of a correlated series (docstring)
 
 
 @dataclass
 class BagLevel:
     """A recording's robust level per mode and quantity (see the module docstring)."""
 
-    value: np.ndarray            # (K, 3) median over the monitored estimates
+    value: np.ndarray            # (K, 3) median over the settled estimates
     std: np.ndarray              # (K, 3) standard error of the level
-    monitored_s: float           # time the levels are taken over
-    n_eff: np.ndarray            # (K,) independent estimates in that time
+    monitored_s: float           # time the levels are taken over (the settled part)
+    n_eff: np.ndarray            # (K,) independent estimates in that time (1 / g)
+
+
+def time_average_variance_ratio(x: np.ndarray | float) -> np.ndarray:
+    """``g(x) = 2 (x - 1 + exp(-x)) / x^2``: variance of the average over a time ``x T_m`` of a stationary process
+    with autocorrelation ``exp(-|tau| / T_m)``, relative to the process's variance (1 at ``x = 0``)."""
+    x = np.maximum(np.asarray(x, float), 1e-9)
+    small = x < 1e-4
+    return np.where(small, 1.0 - x / 3.0, 2.0 * (x - 1.0 + np.exp(-np.minimum(x, 700.0))) / np.where(small, 1.0, x)**2)
 
 
 def bag_level(modal: np.ndarray, monitored: np.ndarray, memory_s: Sequence[float], period_s: float) -> BagLevel | None:
     """The level of one bag from its estimates ``modal`` ``(N, K, 6)`` (f, zeta, gain and their stds, as in
-    estimates.csv) at the output instants where ``monitored`` is true (period ``period_s``); None without any."""
+    estimates.csv) at the output instants where ``monitored`` (the settled part) is true (period ``period_s``);
+    None without any."""
     modal = np.asarray(modal, float)
     mask = np.asarray(monitored, bool)
     if modal.ndim != 3 or modal.shape[2] < 6 or mask.shape != modal.shape[:1] or not mask.any():
@@ -72,7 +87,8 @@ def bag_level(modal: np.ndarray, monitored: np.ndarray, memory_s: Sequence[float
     sel = modal[mask]                                   # (n, K, 6)
     k = sel.shape[1]
     value = np.full((k, 3), np.nan)
-    scatter = np.full((k, 3), np.nan)
+    scatter_mad = np.full((k, 3), np.nan)
+    scatter_pub = np.full((k, 3), np.nan)
     for i in range(k):
         for q in range(3):
             x = sel[:, i, q]
@@ -84,11 +100,15 @@ def bag_level(modal: np.ndarray, monitored: np.ndarray, memory_s: Sequence[float
             pub = sel[:, i, q + 3][ok]
             pub = pub[np.isfinite(pub)]
             value[i, q] = med
-            scatter[i, q] = max(mad, float(np.median(pub)) if pub.size else 0.0)
+            scatter_mad[i, q] = mad
+            scatter_pub[i, q] = float(np.median(pub)) if pub.size else 0.0
     t_mon = float(mask.sum()) * float(period_s)
     mem = np.broadcast_to(np.asarray(memory_s, float), (k,))
-    n_eff = np.maximum(1.0, t_mon / (2.0 * np.maximum(mem, 1e-12)))
-    std = _MEDIAN_EFFICIENCY * scatter / np.sqrt(n_eff)[:, None]
+    g = time_average_variance_ratio(t_mon / np.maximum(mem, 1e-12))
+    mad_std = scatter_mad / np.sqrt(np.maximum(1.0 - g, 0.05))[:, None]
+    scatter = np.fmax(mad_std, scatter_pub)
+    std = _MEDIAN_EFFICIENCY * scatter * np.sqrt(g)[:, None]
+    n_eff = 1.0 / g
     return BagLevel(value, std, t_mon, n_eff)
 
 
