@@ -24,6 +24,12 @@ MODES = ((5.0, 0.05, 1.0), (20.0, 0.02, 0.2))
 T0_NS = 1_750_000_000 * 10**9
 
 
+def _yaml_float(v: float) -> str:
+    """A float as YAML 1.1 reads a float (PyYAML takes ``1e-06`` for a string: ``1.0e-06``)."""
+    text = repr(float(v))
+    return text.replace("e", ".0e") if "e" in text and "." not in text else text
+
+
 @dataclass(frozen=True)
 class Machine:
     """A simulated open-loop machine and the params its recordings are diagnosed with."""
@@ -40,20 +46,20 @@ class Machine:
     def params_yaml(self, extra_faults: dict[str, float] | None = None) -> str:
         """The node's params file for this machine (``extra_faults``: more ``faults.*`` entries)."""
         def floats(values: object) -> str:
-            return "[" + ", ".join(repr(float(v)) for v in values) + "]"   # type: ignore[attr-defined]
+            return "[" + ", ".join(_yaml_float(v) for v in values) + "]"   # type: ignore[attr-defined]
 
         faults = {"settle_memory_lengths": self.settle_memory_lengths,
                   "baseline_duration_s": self.baseline_duration_s, **(extra_faults or {})}
         lines = [f"# Simulated machine of additive_rsrivc_ros.sim.fleetsim: open loop, {self.rate_hz:g} Hz, modes at "
                  + ", ".join(f"{f:g}" for f, _, _ in self.modes) + " Hz.",
-                 "additive_rsrivc_monitor:", "  ros__parameters:", f"    loop_rate_hz: {float(self.rate_hz)!r}",
+                 "additive_rsrivc_monitor:", "  ros__parameters:", f"    loop_rate_hz: {_yaml_float(self.rate_hz)}",
                  "    closed_loop: false", "    modes:",
                  f"      natural_frequency_hz: {floats(m[0] for m in self.modes)}",
                  f"      damping_ratio: {floats(m[1] for m in self.modes)}",
                  f"      gain: {floats(m[2] for m in self.modes)}",
                  f"      memory_s: {floats([self.memory_s] * len(self.modes))}",
-                 f"    init_duration_s: {float(self.init_duration_s)!r}", "    publish_rate_hz: 10.0"]
-        entries = [f"      {k}: {float(v)!r}" for k, v in faults.items() if v is not None]
+                 f"    init_duration_s: {_yaml_float(self.init_duration_s)}", "    publish_rate_hz: 10.0"]
+        entries = [f"      {k}: {_yaml_float(v)}" for k, v in faults.items() if v is not None]
         return "\n".join(lines + (["    faults:", *entries] if entries else [])) + "\n"
 
 
