@@ -547,7 +547,7 @@ def split_cached(tasks: Sequence[BagTask], cache: ResultCache
     reused, todo, keys = [], [], {}
     for t in tasks:
         try:
-            keys[t.name] = cache.key(t.bag, t.params_file, t.node_name, t.report)
+            keys[t.name] = cache.key(t.bag, t.params_file, t.node_name, t.report, t.out_dir)
         except OSError:
             todo.append(t)
             continue

@@ -2,7 +2,7 @@
 
 A bag's result (what :func:`.fleet.run_bag` returns) is stored in ``DIR/.fleet_cache/<key>.json`` under the key
 
-    sha256(bag content, params file content, node name, report on/off, package fingerprint)
+    sha256(bag content, params file content, node name, report on/off, output folder, package fingerprint)
 
 * bag content: SHA-256 of every file of the bag folder (relative path and bytes, in sorted order). The digest of
   a file is remembered by (path, size, modification time) in ``DIR/.fleet_cache/files.json``, so a later run reads
@@ -89,10 +89,11 @@ class ResultCache:
             h.update(self.file_digest(p).encode())
         return h.hexdigest()
 
-    def key(self, bag: str, params_file: str, node_name: str | None, report: bool) -> str:
-        """The cache key of one task (module docstring)."""
+    def key(self, bag: str, params_file: str, node_name: str | None, report: bool, out_dir: str = "") -> str:
+        """The cache key of one task (module docstring; two copies of one bag have their own output folders)."""
         parts = {"schema": SCHEMA, "bag": self.bag_digest(Path(bag)), "params": _file_sha256(Path(params_file)),
-                 "node_name": node_name or "", "report": bool(report), "package": self.package}
+                 "node_name": node_name or "", "report": bool(report), "out_dir": str(out_dir),
+                 "package": self.package}
         return hashlib.sha256(json.dumps(parts, sort_keys=True).encode()).hexdigest()
 
     def lookup(self, key: str, out_dir: str, task_fields: Mapping[str, Any]) -> dict[str, Any] | None:
