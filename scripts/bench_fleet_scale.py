@@ -16,8 +16,10 @@ temporary folder.
 Per configuration (cluster kind x workers) the cluster is started and each worker diagnoses one warm-up bag first
 (imports, compiled kernels: once per worker process, not per bag); the time is from submitting the tasks to the last
 result. The reference is ``diagnose_bag`` (what ``rsrivc_diagnose`` runs) in this process, warm, on the first
-``--reference`` recordings (default: all, at most 20). Printed: samples per second, recordings per minute,
-per-worker samples per second and its ratio to the reference, and the drift findings against the drifting machines.
+``--reference`` recordings (default: 10), measured right before each configuration (the load of a shared machine
+drifts). Printed: samples per second, recordings per minute, per-worker samples per second and its ratio to the
+reference; samples per CPU second of the workers against the reference's (the overhead, free of contention); the
+time to compute the incremental run's cache keys; the drift findings against the drifting machines.
 Run with ``scripts/env.sh`` sourced (one BLAS thread per process, the shared numba cache); the default fleet
 (50 x 10 x 60 s at 4 kHz = 1.2e8 samples) takes a while on two cores: ``--machines 4 --recordings 3`` is a quick run.
 """
@@ -80,34 +82,47 @@ def write_fleet(root: Path, a: argparse.Namespace) -> tuple[list[Path], Path]:
     return [Path(j[0]) / f"rec_{j[2]:02d}" for j in jobs], params
 
 
-def reference(bags: list[Path], params: Path, work: Path, report: bool) -> float:
-    """Samples per second of ``diagnose_bag`` in this process (after a warm-up bag)."""
+def _cpu_seconds() -> float:
+    """User + system CPU seconds of the calling process (all its threads)."""
+    import resource
+
+    ru = resource.getrusage(resource.RUSAGE_SELF)
+    return ru.ru_utime + ru.ru_stime
+
+
+def reference(bags: list[Path], params: Path, work: Path, report: bool) -> tuple[float, float]:
+    """Samples per second and per CPU second of ``diagnose_bag`` in this process (warm: a warm-up bag first)."""
     diagnose_bag(bags[0], params, work / "ref_warm", report=report)
-    t0 = time.monotonic()
+    t0, c0 = time.monotonic(), _cpu_seconds()
     samples = 0
     for b in bags:
         s = diagnose_bag(b, params, work / "ref" / b.parent.name / b.name, report=report)
         samples += int(s["samples"])
-    return samples / (time.monotonic() - t0)
+    wall, cpu = time.monotonic() - t0, _cpu_seconds() - c0
+    shutil.rmtree(work / "ref", ignore_errors=True)
+    return samples / wall, samples / cpu
 
 
 def run_config(kind: str, n: int, tasks: list[fleet.BagTask], warm: Path, params: Path, work: Path,
-               report: bool) -> tuple[float, list[dict[str, Any]]]:
-    """Elapsed seconds of the fleet's tasks on a warm cluster of ``n`` workers, and the results."""
+               report: bool) -> tuple[float, float, list[dict[str, Any]]]:
+    """Elapsed seconds of the fleet's tasks on a warm cluster of ``n`` workers, the CPU seconds its workers spent
+    on them, and the results."""
     ext = LoopbackCluster(n).start() if kind == "external" else None
     try:
         client, cluster = fleet.start_client(ext.address if ext else None, n)
         try:
             client.run(fleet._warm_worker, str(warm), str(params), str(work / "warm"), report)
+            cpu0 = client.run(_cpu_seconds)
             t0 = time.monotonic()
             results = fleet.run_tasks(client, tasks, sys.stderr, False)
             elapsed = time.monotonic() - t0
+            cpu1 = client.run(_cpu_seconds)
         finally:
             fleet.close_client(client, cluster)
     finally:
         if ext is not None:
             ext.stop()
-    return elapsed, results
+    return elapsed, sum(cpu1[w] - cpu0.get(w, 0.0) for w in cpu1), results
 
 
 def cache_keys(bags: list[Path], params: Path, work: Path) -> tuple[float, float, float]:
@@ -153,45 +168,51 @@ def main() -> None:
     work = Path(tempfile.mkdtemp(prefix="rsrivc_fleet_scale_"))
     try:
         bags, params = write_fleet(Path(a.bags) if a.bags else work / "bags", a)
-        n_ref = a.reference or min(len(bags), 20)
-        ref = reference(bags[:n_ref], params, work, a.report)
+        n_ref = a.reference or min(len(bags), 10)
         samples = int(round(a.duration * a.rate)) * len(bags)
         keys_cold, keys_warm, mbytes = cache_keys(bags, params, work)
         rows = []
         for kind in a.clusters:
             for n in a.workers:
+                # the reference right before each configuration: on a shared machine the load drifts
+                ref, ref_cpu = reference(bags[:n_ref], params, work, a.report)
                 out = work / f"out_{kind}_{n}"
                 names = fleet.bag_names(bags)
                 tasks = [fleet.BagTask(nm, str(b), str(params), str(out / nm), None, a.report, str(b.parent))
                          for nm, b in zip(names, bags, strict=True)]
-                elapsed, results = run_config(kind, n, tasks, bags[0], params, work, a.report)
+                elapsed, cpu, results = run_config(kind, n, tasks, bags[0], params, work, a.report)
                 failed = [r["error"] for r in results if not r["ok"]]
                 rate = samples / elapsed
                 rows.append({"cluster": kind, "workers": n, "elapsed_s": elapsed, "samples_per_s": rate,
                              "recordings_per_min": 60.0 * len(bags) / elapsed, "per_worker_samples_per_s": rate / n,
-                             "per_worker_vs_in_process": rate / n / ref, "failed": len(failed),
+                             "in_process_samples_per_s": ref, "per_worker_vs_in_process": rate / n / ref,
+                             "samples_per_cpu_s": samples / cpu, "in_process_samples_per_cpu_s": ref_cpu,
+                             "per_cpu_s_vs_in_process": samples / cpu / ref_cpu, "failed": len(failed),
                              "drift": drift_check(results, a.machines)})
                 shutil.rmtree(out, ignore_errors=True)
         load = os.getloadavg()
         fig = {"machines": a.machines, "recordings": len(bags), "duration_s": a.duration, "rate_hz": a.rate,
-               "samples": samples, "in_process_samples_per_s": ref, "reference_recordings": n_ref, "runs": rows,
-               "load_average": load, "cache_keys_first_s": keys_cold, "cache_keys_again_s": keys_warm,
-               "hashed_mb": mbytes}
+               "samples": samples, "reference_recordings": n_ref, "runs": rows, "load_average": load,
+               "cache_keys_first_s": keys_cold, "cache_keys_again_s": keys_warm, "hashed_mb": mbytes}
         if a.json:
             print(json.dumps(fig))
             return
         print(f"rsrivc_fleet scale: {a.machines} machines x {a.recordings} recordings of {a.duration:g} s at "
               f"{a.rate:g} Hz = {len(bags)} recordings, {samples:.3g} samples"
-              f"{', report included' if a.report else ', no report'}; load average {load[0]:.1f}")
-        print(f"in-process rsrivc_diagnose (diagnose_bag, {n_ref} recordings): {ref:,.0f} samples/s")
+              f"{', report included' if a.report else ', no report'}; load average {load[0]:.1f} {load[1]:.1f} "
+              f"{load[2]:.1f} on {os.cpu_count()} CPUs")
         print(f"incremental run's cache keys of all {len(bags)} bags: {keys_cold:.2f} s the first time "
               f"({mbytes:.0f} MB hashed), {keys_warm:.2f} s again (file digests remembered)")
-        print(f"{'cluster':9} {'workers':>7} {'elapsed s':>9} {'samples/s':>11} {'rec/min':>8} "
-              f"{'per worker':>11} {'vs in-proc':>10}  drift")
+        print(f"in-process: diagnose_bag on {n_ref} recordings right before each configuration; per CPU s: samples "
+              "per CPU second of the worker processes (contention-free overhead measure)")
+        print(f"{'cluster':9} {'workers':>7} {'elapsed s':>9} {'samples/s':>10} {'rec/min':>7} {'per worker':>10} "
+              f"{'in-proc':>8} {'ratio':>6} {'per CPU s':>9} {'in-proc':>8} {'ratio':>6}  drift")
         for r in rows:
-            print(f"{r['cluster']:9} {r['workers']:7d} {r['elapsed_s']:9.1f} {r['samples_per_s']:11,.0f} "
-                  f"{r['recordings_per_min']:8.1f} {r['per_worker_samples_per_s']:11,.0f} "
-                  f"{100 * r['per_worker_vs_in_process']:9.0f} %  {r['drift']}"
+            print(f"{r['cluster']:9} {r['workers']:7d} {r['elapsed_s']:9.1f} {r['samples_per_s']:10,.0f} "
+                  f"{r['recordings_per_min']:7.1f} {r['per_worker_samples_per_s']:10,.0f} "
+                  f"{r['in_process_samples_per_s']:8,.0f} {100 * r['per_worker_vs_in_process']:5.0f}% "
+                  f"{r['samples_per_cpu_s']:9,.0f} {r['in_process_samples_per_cpu_s']:8,.0f} "
+                  f"{100 * r['per_cpu_s_vs_in_process']:5.0f}%  {r['drift']}"
                   + (f"; {r['failed']} FAILED" if r["failed"] else ""))
     finally:
         shutil.rmtree(work, ignore_errors=True)
