@@ -19,6 +19,17 @@ import time
 from pathlib import Path
 from typing import Any
 
+#: cli/fleet.py ``WORKER_CONFIG`` as a dask config file (what an operator puts into ``~/.config/dask/``)
+WORKER_CONFIG_YAML = """\
+distributed:
+  nanny:
+    pre-spawn-environ:
+      MALLOC_TRIM_THRESHOLD_: null
+  worker:
+    profile:
+      enabled: false
+"""
+
 
 def _dask_command() -> list[str]:
     """The ``dask`` command of this interpreter's environment."""
@@ -38,9 +49,12 @@ class LoopbackCluster:
     def __init__(self, workers: int = 2, *, env: dict[str, str] | None = None, timeout_s: float = 60.0) -> None:
         self.n_workers = workers
         self.timeout_s = timeout_s
-        self.env = {**os.environ, "OPENBLAS_NUM_THREADS": "1", "OMP_NUM_THREADS": "1", "MKL_NUM_THREADS": "1",
-                    **(env or {})}
         self._tmp = Path(tempfile.mkdtemp(prefix="rsrivc_dask_"))
+        # the workers' settings as rsrivc_fleet's own LocalCluster has them (cli/fleet.py WORKER_CONFIG), in a dask
+        # config file (an environment variable cannot unset dask's MALLOC_TRIM_THRESHOLD_: it lower-cases the key)
+        (self._tmp / "rsrivc_fleet.yaml").write_text(WORKER_CONFIG_YAML, encoding="utf-8")
+        self.env = {**os.environ, "OPENBLAS_NUM_THREADS": "1", "OMP_NUM_THREADS": "1", "MKL_NUM_THREADS": "1",
+                    "DASK_CONFIG": str(self._tmp), **(env or {})}
         self.scheduler_file = self._tmp / "scheduler.json"
         self.procs: list[subprocess.Popen[bytes]] = []
         self.address = ""
