@@ -53,7 +53,8 @@ class LoopbackCluster:
         # the workers' settings as rsrivc_fleet's own LocalCluster has them (cli/fleet.py WORKER_CONFIG), in a dask
         # config file (an environment variable cannot unset dask's MALLOC_TRIM_THRESHOLD_: it lower-cases the key)
         (self._tmp / "rsrivc_fleet.yaml").write_text(WORKER_CONFIG_YAML, encoding="utf-8")
-        self.env = {**os.environ, "OPENBLAS_NUM_THREADS": "1", "OMP_NUM_THREADS": "1", "MKL_NUM_THREADS": "1",
+        inherited = {k: v for k, v in os.environ.items() if k != "MALLOC_TRIM_THRESHOLD_"}   # a nanny's leftover
+        self.env = {**inherited, "OPENBLAS_NUM_THREADS": "1", "OMP_NUM_THREADS": "1", "MKL_NUM_THREADS": "1",
                     "DASK_CONFIG": str(self._tmp), **(env or {})}
         self.scheduler_file = self._tmp / "scheduler.json"
         self.procs: list[subprocess.Popen[bytes]] = []

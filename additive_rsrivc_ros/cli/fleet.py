@@ -386,6 +386,8 @@ def start_client(scheduler: str | None, workers: int | None) -> tuple[Any, Any]:
         except (OSError, TimeoutError) as exc:
             raise ArgError(f"--scheduler {scheduler}: cannot connect ({one_line(exc)})") from None
     n = workers or default_workers()
+    # the workers inherit this process's environment, where an earlier dask nanny in this process may have left it
+    os.environ.pop("MALLOC_TRIM_THRESHOLD_", None)
     # no dashboard; the scheduler's HTTP endpoint on a free port (8787 may belong to another cluster)
     with dask.config.set(WORKER_CONFIG):
         cluster = LocalCluster(n_workers=n, threads_per_worker=1, processes=True, dashboard_address=None,
