@@ -105,3 +105,15 @@ def test_recording_to_recording_scatter_does_not_cry_wolf(two_lines: dict) -> No
     # the scatter between recordings is found (0.3 % of 15 Hz = 0.045 Hz) although each level's std is ~1e-4 Hz
     assert 0.015 < f1["tau"] < 0.15, f1
     assert max(r["std"][0][0] for r in b["bags"]) < 0.005
+
+
+def test_four_memory_lengths_count(tmp_path: Path) -> None:
+    """80 s with 20 s memories: the fault logic settles until about 65 s (5 s initialization, 3 memory lengths); the
+    remaining 15 s give the recording's level, with a std that covers so short a settled part."""
+    bag = fleetsim.write_recording(tmp_path / "rec", 0, duration_s=80.0, machine=MACHINE, seed=9)
+    params = fleetsim.machine_params(tmp_path / "p.yaml", machine=MACHINE)
+    res = fleet.run_bag(fleet.BagTask("rec", str(bag), str(params), str(tmp_path / "out"), None, False))
+    assert res["ok"] and res["exclusion"] is None, res
+    assert 0.5 * MACHINE.memory_s <= res["level_s"] < MACHINE.memory_s
+    f2, std = res["modes"][1]["value"][0], res["modes"][1]["std"][0]
+    assert abs(f2 - 60.0) < 4 * std and std < 0.01 * DRIFT * 60.0

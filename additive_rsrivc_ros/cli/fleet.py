@@ -254,6 +254,10 @@ def _read_estimates(path: Path, k: int) -> tuple[Any, Any]:
 #: settling (also after a disruption restarted it), health holds, gaps and times without an estimate. Learning the
 #: baseline, an untrusted baseline and monitoring are settled.
 UNSETTLED_KINDS = frozenset({"initializing", "settling", "hold", "no_data", "no_estimate"})
+#: a recording feeds the drift test when its settled part is at least this many (longest) memory lengths: with the
+#: default settling of 3 memory lengths after the initialization, recordings from about 4 memory lengths count (the
+#: level's std covers a short settled part: core.trend.bag_level)
+MIN_SETTLED_MEMORY_LENGTHS = 0.5
 
 
 def settled_mask(t: Any, blind: Sequence[dict[str, Any]]) -> Any:
@@ -307,8 +311,9 @@ def _exclusion(summary: dict[str, Any], level: Any, memory: Sequence[float]) -> 
         return "no estimate: the estimator never had an accepted model"
     if level is None:
         return "no settled estimate (the estimator was still settling at the end, or health held it throughout)"
-    if level.monitored_s < max(memory):
-        return f"settled for only {level.monitored_s:.3g} s (< one memory length, {max(memory):g} s)"
+    if level.monitored_s < MIN_SETTLED_MEMORY_LENGTHS * max(memory):
+        return (f"settled for only {level.monitored_s:.3g} s (< {MIN_SETTLED_MEMORY_LENGTHS:g} x the memory, "
+                f"{max(memory):g} s)")
     return None
 
 
