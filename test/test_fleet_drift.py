@@ -8,7 +8,7 @@ at a time: too short for the fault tests to learn a baseline, long enough to set
   relevant change 1.25 %: the drift is flagged on line_a, mode 2, natural frequency, down, first reached at rec_03
   (true change 1.0 % at rec_02, 1.5 % at rec_03; output folders are named line_a_rec_03 ...: names repeat).
 * ``line_b``: six healthy recordings whose modes vary from recording to recording by 0.3 % (operating point,
-  temperature): 200 times the within-recording std of a level. Its relevance thresholds are switched off
+  temperature): far more than the within-recording std of a level. Its relevance thresholds are switched off
   (``faults.min_change.*`` at their minimum, spread factor 0), so only the significance test stands between this
   scatter and a false alarm: it must estimate the between-recording variance, not trust the within-recording std.
 """
