@@ -1,7 +1,8 @@
 """``rsrivc_fleet``'s human report: ``fleet.html`` (self-contained, inline SVG figures) from the fleet summary.
 
 Per machine (params file): the recordings in order of their first sample's time with their verdicts, each mode's
-quantities across the recordings (levels with +-2 standard errors, the fitted trend and the relevant-change band
+quantities across the recordings (levels with +-2 standard errors, red from the first recording of a flagged
+drift on, the fitted trend and the relevant-change band
 of the fault logic around the first recording's fitted level), the drift tests (:mod:`.core.trend`) and the bags
 that did not feed them; then the bags that failed. :func:`trend_svg` renders one machine's figure.
 """
@@ -39,12 +40,13 @@ def trend_svg(machine: Mapping[str, Any], id_prefix: str = "tr", standalone: boo
         if i >= k:
             continue
         ax = axes[q, i]
+        first = test["first_index"] if test["flagged"] and test.get("first_index") is not None else len(bags)
         for j, b in enumerate(bags):
             if i >= len(b["value"]):
                 continue
             v, s = b["value"][i][q], b["std"][i][q]
             if b["used"] and v is not None and s is not None:
-                ax.errorbar(j, v, 2 * s, color="#1f77b4", ms=4)
+                ax.errorbar(j, v, 2 * s, color="#d62728" if j >= first else "#1f77b4", ms=5 if j >= first else 4)
             elif v is not None:
                 ax.plot([j], [v], ls="", marker="o", mfc="none", color="0.6", ms=4)
         _trend_lines(ax, test)
@@ -115,10 +117,12 @@ def _machine_html(g: Mapping[str, Any], index: int = 0) -> list[str]:
     rows = [[str(j + 1), esc(b["bag"]), esc(_utc(b["start_time_s"])), esc(b["verdict"]), str(b["events"]),
              _num_td(_n(b["level_s"], ".3g")), esc(_use_text(b))] for j, b in enumerate(g["bags"])]
     parts += ["<h3>Recordings (by first sample time)</h3>",
-              _table(["#", "bag", "first sample", "verdict", "events", "level over [s]", "in the drift test"], rows),
+              _table(["#", "bag", "first sample", "verdict", "events", "settled [s]", "in the drift test"], rows),
               "<h3>Trend of each mode across recordings</h3>",
-              "<p class='note'>Blue: the mode's level in each recording (median of its estimates while the fault "
-              "tests ran) with ±2 standard errors; hollow grey: a recording left out of the test; line: the "
+              "<p class='note'>Blue: the mode's level in each recording (median of its estimates over the "
+              "recording's settled part) with ±2 standard errors; red: the recordings of a flagged drift from the "
+              "first one whose fitted change reaches faults.min_change; hollow grey: a recording left out of the "
+              "test; line: the "
               "fitted trend (red: drift flagged); dashed: the relevant change of the fault logic "
               "(faults.min_change) around the first recording's fitted level.</p>",
               _img(trend_svg(g, f"tr{index}_"), "trend across recordings")]

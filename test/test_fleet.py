@@ -12,6 +12,7 @@ import contextlib
 import csv
 import io
 import json
+import shutil
 import sys
 from pathlib import Path
 
@@ -79,7 +80,8 @@ def test_drift_across_recordings_is_flagged(drift_run: dict) -> None:
     findings = json.loads((out / "fleet.json").read_text())
     assert len(findings) == 1, findings           # mode 2's frequency only: nothing on mode 1, damping or gains
     f = findings[0]
-    assert list(f) == ["mode", "quantity", "direction", "first_bag", "change_percent"]
+    assert list(f) == ["machine", "mode", "quantity", "direction", "first_bag", "change_percent"]
+    assert f["machine"] == str(drift_run["params"].resolve())      # one params file: one machine
     assert (f["mode"], f["quantity"], f["direction"]) == (2, "natural_frequency", "down")
     # true cumulative change at the k-th recording: -0.5 k %; the threshold 1.75 % is first reached at rec_04
     assert f["first_bag"] == "rec_04"
@@ -172,7 +174,7 @@ def test_healthy_fleet_has_no_drift_and_short_bag_is_excluded(cluster, tmp_path:
     assert not any(t["flagged"] for t in trend["tests"])
     assert sum(1 for t in trend["tests"] if len(t["indices"]) == N_BAGS) == 6          # 2 modes x 3 quantities
     (row,) = [b for b in trend["bags"] if b["bag"] == short.name]
-    assert not row["used"] and "never ran" in row["exclusion"]       # a bag never monitored does not feed the trend
+    assert not row["used"] and "no settled estimate" in row["exclusion"]   # a bag that never settled: no level
     assert f"not in the drift test: {short.name}" in so
     assert trend["machine"] == "*/healthy/*"
     assert not (out / bags[0].name / "report.html").exists()          # --no-report passed to rsrivc_diagnose
@@ -237,3 +239,34 @@ def test_every_bag_failed_exits_1(tmp_path: Path) -> None:
     assert rc == 1 and "bad: failed, skipped" in se and "Traceback" not in se and "on 1 worker(s)" in se
     assert json.loads((tmp_path / "o" / "fleet.json").read_text()) == []
     assert np.size(_rows(tmp_path / "o" / "fleet.csv")) == 0
+
+
+def test_incremental_run_computes_only_new_or_changed_bags(cluster, tmp_path: Path) -> None:
+    """A folder that gained a recording: the second run diagnoses only the new bag and gives the same fleet.csv as
+    a run from scratch; a changed params file, or a bag's output folder removed, recomputes what it touches."""
+    folder = tmp_path / "m"
+    _, params = fleetsim.write_machine_recordings(folder, 3, seed=11)
+    out = tmp_path / "out"
+    base = [str(folder), "--params-file", str(params), "--out", str(out), "--scheduler", cluster.scheduler_address,
+            "--no-report", "--no-progress"]
+    rc, so, se = _run(base)
+    assert rc == 0 and "3 bag(s) on 2 worker(s)" in se and "(3 computed, 0 reused)" in so, se
+    stamps = {p.parent.name: p.stat().st_mtime_ns for p in out.glob("rec_*/summary.json")}
+    fleetsim.write_recording(folder / "rec_03", 3, seed=11)               # today's recording
+    rc, so, se = _run(base)
+    assert rc == 0 and "1 bag(s) on 2 worker(s)" in se and "3 bag(s) unchanged" in se, se
+    assert "(1 computed, 3 reused)" in so
+    assert {p.parent.name: p.stat().st_mtime_ns for p in out.glob("rec_0[012]/summary.json")} == stamps
+    fresh = tmp_path / "fresh"
+    rc, _, se = _run([*base[:4], str(fresh), *base[5:]])
+    assert rc == 0, se
+    assert (out / "fleet.csv").read_bytes() == (fresh / "fleet.csv").read_bytes()
+    assert len(_rows(out / "fleet.csv")) == 4 * 2
+    shutil.rmtree(out / "rec_01")                                           # an output folder gone: that bag again
+    rc, so, se = _run(base)
+    assert rc == 0 and "(1 computed, 3 reused)" in so and (out / "rec_01" / "summary.json").is_file(), se
+    params.write_text(params.read_text() + "      min_change.gain: 0.2\n")   # a changed params file: every bag
+    rc, so, se = _run(base)
+    assert rc == 0 and "4 bag(s) on 2 worker(s)" in se and "(4 computed, 0 reused)" in so, se
+    rc, so, se = _run([*base, "--recompute"])
+    assert rc == 0 and "(4 computed, 0 reused)" in so, se

@@ -10,15 +10,25 @@ reported on stderr and in ``DIR/fleet_failures.json`` and skipped, never the who
 ``metadata.yaml``, the output folder excluded). ``--params-file``: the node's params file for every bag, or a
 mapping file from bag glob to params file (YAML ``{"<glob>": "<params file>", ...}``, first match wins; globs are
 matched against the bag path as given, its absolute path and its name; relative params paths are relative to the
-mapping file). The bags of one params file, or of one glob of a mapping file, are one machine's recordings.
+mapping file). The bags of one params file, or of one glob of a mapping file, are one machine's recordings; with
+``--group-by folder`` the bags of one folder are (``fleet/<machine>/<recording>/``).
+
+Incremental (:mod:`.fleet_cache`): a bag whose content, params file and package are unchanged since an earlier run
+into the same ``--out`` (and whose ``DIR/<bag name>/`` is intact) is not diagnosed again, its stored result is
+reused; ``--recompute`` diagnoses every bag. A worker that dies mid-task (killed, out of memory) loses no result:
+the scheduler gives its task to another worker (up to ``distributed.scheduler.allowed-failures`` times, default 3).
+Workers of an external cluster diagnose about 20 % faster without dask's default ``MALLOC_TRIM_THRESHOLD_`` (see
+:data:`WORKER_CONFIG`): a dask config file (e.g. ``~/.config/dask/rsrivc_fleet.yaml``, or in ``$DASK_CONFIG``) with
+``distributed: {nanny: {pre-spawn-environ: {MALLOC_TRIM_THRESHOLD_: null}}}`` where the workers start.
 
 Fleet summary (docs/INTERFACE.md "Fleet"), recordings ordered by their first sample's time:
 
-* ``fleet.csv``: one row per bag and mode: the mode's level in that bag (median of its estimates while the fault
-  tests ran, the final estimate when they never ran; :func:`..core.trend.bag_level`), the learned baseline,
-  the number of structural events and the bag's verdict;
+* ``fleet.csv``: one row per bag and mode: the mode's level in that bag (median of its estimates over the
+  recording's settled part: after the estimator's start-up and settling, outside health holds and gaps, whether or
+  not the fault tests had learned a baseline; the final estimate when it never settled;
+  :func:`..core.trend.bag_level`), the learned baseline, the number of structural events and the bag's verdict;
 * ``fleet.json``: the drift findings across recordings (:mod:`..core.trend`), a list of
-  ``{"mode", "quantity", "direction", "first_bag", "change_percent"}``;
+  ``{"machine", "mode", "quantity", "direction", "first_bag", "change_percent"}``;
 * ``fleet.html``: each mode's trend across recordings, the drift tests, excluded and failed bags;
   ``fleet_trend.json``: the same as data; ``fleet_failures.json``: the failed bags and why.
 
@@ -44,6 +54,7 @@ from typing import Any, TextIO
 
 from ..core.vocabulary import BASELINE_KEYS, FINDING_KEYS, FLEET_HEADER, QUANTITIES, json_clean, num, one_line
 from ..process_exit import console_entry
+from .fleet_cache import CACHE_DIRNAME, ResultCache
 
 PROG = "rsrivc_fleet"
 DASK_HINT = ("dask.distributed is not installed; rsrivc_fleet needs the optional extra: "
@@ -71,6 +82,10 @@ def _parser() -> argparse.ArgumentParser:
                    "available to this process)")
     p.add_argument("--node-name", default=None, help="node name whose section of the params file is used")
     p.add_argument("--no-report", action="store_true", help="per bag: skip report.html and modes.svg")
+    p.add_argument("--group-by", choices=("params", "folder"), default="params", help="what makes a machine: its "
+                   "params file or mapping glob (default), or the folder holding its recordings")
+    p.add_argument("--recompute", action="store_true", help="diagnose every bag again (default: reuse the results "
+                   "of bags whose content, params file and package are unchanged, DIR/.fleet_cache)")
     p.add_argument("--alpha", type=float, default=None, help="family-wise false-alarm probability of the drift "
                    "tests per machine (default 0.01)")
     prog = p.add_mutually_exclusive_group()
@@ -190,8 +205,9 @@ def make_tasks(args: argparse.Namespace) -> tuple[list[BagTask], list[dict[str, 
         if hit is None:
             unmatched.append({"bag": name, "path": str(b), "error": f"no glob of {args.params_file} matches it"})
             continue
+        machine = str(b.resolve().parent) if getattr(args, "group_by", "params") == "folder" else hit[1]
         tasks.append(BagTask(name, str(b.resolve()), str(Path(hit[0]).resolve()), str((out / name).resolve()),
-                             args.node_name, not args.no_report, hit[1]))
+                             args.node_name, not args.no_report, machine))
     _check_params({t.params_file for t in tasks}, args.node_name)
     return tasks, unmatched
 
@@ -234,12 +250,24 @@ def _read_estimates(path: Path, k: int) -> tuple[Any, Any]:
     return t, a
 
 
-def _monitored_mask(t: Any, blind: Sequence[dict[str, Any]]) -> Any:
+#: blind-interval kinds (:mod:`..verdict`) outside a recording's settled part: the estimator's start-up and
+#: settling (also after a disruption restarted it), health holds, gaps and times without an estimate. Learning the
+#: baseline, an untrusted baseline and monitoring are settled.
+UNSETTLED_KINDS = frozenset({"initializing", "settling", "hold", "no_data", "no_estimate"})
+#: a recording feeds the drift test when its settled part is at least this many (longest) memory lengths: with the
+#: default settling of 3 memory lengths after the initialization, recordings from about 4 memory lengths count (the
+#: level's std covers a short settled part: core.trend.bag_level)
+MIN_SETTLED_MEMORY_LENGTHS = 0.5
+
+
+def settled_mask(t: Any, blind: Sequence[dict[str, Any]]) -> Any:
+    """True at the output instants ``t`` of the recording's settled part (outside :data:`UNSETTLED_KINDS`)."""
     import numpy as np
 
     mask = np.ones(t.shape, bool)
     for b in blind:
-        mask &= ~((t >= float(b["start_s"]) - 1e-9) & (t < float(b["end_s"]) - 1e-9))
+        if str(b.get("kind", "")) in UNSETTLED_KINDS:
+            mask &= ~((t >= float(b["start_s"]) - 1e-9) & (t < float(b["end_s"]) - 1e-9))
     return mask
 
 
@@ -257,7 +285,7 @@ def _bag_result(summary: dict[str, Any], out_dir: Path) -> dict[str, Any]:
     period = 1.0 / float(params.get("publish_rate_hz", 10.0) or 10.0)
     if t.size > 1:
         period = float(sorted(t[1:] - t[:-1])[(t.size - 1) // 2])
-    mask = _monitored_mask(t, summary.get("blind_intervals", []))
+    mask = settled_mask(t, summary.get("blind_intervals", []))
     level = bag_level(modal, mask, memory, period) if t.size else None
     exclusion = _exclusion(summary, level, memory)
     modes = []
@@ -281,10 +309,11 @@ def _exclusion(summary: dict[str, Any], level: Any, memory: Sequence[float]) -> 
     """Why the bag cannot feed the trend (None: it can)."""
     if summary["verdict"] == "NO ESTIMATE":
         return "no estimate: the estimator never had an accepted model"
-    if level is None or float(summary.get("monitored_s") or 0.0) <= 0.0:
-        return "the fault tests never ran (no trusted baseline, or health bad throughout)"
-    if level.monitored_s < max(memory):
-        return f"the fault tests ran for only {level.monitored_s:.3g} s (< one memory length, {max(memory):g} s)"
+    if level is None:
+        return "no settled estimate (the estimator was still settling at the end, or health held it throughout)"
+    if level.monitored_s < MIN_SETTLED_MEMORY_LENGTHS * max(memory):
+        return (f"settled for only {level.monitored_s:.3g} s (< {MIN_SETTLED_MEMORY_LENGTHS:g} x the memory, "
+                f"{max(memory):g} s)")
     return None
 
 
@@ -335,11 +364,23 @@ def default_workers() -> int:
         return max(1, len(os.sched_getaffinity(0)) if hasattr(os, "sched_getaffinity") else os.cpu_count() or 1)
 
 
+#: dask settings of the LocalCluster's workers (``dask.config`` keys). dask's nanny starts workers with
+#: ``MALLOC_TRIM_THRESHOLD_=65536``, which also switches off glibc's adaptive mmap threshold: every array above
+#: 128 kB of a diagnosis was then mapped and zeroed afresh (10x the page faults, 0.7 s of 3.8 s of CPU on four 60 s
+#: recordings at 4 kHz). Without it the task thread's CPU time equals an in-process diagnosis'. The statistical
+#: profiler only feeds the dashboard, which this cluster does not have.
+WORKER_CONFIG: dict[str, Any] = {
+    "distributed.nanny.pre-spawn-environ.MALLOC_TRIM_THRESHOLD_": None,     # None: not set (dask's nanny)
+    "distributed.worker.profile.enabled": False,
+}
+
+
 def start_client(scheduler: str | None, workers: int | None) -> tuple[Any, Any]:
     """``(client, cluster)``: a Client of the scheduler at ``scheduler``, or of a new LocalCluster of ``workers``
     single-threaded worker processes (cluster None with a scheduler address)."""
     import logging
 
+    import dask
     from dask.distributed import Client, LocalCluster
 
     for var in ("OPENBLAS_NUM_THREADS", "OMP_NUM_THREADS", "MKL_NUM_THREADS"):   # inherited by the workers
@@ -350,9 +391,12 @@ def start_client(scheduler: str | None, workers: int | None) -> tuple[Any, Any]:
         except (OSError, TimeoutError) as exc:
             raise ArgError(f"--scheduler {scheduler}: cannot connect ({one_line(exc)})") from None
     n = workers or default_workers()
+    # the workers inherit this process's environment, where an earlier dask nanny in this process may have left it
+    os.environ.pop("MALLOC_TRIM_THRESHOLD_", None)
     # no dashboard; the scheduler's HTTP endpoint on a free port (8787 may belong to another cluster)
-    cluster = LocalCluster(n_workers=n, threads_per_worker=1, processes=True, dashboard_address=None,
-                           scheduler_kwargs={"dashboard_address": ":0"}, silence_logs=logging.ERROR)
+    with dask.config.set(WORKER_CONFIG):
+        cluster = LocalCluster(n_workers=n, threads_per_worker=1, processes=True, dashboard_address=None,
+                               scheduler_kwargs={"dashboard_address": ":0"}, silence_logs=logging.ERROR)
     return Client(cluster), cluster
 
 
@@ -433,8 +477,8 @@ def machine_trend(bags: Sequence[dict[str, Any]], alpha: float) -> dict[str, Any
             lv = BagLevel(np.array([m["value"] for m in b["modes"]], float), np.array([m["std"] for m in b["modes"]],
                           float), float(b["level_s"]), np.ones(k))
         levels.append(lv)
-        note = (f"{b['verdict']}: levels from the {b['level_s']:.3g} s the fault tests ran only"
-                if why is None and b["verdict"] == "DEGRADED" else None)
+        note = (f"levels from its {b['level_s']:.3g} s settled part (verdict {b['verdict']})"
+                if why is None and b["verdict"] != "OK" else None)
         rows.append({"bag": b["name"], "start_time_s": b["start_time_ns"] / 1e9, "verdict": b["verdict"],
                      "events": b["events"], "used": why is None, "exclusion": why, "note": note,
                      "level_s": b["level_s"],
@@ -442,8 +486,8 @@ def machine_trend(bags: Sequence[dict[str, Any]], alpha: float) -> dict[str, Any
                      "std": [m["std"] for m in b["modes"]], "baseline": [m["baseline"] for m in b["modes"]]})
     ref = next((b for b in bags if b["exclusion"] is None), bags[0])
     tests = fleet_drift(levels, ref["min_change"], spread_factor=ref["spread_factor"], alpha=alpha)
-    findings = [dict(zip(FINDING_KEYS, (t.mode, t.quantity, t.direction, bags[t.first_index]["name"],
-                                        round(t.change_percent, 6)), strict=True))
+    findings = [dict(zip(FINDING_KEYS, (bags[0]["machine"], t.mode, t.quantity, t.direction,
+                                        bags[t.first_index]["name"], round(t.change_percent, 6)), strict=True))
                 for t in tests if t.flagged and t.first_index is not None]
     return {"machine": bags[0]["machine"], "params_file": bags[0]["params_file"], "K": k,
             "alpha": alpha, "min_change": ref["min_change"],
@@ -509,7 +553,7 @@ def print_findings(summary: dict[str, Any], stdout: TextIO) -> None:
             if not b["used"]:
                 print(f"  not in the drift test: {b['bag']}: {b['exclusion']}", file=stdout)
             elif b["note"]:
-                print(f"  in the drift test in part: {b['bag']}: {b['note']}", file=stdout)
+                print(f"  in the drift test: {b['bag']}: {b['note']}", file=stdout)
         for f in g["findings"]:
             print(f"  DRIFT: mode {f['mode']} {f['quantity'].replace('_', ' ')} {f['direction']} "
                   f"{f['change_percent']:+.2f} % across the recordings (threshold reached at {f['first_bag']})",
@@ -519,6 +563,55 @@ def print_findings(summary: dict[str, Any], stdout: TextIO) -> None:
 
 
 # ------------------------------------------------------------------------------------------------- main
+def split_cached(tasks: Sequence[BagTask], cache: ResultCache
+                 ) -> tuple[list[dict[str, Any]], list[BagTask], dict[str, str]]:
+    """``(reused results, tasks to run, cache key per task name)`` (:mod:`.fleet_cache`; a bag whose files cannot
+    be read gets no key and is run: its task reports the error)."""
+    reused, todo, keys = [], [], {}
+    for t in tasks:
+        try:
+            keys[t.name] = cache.key(t.bag, t.params_file, t.node_name, t.report, t.out_dir)
+        except OSError:
+            todo.append(t)
+            continue
+        fields = {"name": t.name, "bag": t.bag, "params_file": t.params_file, "machine": t.machine or t.params_file}
+        hit = cache.lookup(keys[t.name], t.out_dir, fields)
+        if hit is None:
+            todo.append(t)
+        else:
+            reused.append(hit)
+    return reused, todo, keys
+
+
+def _compute(args: argparse.Namespace, todo: Sequence[BagTask], keys: dict[str, str], cache: ResultCache,
+             stderr: TextIO, state: dict[str, Any]) -> list[dict[str, Any]]:
+    """Diagnose the bags of ``todo`` on the cluster; store each bag's result in the cache as it arrives."""
+    out = Path(args.out)
+    state["partials"] = (out, [t.name for t in todo])
+    client, cluster = start_client(args.scheduler, args.workers)
+    state["client"] = (client, cluster)
+    n_workers = len(client.scheduler_info().get("workers", {}))
+    print(f"{PROG}: {len(todo)} bag(s) on {n_workers} worker(s)"
+          f"{f' at {args.scheduler}' if args.scheduler else ' (LocalCluster)'}", file=stderr)
+    out_dirs = {t.name: t.out_dir for t in todo}
+
+    def report(res: dict[str, Any]) -> None:
+        state["done"].append(res["name"])
+        for w in res.get("warnings", []):
+            print(f"{PROG}: {res['name']}: {w}", file=stderr)
+        if not res["ok"]:
+            print(f"{PROG}: {res['name']}: failed, skipped: {res['error']}", file=stderr)
+        elif res["name"] in keys:
+            cache.store(keys[res["name"]], out_dirs[res["name"]], res)
+
+    show = args.progress if args.progress is not None else stderr.isatty()
+    results = run_tasks(client, todo, stderr, bool(show), report)
+    close_client(client, cluster)
+    state.pop("client", None)
+    remove_partials(*state.pop("partials"))
+    return results
+
+
 def fleet(args: argparse.Namespace, stdout: TextIO, stderr: TextIO, state: dict[str, Any]) -> int:
     """The work behind :func:`main`; raises :class:`ArgError` for bad arguments."""
     from ..core.trend import DEFAULT_ALPHA
@@ -539,27 +632,17 @@ def fleet(args: argparse.Namespace, stdout: TextIO, stderr: TextIO, state: dict[
         raise ArgError("no bag has a params file")
     out = Path(args.out)
     out.mkdir(parents=True, exist_ok=True)
-    state["partials"] = (out, [t.name for t in tasks])
     t0 = time.monotonic()
-    client, cluster = start_client(args.scheduler, args.workers)
-    state["client"] = (client, cluster)
-    n_workers = len(client.scheduler_info().get("workers", {}))
-    print(f"{PROG}: {len(tasks)} bag(s) on {n_workers} worker(s)"
-          f"{f' at {args.scheduler}' if args.scheduler else ' (LocalCluster)'}", file=stderr)
-    state["done"] = []
-
-    def report(res: dict[str, Any]) -> None:
-        state["done"].append(res["name"])
-        for w in res.get("warnings", []):
-            print(f"{PROG}: {res['name']}: {w}", file=stderr)
-        if not res["ok"]:
-            print(f"{PROG}: {res['name']}: failed, skipped: {res['error']}", file=stderr)
-
-    show = args.progress if args.progress is not None else stderr.isatty()
-    results = run_tasks(client, tasks, stderr, bool(show), report)
-    close_client(client, cluster)
-    state.pop("client", None)
-    remove_partials(*state.pop("partials"))
+    cache = ResultCache(out, enabled=not args.recompute)
+    reused, todo, keys = split_cached(tasks, cache)
+    if reused:
+        print(f"{PROG}: {len(reused)} bag(s) unchanged since an earlier run: their results reused "
+              f"({out / CACHE_DIRNAME})", file=stderr)
+    state["done"] = [r["name"] for r in reused]
+    results = list(reused)
+    if todo:
+        results += _compute(args, todo, keys, cache, stderr, state)
+    cache.save()
     results += [{"name": u["bag"], "bag": u["path"], "params_file": "", "ok": False, "error": u["error"]}
                 for u in unmatched]
     summary = fleet_summary(results, alpha)
@@ -568,7 +651,9 @@ def fleet(args: argparse.Namespace, stdout: TextIO, stderr: TextIO, state: dict[
     for r in sorted((r for r in results if r["ok"]), key=lambda r: r["start_time_ns"]):
         print(f"{r['name']}: {r['verdict']}: {r['verdict_text']}", file=stdout)
     print_findings(summary, stdout)
-    print(f"{n_ok} of {len(results)} bag(s) diagnosed in {time.monotonic() - t0:.1f} s; wrote {out}/: fleet.csv, "
+    n_new = sum(r["ok"] and not r.get("cached") for r in results)
+    print(f"{n_ok} of {len(results)} bag(s) diagnosed ({n_new} computed, {n_ok - n_new} reused) in "
+          f"{time.monotonic() - t0:.1f} s; wrote {out}/: fleet.csv, "
           f"fleet.json ({len(summary['findings'])} drift finding(s)), fleet.html, fleet_trend.json, "
           f"fleet_failures.json ({len(summary['failures'])} failed)", file=stdout)
     return 0 if n_ok else 1

@@ -1,17 +1,16 @@
 """Drift of modal quantities across recordings of one machine (``rsrivc_fleet``; ROS-free numerics).
 
 A slow change (wear, loosening) can move a mode by a fraction of a percent per recording, too little for the per-bag
-fault logic, which compares each recording with its own baseline; here recordings are compared with each other. Per bag
-(:func:`bag_level`), over its monitored part: level ``m = median(q_k)``, scatter ``s = max(1.4826 MAD, median
-sigma_k)``, standard error ``se = sqrt(pi/2) s / sqrt(n_eff)`` with ``n_eff = T / (2 T_m)`` (the integrated
-autocorrelation time of a forgetting estimate is about twice its memory ``T_m``).
+fault logic, which compares each recording with its own baseline; here recordings are compared with each other.
 
-Across bags (:func:`drift_test`), per mode and quantity against recording order: random-effects weighted regression
-``m_j = a + b x_j + e_j``, ``var e_j = se_j^2 + tau^2`` with ``tau^2`` by DerSimonian & Laird's moments generalised to a
-regression; the slope's std inflated by the Birge ratio ``max(1, Q*/(n - 2))``; two-sided t test at ``alpha / n_tests``
-(Bonferroni over modes x 3 quantities). A drift is flagged when the slope is significant and the fitted change from the
-first recording reaches ``faults.min_change.*`` and ``faults.min_change.spread_factor`` times the scatter about the
-line.
+Per bag, a robust level (:func:`bag_level`): the median of the estimates over the recording's settled part (outside
+start-up, holds and gaps), its standard error from the estimate's scatter (never below the published std) corrected
+for the autocorrelation of a forgetting estimator (``g(x) = 2 (x - 1 + exp(-x)) / x^2``, ``x = T / T_m``) and for the
+median's efficiency on correlated data (``pi ln2 / 2``). Across bags (:func:`drift_test`), per machine, mode and
+quantity against recording order: random-effects weighted regression (``tau^2`` by DerSimonian & Laird's moments
+generalised to a regression), the slope's std inflated by the Birge ratio, a t test at ``alpha / n_tests``; a drift
+is flagged when the slope is significant and the fitted change reaches ``faults.min_change.*`` and
+``faults.min_change.spread_factor`` times the scatter about the line (docs/fleet_drift.md).
 """
 
 from __future__ import annotations
@@ -27,22 +26,31 @@ from .vocabulary import QUANTITIES
 MIN_RECORDINGS = 4            # a line through fewer recordings leaves < 2 degrees of freedom for its scatter
 DEFAULT_ALPHA = 0.01          # family-wise false-alarm probability per machine (all modes and quantities)
 _MAD_TO_STD = 1.482602218505602
-_MEDIAN_EFFICIENCY = math.sqrt(math.pi / 2.0)
+_MEDIAN_EFFICIENCY = math.sqrt(math.pi * math.log(2.0) / 2.0)   # median vs mean of a correlated series (docstring)
 
 
 @dataclass
 class BagLevel:
     """A recording's robust level per mode and quantity (see the module docstring)."""
 
-    value: np.ndarray            # (K, 3) median over the monitored estimates
+    value: np.ndarray            # (K, 3) median over the settled estimates
     std: np.ndarray              # (K, 3) standard error of the level
-    monitored_s: float           # time the levels are taken over
-    n_eff: np.ndarray            # (K,) independent estimates in that time
+    monitored_s: float           # time the levels are taken over (the settled part)
+    n_eff: np.ndarray            # (K,) independent estimates in that time (1 / g)
+
+
+def time_average_variance_ratio(x: np.ndarray | float) -> np.ndarray:
+    """``g(x) = 2 (x - 1 + exp(-x)) / x^2``: variance of the average over a time ``x T_m`` of a stationary process
+    with autocorrelation ``exp(-|tau| / T_m)``, relative to the process's variance (1 at ``x = 0``)."""
+    x = np.maximum(np.asarray(x, float), 1e-9)
+    small = x < 1e-4
+    return np.where(small, 1.0 - x / 3.0, 2.0 * (x - 1.0 + np.exp(-np.minimum(x, 700.0))) / np.where(small, 1.0, x)**2)
 
 
 def bag_level(modal: np.ndarray, monitored: np.ndarray, memory_s: Sequence[float], period_s: float) -> BagLevel | None:
     """The level of one bag from its estimates ``modal`` ``(N, K, 6)`` (f, zeta, gain and their stds, as in
-    estimates.csv) at the output instants where ``monitored`` is true (period ``period_s``); None without any."""
+    estimates.csv) at the output instants where ``monitored`` (the settled part) is true (period ``period_s``);
+    None without any."""
     modal = np.asarray(modal, float)
     mask = np.asarray(monitored, bool)
     if modal.ndim != 3 or modal.shape[2] < 6 or mask.shape != modal.shape[:1] or not mask.any():
@@ -50,7 +58,8 @@ def bag_level(modal: np.ndarray, monitored: np.ndarray, memory_s: Sequence[float
     sel = modal[mask]                                   # (n, K, 6)
     k = sel.shape[1]
     value = np.full((k, 3), np.nan)
-    scatter = np.full((k, 3), np.nan)
+    scatter_mad = np.full((k, 3), np.nan)
+    scatter_pub = np.full((k, 3), np.nan)
     for i in range(k):
         for q in range(3):
             x = sel[:, i, q]
@@ -62,11 +71,15 @@ def bag_level(modal: np.ndarray, monitored: np.ndarray, memory_s: Sequence[float
             pub = sel[:, i, q + 3][ok]
             pub = pub[np.isfinite(pub)]
             value[i, q] = med
-            scatter[i, q] = max(mad, float(np.median(pub)) if pub.size else 0.0)
+            scatter_mad[i, q] = mad
+            scatter_pub[i, q] = float(np.median(pub)) if pub.size else 0.0
     t_mon = float(mask.sum()) * float(period_s)
     mem = np.broadcast_to(np.asarray(memory_s, float), (k,))
-    n_eff = np.maximum(1.0, t_mon / (2.0 * np.maximum(mem, 1e-12)))
-    std = _MEDIAN_EFFICIENCY * scatter / np.sqrt(n_eff)[:, None]
+    g = time_average_variance_ratio(t_mon / np.maximum(mem, 1e-12))
+    mad_std = scatter_mad / np.sqrt(np.maximum(1.0 - g, 0.05))[:, None]
+    scatter = np.fmax(mad_std, scatter_pub)
+    std = _MEDIAN_EFFICIENCY * scatter * np.sqrt(g)[:, None]
+    n_eff = 1.0 / g
     return BagLevel(value, std, t_mon, n_eff)
 
 

@@ -58,7 +58,7 @@ EVENTS_HEADER: tuple[str, ...] = ("onset_time_s", "clear_time_s", "mode", "quant
                                   "value")
 FLEET_HEADER: tuple[str, ...] = ("bag", "start_time_s", "mode", *BASELINE_KEYS, *BASELINE_FIELDS, "events",
                                  "verdict")
-FINDING_KEYS: tuple[str, ...] = ("mode", "quantity", "direction", "first_bag", "change_percent")
+FINDING_KEYS: tuple[str, ...] = ("machine", "mode", "quantity", "direction", "first_bag", "change_percent")
 """Keys of one fleet-level drift finding in ``fleet.json``."""
 
 
