@@ -188,3 +188,28 @@ def test_a_clock_step_back_before_a_fault_is_re_based_and_hides_nothing(repo, st
     assert 20.0 - 0.1 <= events[0].onset_time_s <= 20.5
     assert any("stepped back by" in line for rep in reps for line in rep.health["reasons"])
     assert reps[-1].health["out_of_order"] == 0 and reps[-1].health["clock_steps"] == 1
+
+
+def test_a_deviation_only_the_joint_check_can_confirm_is_blind_not_ok():
+    """Under stress a gain deviation needs the joint check's support; without it the test cannot conclude: the
+    monitor lists it as awaiting (the pipeline makes it a hold owned by the joint check), never a silent OK."""
+    from additive_rsrivc_ros.core.joint_check import JointVerdict
+
+    t0 = 60.0
+    t, modal = stream(80.0, 41, lambda t, truth: (truth.__setitem__((t >= t0, 0, 2), truth[t >= t0, 0, 2] * 0.7),
+                                                    truth)[1])
+    mon = FaultMonitor(MEMORY)
+    K = 2
+    z = np.zeros((K, 3))
+    for k in range(t.size):
+        if mon.phase == "monitoring" and mon.joint_reference is None:    # a converged reference fit, as the pipeline
+            mon.joint_reference = JointVerdict(float(t[k]), (0.0, 1.0), True, z, z, np.ones((K, 3), bool),
+                                               np.zeros((K, 3), int), np.zeros(K), np.zeros(K), np.zeros(K, int),
+                                               np.zeros(K))
+        mon.update(float(t[k]), modal[k], suspect_since=t0 if t[k] >= t0 else None)
+    assert not mon.flags.any()
+    waiting = mon.awaiting_joint()
+    assert [(i, q) for i, q, _ in waiting] == [(0, 2)] and waiting[0][2] >= t0
+    holds = [Hold("joint_check", "gain awaits", since, math.inf, (i,)) for i, q, since in waiting]
+    d = decide("monitoring", True, [[tst.state for tst in row] for row in mon.tests], holds, [None, None])
+    assert [x.state for x in d] == [ModeState.BLIND, ModeState.MONITORING]

@@ -103,7 +103,7 @@ def test_invalid_covariance_block_is_flagged_never_zero(corrupt: str, problem: s
     mon = HealthMonitor([MEMORY_S, MEMORY_S])
     status = mon.assess(100.0, m, health)
     assert any("no valid uncertainty" in reason and "mode 2" in reason for reason in status.reasons)
-    assert status.hold
+    assert status.mode_hold(2).tolist() == [False, True]      # the mode without a valid uncertainty is held
 
 
 def test_old_snapshot_without_sandwich_loads_stationary() -> None:

@@ -499,6 +499,8 @@ class FaultMonitor:
         self.joint: JointVerdict | None = None    # the latest joint check (S6)
         self.joint_reference: JointVerdict | None = None   # the joint fit of the end of the baseline window (S6)
         self.joint_streak = np.zeros((self.K, 3), dtype=int)   # signed run of consecutive supporting checks
+        self.joint_several_modes_t = math.nan   # last stressed joint check that moved several modes at once
+        self.several_modes = False              # under stress, several modes deviate at once (see update)
 
     # -- configuration
     @classmethod
@@ -643,6 +645,12 @@ class FaultMonitor:
             self.anomaly_since = None
         stress_since = self.anomaly_since
         held_mode = np.zeros(self.K, dtype=bool) if mode_hold is None else np.asarray(mode_hold, dtype=bool)
+        # under stress, relevant deviations of several modes at once (and no fault of this episode that explains
+        # them) are no single structural change (a sensor bias or drift refits every mode): the recursion confirms
+        # none of them; only the joint check, mode by mode, can
+        deviating = np.any(relevant & (score >= 0), axis=1) & ~held_mode
+        self.several_modes = bool(stress_since is not None and int(deviating.sum()) >= 2 and not any(
+            e.alarm_time_s >= stress_since for e in self.open_events))
         lead = np.argmax(score, axis=1)   # the most significant of the mode's relevant deviations
         moving = self._moving(t, modal, rho)
         arriving = self._moving(t, modal, rho, lookback=0.5)
@@ -671,8 +679,8 @@ class FaultMonitor:
                 if test.by_joint:
                     continue        # S6: the joint check holds and clears its own events
                 test.confirm_by_onset = q == 0
-                test.confirm_before = self._confirm_before(i, q, bool(moving[i, 0] or arriving[i, q]),
-                                                           stress_since, int(lead[i]))
+                test.confirm_before = -math.inf if self.several_modes else self._confirm_before(
+                    i, q, bool(moving[i, 0] or arriving[i, q]), stress_since, int(lead[i]))
                 opened, closed = test.step(
                     t, w, float(modal[i, q]), sigma_d, b, float(rho[i, q]), s.cusum_reference_sigma,
                     s.cusum_threshold, s.clear_fraction, self.persistence_s(i), self.clear_time_s(i),
@@ -931,15 +939,27 @@ class FaultMonitor:
         """Some mode's deviations need the joint check's support (S6)."""
         return bool(self.joint_armed_modes.any())
 
+    def awaiting_joint(self) -> list[tuple[int, int, float]]:
+        """(mode, quantity, since) of each suspected deviation that only the joint check can confirm and that it
+        does not support (yet): the mode's test cannot conclude, so the decision shows the mode blind, never OK."""
+        return [(i, q, tst.since) for i, row in enumerate(self.tests) for q, tst in enumerate(row)
+                if tst.state == "suspect" and (self.several_modes or self.joint_needed(i, q))
+                and self.joint_streak[i, q] == 0]
+
     def joint_needed(self, i: int, q: int) -> bool:
         """A deviation of (mode ``i``, quantity ``q``) is confirmed only with the joint check's support (S6): the
         mode is armed (narrow excitation, or coupled to a weakly excited mode), or -- for damping and gain -- the
         estimator is under stress (S5): while the recursion re-converges after an abrupt change its damping and gain
         estimates can swing the wrong way or move in a neighbouring mode, where a joint fit of the window after the
-        change does not. A natural frequency under stress keeps the recursion's faster confirmation."""
-        return bool(self.joint_armed_modes[i]) or (q > 0 and self.anomaly_since is not None
-                                                   and self.joint_reference is not None
-                                                   and bool(self.joint_reference.converged))
+        change does not. A natural frequency under stress keeps the recursion's faster confirmation, unless another
+        mode's fault was confirmed in the same stress episode: the recursion's split between the modes is then
+        re-converging too, and a second mode's deviation needs the joint fit's support."""
+        if self.joint_armed_modes[i]:
+            return True
+        if self.anomaly_since is None or self.joint_reference is None or not self.joint_reference.converged:
+            return False
+        other = any(e.mode != i + 1 and e.alarm_time_s >= self.anomaly_since for e in self.open_events)
+        return q > 0 or other
 
     def arm_joint(self, verdict: JointVerdict) -> None:
         """The baseline window's joint fit: arm S6 when some applicable quantity is not identifiable jointly."""
@@ -962,6 +982,15 @@ class FaultMonitor:
         if not (needed and verdict.converged) or self.baseline is None or self.held:
             return out
         sup = verdict.supported
+        if self.anomaly_since is not None:
+            app = applicable_mask(self.structures)
+            moved = {int(i) for i in np.flatnonzero(np.any((sup != 0) & app, axis=1))}
+            if len(moved) >= 2 and not any(e.mode - 1 in moved for e in self.open_events):
+                # after an abrupt change of the output, a joint fit that moves several modes at once does not
+                # point at one structural change (a sensor bias or drift refits every mode): nothing is confirmed
+                self.joint_streak[:] = 0
+                self.joint_several_modes_t = t
+                return out
         same = (sup != 0) & (np.sign(self.joint_streak) == sup)
         self.joint_streak = np.where(same, self.joint_streak + sup, sup)
         ref = self.joint_reference

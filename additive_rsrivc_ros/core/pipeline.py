@@ -27,7 +27,7 @@ import numpy as np
 from .adequacy import ModelOrderCheck
 from .alignment import AlignedBlock, InvariantAligner
 from .autostart import FoundModes, ModeSearch
-from .decision import ModeDecision, decide
+from .decision import Hold, ModeDecision, decide
 from .estimator import EstimatorHealth, MonitorSettings, RecursiveEstimator
 from .faults import FaultEvent, FaultMonitor, FaultSettings, HealthMonitor, HealthStatus, Level
 from .joint_check import JointChecker, applicable_mask
@@ -1044,6 +1044,9 @@ class MonitorPipeline:
         holds = list(status.holds)
         if self.faults.phase == "learning" and not status.hold:
             holds = []          # holds scoped to one mode do not pause the baseline window (its spread shows them)
+        holds += [Hold("joint_check", f"a {QUANTITIES[q].replace('_', ' ')} deviation awaits the joint check's support "
+                       "(the excitation or an abrupt change leaves the recursion's split between quantities open)",
+                       since, math.inf, (i,)) for i, q, since in self.faults.awaiting_joint()]
         restricted = [self.faults.restricted_until(i) for i in range(self.K)]
         return decide(self.faults.phase, self.initialized, [[tst.state for tst in row] for row in self.faults.tests],
                       holds, restricted, no_model_reason=self.no_model or "initializing")
@@ -1128,6 +1131,13 @@ class MonitorPipeline:
             "t": verdict.t, "converged": verdict.converged,
             "not_identifiable": verdict.not_identifiable(applicable_mask(self.cfg.structures)),
             "peak_changes": verdict.peak_lines()}
+        t_multi = self.faults.joint_several_modes_t
+        if math.isfinite(t_multi) and self.faults.anomaly_since is not None:
+            health["reasons"].append(f"output anomaly: the joint fit of the data after it moves several modes at once "
+                                     f"(t={t_multi:.1f} s), which no single structural change explains (a sensor bias "
+                                     "or drift?): not confirmed as a fault")
+            health["level"] = max(int(health["level"]), int(Level.WARN))
+            health["ok"] = False
         if verdict is None or not self.faults.joint_armed:
             return
         peaks = verdict.peak_lines()
