@@ -401,7 +401,13 @@ def start_client(scheduler: str | None, workers: int | None) -> tuple[Any, Any]:
 
 
 def close_client(client: Any, cluster: Any) -> None:
-    """Close the client and a LocalCluster we started (never a remote scheduler)."""
+    """Close the client and a LocalCluster we started (never a remote scheduler). Connections that close while
+    the cluster goes down are expected: dask's shutdown messages (a ``CommClosedError`` traceback) are silenced."""
+    import logging
+
+    for name in ("distributed", "distributed.comm", "distributed.worker", "distributed.nanny", "tornado",
+                 "asyncio"):
+        logging.getLogger(name).setLevel(logging.CRITICAL)
     for obj in (client, cluster):
         if obj is None:
             continue
