@@ -56,16 +56,20 @@ class WorkerMixin:
     def _run_worker(self) -> None:
         wake = self.sync.wake   # block input: woken per message, not polled every period
         while not (self._stop.wait(self._block_period_s) if wake is None else self._wait_block(wake)):
-            try:
-                self.step()
-            except Exception as exc:  # noqa: BLE001 - the node must keep running; the error is reported
-                self._errors += 1
-                msg = f"{type(exc).__name__}: {exc}"
-                if msg != self._last_error:
-                    self.get_logger().error(f"estimation step failed ({msg}); continuing")
-                self._last_error = msg
-            finally:
-                self._push_started_ns = 0
+            self.guarded_step()
+
+    def guarded_step(self) -> None:
+        """One worker step (:meth:`step`); an exception is counted and logged once, never raised."""
+        try:
+            self.step()
+        except Exception as exc:  # noqa: BLE001 - the node must keep running; the error is reported
+            self._errors += 1
+            msg = f"{type(exc).__name__}: {exc}"
+            if msg != self._last_error:
+                self.get_logger().error(f"estimation step failed ({msg}); continuing")
+            self._last_error = msg
+        finally:
+            self._push_started_ns = 0
 
     def _wait_block(self, wake: threading.Event) -> bool:
         """Block input: sleep until a block arrives (or ``BLOCK_IDLE_S`` for timeouts, rates, the graph check),
