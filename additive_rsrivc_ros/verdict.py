@@ -20,13 +20,12 @@ from collections.abc import Iterable, Mapping, Sequence
 from dataclasses import dataclass, field
 from typing import Any
 
-from .core.vocabulary import EVENTS_HEADER, MODEL_ORDER_FLAGGED, VERDICTS
+from .core.vocabulary import ALIGN_APPROXIMATE_RELATIVE, EVENTS_HEADER, MODEL_ORDER_FLAGGED, VERDICTS
 
 STARTUP_ISSUES = ("initializing",)       # health issue kinds of a normal start (not a disruption)
 STARTUP_REASONS = ("initializing", "starting: finding modes", "no mode guesses: found")   # their reasons
 ADVISORY_ISSUES = ("residual_jump", "projection_storm")   # = core.faults.HealthMonitor.ADVISORY_KINDS: never hold
 ADVISORY_REASONS = ("residual variance jumped", "projection storm")   # their reason texts (when no 'issues')
-CONTROLLER_MISMATCH_RELATIVE = 1e-6   # = core.pipeline.ALIGN_APPROXIMATE_RELATIVE (float32 control ~1e-7)
 WINDOW_BROKEN = ("baseline window restarted", "baseline window paused")   # a data problem broke the baseline window
 _SUFFIX = re.compile(r"\s*\((recovering|hold-off)[^)]*\)\s*$")
 
@@ -109,7 +108,7 @@ def model_flag(health: Mapping[str, Any]) -> str:
         return str(mo.get("message") or state)
     al = health.get("alignment") or {}
     rel = al.get("relative_residual") if isinstance(al, Mapping) else None
-    if isinstance(rel, int | float) and math.isfinite(rel) and rel > CONTROLLER_MISMATCH_RELATIVE:
+    if isinstance(rel, int | float) and math.isfinite(rel) and rel > ALIGN_APPROXIMATE_RELATIVE:
         return (f"controller invariant u = C_d(q)(r - y) holds only to {rel:.2g} relative: the configured controller "
                 "is not the loop's (check controller.numerator/denominator); stream alignment unverified")
     return ""

@@ -31,7 +31,15 @@ from .decision import Hold, ModeDecision, decide
 from .estimator import EstimatorHealth, MonitorSettings, RecursiveEstimator
 from .faults import FaultEvent, FaultMonitor, FaultSettings, HealthMonitor, HealthStatus, Level
 from .joint_check import JointChecker, applicable_mask
-from .vocabulary import BASELINE_FIELDS, FLAG_FIELDS, MODE_FIELDS, QUANTITIES, one_line, plain
+from .vocabulary import (
+    ALIGN_APPROXIMATE_RELATIVE,
+    BASELINE_FIELDS,
+    FLAG_FIELDS,
+    MODE_FIELDS,
+    QUANTITIES,
+    one_line,
+    plain,
+)
 
 STATE_VERSION = 1
 FLOAT64_TYPE = "std_msgs/msg/Float64"
@@ -1265,7 +1273,6 @@ class MonitorPipeline:
 
 
 CLOCK_STEP_SPACING_TOL = 0.1        # a stamp before its predecessor, then a spacing this regular: a clock step
-ALIGN_APPROXIMATE_RELATIVE = 1e-6    # above this the invariant is reported as approximate (float32 control ~1e-7)
 ALIGN_NOTE_HOLD_S = 5.0             # a re-alignment stays in the health reasons this long (report time)
 ALIGN_UNDECIDED_FRACTION = 0.5       # report when more than this fraction of a report period is undecidable
 

@@ -49,6 +49,9 @@ LEVEL_NAMES: tuple[str, ...] = ("OK", "WARN", "ERROR", "STALE")
 """``diagnostic_msgs/DiagnosticStatus`` level names by value (``core.faults.Level``)."""
 VERDICTS: tuple[str, ...] = ("OK", "FAULT", "DEGRADED", "NO ESTIMATE")
 """``summary.json`` ``verdict`` values, best to worst."""
+ALIGN_APPROXIMATE_RELATIVE = 1e-6
+"""Above this relative residual the controller invariant ``u = C_d(q)(r - y)`` is approximate (float32 control gives
+~1e-7): reported on health, and the verdict flags the model (the configured controller is not the loop's)."""
 MODEL_ORDER_FLAGGED: tuple[str, ...] = ("too_low", "misfit")
 """``health['model_order']['state']`` values that flag the model (health WARN; the offline verdict DEGRADED)."""
 
