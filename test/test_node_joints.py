@@ -189,8 +189,12 @@ def test_three_joints_from_shared_joint_state_topics(ros_env, tmp_path):
             return bool(got) and np.allclose(np.asarray(got[-1].data), ref[j][-1].modal.ravel(), rtol=1e-9, atol=0.0)
         robot.wait_for(lambda: all(caught_up(j) for j in JOINTS), 120, "every joint's ~/modes equal to its own "
                        "offline pipeline's last report")
-        robot.wait_for(lambda: all(int(robot.status(j, "estimator")["values"]["samples_aligned"]) == keep[j].sum()
-                                   for j in JOINTS), 20, "final counters")
+        # samples are counted when aligned, before the worker has made the report from them: wait for both
+        def settled(j: str) -> bool:
+            aligned = int(robot.status(j, "estimator")["values"]["samples_aligned"]) == keep[j].sum()
+            freqs = [float(robot.status(j, f"mode {i + 1}")["values"]["natural_frequency_hz"]) for i in range(2)]
+            return aligned and bool(np.allclose(freqs, ref[j][-1].modal[:2, 0], rtol=1e-9, atol=0.0))
+        robot.wait_for(lambda: all(settled(j) for j in JOINTS), 20, "final counters and statuses")
         for j in JOINTS:
             est = robot.status(j, "estimator")["values"]
             lost = MISSING[1] - MISSING[0] if j == "wrist" else 0
