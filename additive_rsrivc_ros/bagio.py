@@ -92,6 +92,7 @@ class Signals:
     nonfinite: int = 0
     nonfinite_by_signal: dict[str, int] = field(default_factory=dict)
     unmatched_by_signal: dict[str, int] = field(default_factory=dict)   # missing (NaN) + surplus, time alignment
+    block: dict[str, int] = field(default_factory=dict)   # block-topic bags: the block counters (ros/blocks.py)
     storage: str = ""
     metadata: dict[str, str] = field(default_factory=dict)
 
@@ -381,6 +382,8 @@ def read_signals(bag: str | Path, config: MonitorConfig) -> Signals:
     counted in ``nonfinite``: the caller decides.
     """
     path = _resolve(bag)
+    if config.block_input:
+        return _read_block_bag(path, config)
     wanted = ["input", "output"] + (["reference"] if config.closed_loop else [])
     sigcfg = {name: bag_topic(config.signals[name]) for name in wanted}
     raw: dict[str, list[bytes]] = {name: [] for name in wanted}
@@ -479,6 +482,15 @@ def _assemble(path: Path, config: MonitorConfig, sigcfg: dict, raw: dict, log_ns
         if abs(dt - h) > SPACING_TOLERANCE * h:
             raise BagError(f"{path}: the samples arrive at {1.0 / dt:.6g} Hz (mean spacing {dt * 1e3:.6g} ms), "
                            f"loop_rate_hz is {config.loop_rate_hz:g}: more than {SPACING_TOLERANCE:.1%} apart")
+    truth_t, truth_modes, truth_fault = _truth(path, truth_raw, fault_raw, t0)
+    return Signals(
+        t=(t_ns - t0) * 1e-9, t0_ns=t0, r=values.get("reference"), u=values["input"], y=values["output"],
+        truth_t=truth_t, truth_modes=truth_modes, truth_fault=truth_fault, nonfinite=sum(nonfinite.values()),
+        nonfinite_by_signal=nonfinite, unmatched_by_signal=unmatched, **_metadata_info(path))
+
+
+def _truth(path: Path, truth_raw: list, fault_raw: list, t0: int) -> tuple[Any, Any, Any]:
+    """``(truth_t, truth_modes, truth_fault)`` of the simulator's truth topics (None where absent)."""
     truth_t = truth_modes = None
     if truth_raw:
         rows = []
@@ -503,10 +515,58 @@ def _assemble(path: Path, config: MonitorConfig, sigcfg: dict, raw: dict, log_ns
                 truth_fault.append(json.loads(text))
             except Exception as exc:  # noqa: BLE001
                 raise BagError(f"{path}: {TRUTH_FAULT_TOPIC}: not JSON ({one_line(exc, ERROR_CHARS)})") from None
-    return Signals(
-        t=(t_ns - t0) * 1e-9, t0_ns=t0, r=values.get("reference"), u=values["input"], y=values["output"],
-        truth_t=truth_t, truth_modes=truth_modes, truth_fault=truth_fault, nonfinite=sum(nonfinite.values()),
-        nonfinite_by_signal=nonfinite, unmatched_by_signal=unmatched, **_metadata_info(path))
+    return truth_t, truth_modes, truth_fault
+
+
+def _read_block_bag(path: Path, config: MonitorConfig) -> Signals:
+    """A bag recorded on ``block.topic`` (:mod:`.block_bag`: the node's own block logic, log time as arrival)."""
+    from .block_bag import block_samples
+
+    topic = str(config.params["block.topic"])
+    messages: list[tuple[int, Any]] = []
+    truth_raw: list[tuple[int, bytes]] = []
+    fault_raw: list[tuple[int, bytes]] = []
+    try:
+        with Reader(path) as reader:
+            if reader.message_count == 0:
+                raise BagError(f"{path}: the bag is empty (no messages)")
+            by_topic: dict[str, list] = {}
+            for c in reader.connections:
+                by_topic.setdefault(c.topic, []).append(c)
+            if topic not in by_topic:
+                have = ", ".join(sorted(by_topic)) or "none"
+                raise BagError(f"{path}: configured block topic '{topic}' is not in the bag (topics: {have})")
+            types = {c.msgtype for c in by_topic[topic]}
+            if types != {MULTIARRAY}:
+                raise BagError(f"{path}: topic '{topic}' has type {', '.join(sorted(types))}, block input needs "
+                               f"{MULTIARRAY}")
+            conns = by_topic[topic] + [c for t, typ in ((TRUTH_MODES_TOPIC, MULTIARRAY), (TRUTH_FAULT_TOPIC, STRING))
+                                       for c in by_topic.get(t, []) if c.msgtype == typ]
+            store = _typestore()
+            for conn, timestamp, data in reader.messages(connections=conns):
+                if conn.topic == TRUTH_MODES_TOPIC:
+                    truth_raw.append((timestamp, bytes(data)))
+                elif conn.topic == TRUTH_FAULT_TOPIC:
+                    fault_raw.append((timestamp, bytes(data)))
+                else:
+                    messages.append((int(timestamp), store.deserialize_cdr(bytes(data), MULTIARRAY)))
+    except BagError:
+        raise
+    except Exception as exc:  # noqa: BLE001 - rosbags raises many types for damaged files
+        raise BagError(f"{path}: unreadable, truncated or corrupt bag "
+                       f"({type(exc).__name__}: {one_line(exc, ERROR_CHARS)})") from None
+    messages.sort(key=lambda m: m[0])
+    try:
+        t_ns, r, u, y, counters = block_samples(path, config, messages)
+    except ValueError as exc:
+        raise BagError(str(exc)) from None
+    t0 = int(t_ns[0])
+    truth_t, truth_modes, truth_fault = _truth(path, truth_raw, fault_raw, t0)
+    nonfinite = {name: int(np.count_nonzero(~np.isfinite(v)))
+                 for name, v in (("reference", r), ("input", u), ("output", y)) if v is not None}
+    return Signals(t=(t_ns - t0) * 1e-9, t0_ns=t0, r=r, u=u, y=y, truth_t=truth_t, truth_modes=truth_modes,
+                   truth_fault=truth_fault, nonfinite=sum(nonfinite.values()), nonfinite_by_signal=nonfinite,
+                   block=counters, **_metadata_info(path))
 
 
 ALIGN_MIN_FRACTION = 0.9  # time alignment must find every topic in at least this fraction of the grid samples

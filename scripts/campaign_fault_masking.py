@@ -20,7 +20,7 @@ the verdict is not OK and the changed mode's blind time (global or its own) cove
 Prints one row per run, the violations with their reason, the detection delays in memory lengths (median, worst
 five) and the counts. Usage::
 
-    python scripts/campaign_fault_masking.py [--runs 300] [--seed 0] [--memory 1 50] [--bound 5]
+    python scripts/campaign_fault_masking.py [--runs 300] [--seed 0] [--memory 1 50] [--bound 5] [--param N=V]
 
 Heavy: a run simulates ~15 memory lengths of data (a 50 s memory at 8 kHz is 6 M samples); ``--memory 0.5 3`` and
 fewer runs give a quick look.
@@ -196,6 +196,9 @@ def judge(run: Run, reps: list, bound: float) -> tuple[str, float | None, str]:
 def one(seed: int, args: argparse.Namespace) -> tuple[Run, str, float | None, str, float]:
     t0 = time.perf_counter()
     run, params = draw(seed, tuple(args.memory), args.bound, args.problem)
+    for item in args.param or []:
+        name, _, value = item.partition("=")
+        params[name] = float(value)
     rng = np.random.default_rng(seed + 10_000)
     r = excitation(run, rng)
     from additive_rsrivc_ros.core.controller import DiscreteController
@@ -220,6 +223,9 @@ def main() -> None:
     ap.add_argument("--memory", type=float, nargs=2, default=(1.0, 50.0), metavar=("MIN_S", "MAX_S"))
     ap.add_argument("--bound", type=float, default=5.0, help="detection bound in memory lengths (default 5)")
     ap.add_argument("--problem", choices=PROBLEMS, help="only this data problem")
+    ap.add_argument("--param", action="append", metavar="NAME=VALUE",
+                    help="a numeric monitor parameter for every run (repeatable), e.g. faults.fast.memory_fraction=1 "
+                         "for the alarm delays without the fast tracking")
     args = ap.parse_args()
     print(f"{'seed':>5} {'K':>2} {'rate':>5} {'mem s':>6} {'exc':6} {'problem':10} {'change':28} {'before':>6} "
           f"{'result':9} {'delay':>5}  why")

@@ -213,3 +213,78 @@ def test_a_deviation_only_the_joint_check_can_confirm_is_blind_not_ok():
     holds = [Hold("joint_check", "gain awaits", since, math.inf, (i,)) for i, q, since in waiting]
     d = decide("monitoring", True, [[tst.state for tst in row] for row in mon.tests], holds, [None, None])
     assert [x.state for x in d] == [ModeState.BLIND, ModeState.MONITORING]
+
+
+def test_stamps_that_contradict_loop_rate_are_an_error_with_no_number(repo):
+    """The beam bag's samples (4096 Hz) stamped at 1 kHz, as a JointState publisher with its own clock would: the
+    configured 4096 Hz contradicts the stamps' spacing, so every frequency would be 4.1x off. The health is ERROR with
+    one line that says so, the tests are held, and no report carries a number; the right stamps give none of this."""
+    cfg = load_config(repo / "config" / "beam_fault.yaml")
+    sig = read_signals(repo / "bags" / "beam_fault", cfg)
+    n = int(12 * 4096)
+    t_slow = sig.t[0] + np.arange(n) / 1000.0
+    reps = _run(cfg, t_slow, sig.r[:n], sig.u[:n], sig.y[:n])
+    late = [rep for rep in reps if rep.time_s >= 1.0]
+    assert late and all(rep.health["time_scale"] and "loop_rate_hz 4096 disagrees" in rep.health["time_scale"]
+                        for rep in late)
+    assert all(rep.health["level"] == 2 and np.isnan(rep.modal).all() for rep in late)
+    assert not any(rep.events_opened for rep in reps)
+    good = _run(cfg, sig.t[:n], sig.r[:n], sig.u[:n], sig.y[:n])
+    assert not any(rep.health["time_scale"] for rep in good)
+    assert np.isfinite(good[-1].modal[:, :3]).all()
+
+
+def test_a_baseline_the_joint_fit_cannot_identify_arms_every_mode():
+    """Narrow excitation: the baseline window's joint fit does not converge (fewer lines than parameters). The
+    recursion's split between the modes is then no evidence: every mode needs the joint check's support, judged
+    against the baseline, and a deviation waiting for it shows as awaiting (blind), never as a confirmed event."""
+    from additive_rsrivc_ros.core.joint_check import JointVerdict
+
+    t0 = 60.0
+    t, modal = stream(80.0, 43, lambda t, truth: (truth.__setitem__((t >= t0, 0, 2), truth[t >= t0, 0, 2] * 0.7),
+                                                    truth)[1])
+    mon = FaultMonitor(MEMORY)
+    events, armed_at = [], None
+    for k in range(t.size):
+        events += mon.update(float(t[k]), modal[k]).opened
+        if mon.phase == "monitoring" and armed_at is None:
+            nan = np.full((2, 3), np.nan)
+            mon.arm_joint(JointVerdict(float(t[k]), (float(t[k]) - 4.0, float(t[k])), False, nan, nan,
+                                       np.zeros((2, 3), bool), np.zeros((2, 3), int), np.full(2, np.nan),
+                                       np.full(2, np.nan), np.zeros(2, int), np.full(2, np.nan), "did not converge"))
+            armed_at = float(t[k])
+    assert armed_at is not None and armed_at < t0
+    assert mon.joint_armed_modes.tolist() == [True, True] and mon.joint_reference_pending
+    assert events == []
+    assert [(i, q) for i, q, _ in mon.awaiting_joint()] == [(0, 2)]
+    # the joint check is judged against the baseline while the reference is unconverged
+    value, std = mon.joint_basis()
+    np.testing.assert_array_equal(value, mon.baseline.value)
+
+
+def test_fast_tracking_shortens_only_the_changed_mode_within_its_decay_floor():
+    """Opt-in variable forgetting: after mode 1's frequency step its CUSUM fires and only mode 1's memory is
+    shortened, to the fraction asked for but never below 3 decay times 1/(zeta omega) of its baseline (mode 1 of
+    TRUTH: 3.2 Hz, zeta 0.1 -> 0.50 s decay, floor 1.49 s of its 2.44 s memory); it ends after 1.5 memory lengths,
+    and no mode is shortened on the healthy part. Off by default."""
+    from additive_rsrivc_ros.core.faults import FaultSettings
+
+    assert FaultMonitor(MEMORY).memory_scale().tolist() == [1.0, 1.0]
+    t0 = 60.0
+    t, modal = stream(90.0, 7, lambda t, truth: (truth.__setitem__((t >= t0, 0, 0), truth[t >= t0, 0, 0] * 0.95),
+                                                  truth)[1])
+    mon = FaultMonitor(MEMORY, FaultSettings(fast_memory_fraction=0.25))
+    scales = []
+    for k in range(t.size):
+        mon.update(float(t[k]), modal[k])
+        scales.append(mon.memory_scale().copy())
+    scales = np.array(scales)
+    assert np.all(scales[t < t0] == 1.0)
+    shortened = np.flatnonzero(scales[:, 0] < 1.0)
+    assert shortened.size and t[shortened[0]] >= t0
+    f_b, zeta_b = mon.baseline.value[0, 0], mon.baseline.value[0, 1]       # the learned baseline (about TRUTH)
+    assert abs(zeta_b / 0.10 - 1) < 0.1
+    floor = 3.0 / (zeta_b * 2 * math.pi * f_b) / MEMORY[0]
+    assert scales[shortened, 0] == pytest.approx(floor)
+    assert np.all(scales[:, 1] == 1.0)
+    assert t[shortened[-1]] - t[shortened[0]] <= 1.5 * MEMORY[0] + 0.2

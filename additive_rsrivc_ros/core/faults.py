@@ -67,6 +67,8 @@ class FaultSettings:
     cusum_false_alarm_interval_days: float = from_param("faults.cusum.false_alarm_interval_days")
     persistence_s: float = from_param("faults.persistence_s")
     persistence_memory_lengths: float = from_param("faults.persistence_memory_lengths")
+    fast_memory_fraction: float = from_param("faults.fast.memory_fraction")
+    fast_memory_lengths: float = from_param("faults.fast.memory_lengths")
     clear_s: float = from_param("faults.clear_s")
     clear_memory_lengths: float = from_param("faults.clear_memory_lengths")
     clear_fraction: float = from_param("faults.clear_fraction")
@@ -455,6 +457,10 @@ class FaultUpdate:
     baseline_ready: bool = False
 
 
+FAST_DECAY_TIMES = 3.0
+"""S7: a shortened memory keeps at least this many decay times of the mode (the estimator's own stable range)."""
+
+
 class FaultMonitor:
     """Baseline + per mode/quantity sequential tests on the modal estimate stream (S1-S4).
 
@@ -501,6 +507,10 @@ class FaultMonitor:
         self.joint_streak = np.zeros((self.K, 3), dtype=int)   # signed run of consecutive supporting checks
         self.joint_several_modes_t = math.nan   # last stressed joint check that moved several modes at once
         self.several_modes = False              # under stress, several modes deviate at once (see update)
+        # S7, per mode: a detected change shortens the mode's memory until fast_until (variable forgetting); one
+        # shortening per change: re-armed once every CUSUM of the mode is back at rest
+        self.fast_until = np.full(self.K, -math.inf)
+        self.fast_spent = np.zeros(self.K, dtype=bool)
 
     # -- configuration
     @classmethod
@@ -548,7 +558,29 @@ class FaultMonitor:
 
     def persistence_s(self, i: int) -> float:
         s = self.settings
-        return max(s.persistence_s, s.persistence_memory_lengths * float(self.memory_s[i]))
+        return max(s.persistence_s, s.persistence_memory_lengths * self.effective_memory_s(i))
+
+    def memory_scale(self) -> np.ndarray:
+        """(K,) factor on each mode's configured memory the estimator should use now (S7: 1, or
+        ``faults.fast.memory_fraction`` while a detected change is being tracked, but never below
+        ``FAST_DECAY_TIMES`` decay times ``1/(zeta omega)`` of the mode's baseline: a memory shorter than the mode's
+        own transient makes the estimate and its prefilters oscillate, see ``set_filter_policy`` of the estimator)."""
+        fast = self.t_last < self.fast_until
+        if not fast.any():
+            return np.ones(self.K)
+        floor = np.zeros(self.K)
+        if self.baseline is not None:
+            with np.errstate(divide="ignore", invalid="ignore"):
+                decay = 1.0 / (self.baseline.value[:, 1] * 2.0 * math.pi * self.baseline.value[:, 0])
+            second_order = np.array([s.n == 2 for s in self.structures])
+            floor = np.where(second_order & np.isfinite(decay), FAST_DECAY_TIMES * decay / self.memory_s, 0.0)
+        scale = np.minimum(1.0, np.maximum(self.settings.fast_memory_fraction, floor))
+        return np.where(fast, scale, 1.0)
+
+    def effective_memory_s(self, i: int) -> float:
+        """Mode ``i``'s memory as the estimator uses it now (S7): its estimates decorrelate, and a transient in them
+        fades, within it."""
+        return float(self.memory_s[i]) * float(self.memory_scale()[i])
 
     def clear_time_s(self, i: int) -> float:
         s = self.settings
@@ -579,6 +611,7 @@ class FaultMonitor:
         self.joint_armed_modes[:] = False
         self.joint, self.joint_reference = None, None
         self.joint_streak[:] = 0
+        self.fast_until[:], self.fast_spent[:] = -math.inf, False
         if self.phase in ("learning", "monitoring"):
             self.phase, self.t_phase = "learning", t
             self.learner.reset(t)
@@ -663,11 +696,12 @@ class FaultMonitor:
             if faulted:                   # ... and a confirmed fault of the mode explains the rest
                 lead[i] = faulted[0]
         for i in range(self.K):
-            w = min(1.0, dt / (2.0 * float(self.memory_s[i])))   # S1: weight per independent sample
+            w = min(1.0, dt / (2.0 * self.effective_memory_s(i)))   # S1: weight per independent sample
             if held_mode[i]:
                 for test in self.tests[i]:
                     test.reset(t)       # evidence gathered under the hold is not evidence; an open event stays
                 continue
+            self._track_change(i, t, stress_since)
             for q in range(3):
                 if not self.applicable(i, q):
                     continue
@@ -691,6 +725,26 @@ class FaultMonitor:
                 if closed is not None:
                     out.closed.append(closed)
         return out
+
+    def _track_change(self, i: int, t: float, stress_since: float | None) -> None:
+        """S7, variable forgetting: when a CUSUM of mode ``i`` has crossed its threshold (a statistically sure
+        change, about half the relevant size) and the mode has no open event, shorten the mode's memory to
+        ``faults.fast.memory_fraction`` for ``faults.fast.memory_lengths`` memory lengths (a known remedy of
+        recursive identification, [RA-SRIVC] §4's forgetting made time-varying): the estimate reaches the changed
+        plant in a fraction of a memory instead of several. Not under stress (an output anomaly's swings are no
+        change to chase). The evidence of the tests is judged with the shortened memory meanwhile."""
+        tests = self.tests[i]
+        if self.fast_spent[i]:
+            if t >= self.fast_until[i] and all(tst.g_up == 0.0 and tst.g_down == 0.0 for tst in tests):
+                self.fast_spent[i] = False          # the change is over (or was none): the next one may shorten
+            return
+        if self.settings.fast_memory_fraction >= 1.0:
+            return
+        if any(tst.state == "fault" for tst in tests):
+            return
+        if any(max(tst.g_up, tst.g_down) > tst.h for tst in tests if math.isfinite(tst.h)):
+            self.fast_until[i] = t + self.settings.fast_memory_lengths * float(self.memory_s[i])
+            self.fast_spent[i] = True
 
     def stress_window_s(self, i: int, q: int) -> float:
         """Length of the isolation window after a stress began (S5): a lightly damped mode's frequency estimate can
@@ -863,11 +917,11 @@ class FaultMonitor:
                 test.reset(t)
 
     def _moving(self, t: float, modal: np.ndarray, rho: np.ndarray, lookback: float = 1.0) -> np.ndarray:
-        """(K, 3) bool: over the last ``lookback`` memory lengths the estimate moved by more than three of its std
-        and a tenth of the relevant change, i.e. it is still travelling to a new value."""
+        """(K, 3) bool: over the last ``lookback`` memory lengths (as the estimator uses them now, S7) the estimate
+        moved by more than three of its std and a tenth of the relevant change, i.e. it is still travelling."""
         out = np.zeros((self.K, 3), dtype=bool)
         for i in range(self.K):
-            then = self._estimate_ago(t, lookback * float(self.memory_s[i]))
+            then = self._estimate_ago(t, lookback * self.effective_memory_s(i))
             if then is None:
                 continue
             for q in range(3):
@@ -954,7 +1008,7 @@ class FaultMonitor:
         change does not. A natural frequency under stress keeps the recursion's faster confirmation, unless another
         mode's fault was confirmed in the same stress episode: the recursion's split between the modes is then
         re-converging too, and a second mode's deviation needs the joint fit's support."""
-        if self.joint_armed_modes[i]:
+        if self.joint_armed_modes[i] or self.joint_reference_pending:
             return True
         if self.anomaly_since is None or self.joint_reference is None or not self.joint_reference.converged:
             return False
@@ -970,8 +1024,27 @@ class FaultMonitor:
                 peak = np.hypot(base.std[:, 1] / np.abs(base.value[:, 1]), base.std[:, 2] / np.abs(base.value[:, 2]))
             verdict = replace(verdict, value=base.value.copy(), std=base.std.copy(), peak_own_std=peak)
         self.joint = self.joint_reference = verdict
+        if not verdict.converged:
+            # the baseline window does not identify the joint model (narrow excitation: fewer lines than
+            # parameters): the recursion's split between the modes is not evidence, every mode needs the joint
+            # check's support (judged against the baseline) until a quiet window identifies it (JointChecker.step)
+            self.joint_armed_modes = np.ones(self.K, dtype=bool)
+            return
         app = applicable_mask(self.structures)
         self.joint_armed_modes = verdict.armed_modes(app)
+
+    @property
+    def joint_reference_pending(self) -> bool:
+        """The joint fit of the baseline did not converge: the data do not identify the joint model (yet)."""
+        return self.joint_reference is not None and not self.joint_reference.converged
+
+    def joint_basis(self) -> tuple[np.ndarray, np.ndarray]:
+        """(value, std) the joint checks are judged against: the converged reference fit, else the baseline."""
+        ref = self.joint_reference
+        if ref is not None and ref.converged:
+            return ref.value, ref.std
+        assert self.baseline is not None
+        return self.baseline.value, self.baseline.std
 
     def apply_joint(self, t: float, verdict: JointVerdict) -> FaultUpdate:
         """One joint check while monitoring (S6): confirm what two consecutive checks support, clear what two no
@@ -993,7 +1066,7 @@ class FaultMonitor:
                 return out
         same = (sup != 0) & (np.sign(self.joint_streak) == sup)
         self.joint_streak = np.where(same, self.joint_streak + sup, sup)
-        ref = self.joint_reference
+        ref_value, ref_std = self.joint_basis()
         for i in range(self.K):
             for q in range(3):
                 test = self.tests[i][q]
@@ -1012,10 +1085,10 @@ class FaultMonitor:
                 if test.state == "fault" or abs(self.joint_streak[i, q]) < 2 or not self.applicable(i, q) \
                         or not (self.joint_armed_modes[i] or self.anomaly_since is not None):   # recursion alone
                     continue
-                sigma = math.hypot(float(verdict.std[i, q]), float(ref.std[i, q]))
-                dev = float(verdict.value[i, q] - ref.value[i, q])
+                sigma = math.hypot(float(verdict.std[i, q]), float(ref_std[i, q]))
+                dev = float(verdict.value[i, q] - ref_value[i, q])
                 onset = verdict.window_s[0] if math.isnan(test.since) else min(test.since, verdict.window_s[0])
-                ev = test.open_joint(t, onset, int(sup[i, q]), float(ref.value[i, q]), float(verdict.value[i, q]),
+                ev = test.open_joint(t, onset, int(sup[i, q]), float(ref_value[i, q]), float(verdict.value[i, q]),
                                      dev / sigma if sigma > 0 else math.inf)
                 out.opened.append(ev)
                 self.events.append(ev)
@@ -1045,7 +1118,9 @@ class FaultMonitor:
                 "joint_armed_modes": self.joint_armed_modes.tolist(),
                 "joint": None if self.joint is None else self.joint.to_dict(),
                 "joint_reference": None if self.joint_reference is None else self.joint_reference.to_dict(),
-                "joint_streak": self.joint_streak.tolist()}
+                "joint_streak": self.joint_streak.tolist(),
+                "fast_until": [x if math.isfinite(x) else None for x in self.fast_until.tolist()],
+                "fast_spent": self.fast_spent.tolist()}
 
     def set_state(self, state: Mapping[str, Any]) -> None:
         """Restore :meth:`get_state` output (same number of modes)."""
@@ -1067,6 +1142,9 @@ class FaultMonitor:
         ref = state.get("joint_reference")
         self.joint_reference = None if ref is None else JointVerdict.from_dict(ref)
         self.joint_streak = np.asarray(state.get("joint_streak", np.zeros((self.K, 3))), dtype=int)
+        until = state.get("fast_until") or [None] * self.K
+        self.fast_until = np.array([-math.inf if x is None else float(x) for x in until], dtype=float).reshape(self.K)
+        self.fast_spent = np.asarray(state.get("fast_spent", [False] * self.K), dtype=bool).reshape(self.K)
         by_key = {(e.mode, e.quantity, e.onset_time_s): e for row in self.tests for t in row
                   if (e := t.event) is not None}
         self.events = [by_key.get((d["mode"], d["quantity"], d["onset_time_s"])) or FaultEvent(**d)
@@ -1111,7 +1189,7 @@ class HealthMonitor:
     needs that long to re-converge.
     """
 
-    ERROR_KINDS = ("divergence", "stuck_sensor", "reinitializing", "no_valid_model")
+    ERROR_KINDS = ("divergence", "stuck_sensor", "reinitializing", "no_valid_model", "time_scale")
     SHORT_KINDS = ("nonfinite", "outlier", "data_gap", "repriming", "duplicate_stamps", "out_of_order", "clock_step")
     """Data problems that do not move the estimate: skipped samples (no update; the kernel holds the input and
     predicts the output), samples dropped for their stamps (a recorder duplicate, a clock stepped back: the grid goes

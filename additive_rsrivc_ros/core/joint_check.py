@@ -253,14 +253,18 @@ class JointChecker:
         if faults.phase != "monitoring" or faults.baseline is None:
             return None
         mem = float(faults.memory_s.max())
-        if faults.joint_reference is None:        # arm (or not) once per baseline; a failed fit retries later
+        ref = faults.joint_reference
+        if ref is None or (not ref.converged and self._quiet(faults)):
+            # the reference: the joint fit of the baseline window arms the modes it does not identify; a fit that
+            # does not converge arms every mode and is retried while no test deviates (a later window may hold a
+            # change, which must not become the reference)
             if not math.isnan(self.last_t) and t - self.last_t < self.MIN_WINDOW * mem:
                 return None
             verdict = self.verdict(t, self.MAX_WINDOW * mem, faults) or self.verdict(t, self.MIN_WINDOW * mem, faults)
             if verdict is None:
                 return None
             self.last_t = t
-            if verdict.converged:
+            if ref is None or verdict.converged:
                 faults.arm_joint(verdict)
             return None
         if not faults.joint_due(t, self.last_t):
@@ -280,6 +284,13 @@ class JointChecker:
         self.last_t = t
         return faults.apply_joint(t, verdict)
 
+    @staticmethod
+    def _quiet(faults: Any) -> bool:
+        """No test deviates (every CUSUM at rest) and no stress: the window holds no change to mistake for the
+        reference."""
+        return faults.anomaly_since is None and all(tst.state == "ok" and tst.g_up == 0.0 and tst.g_down == 0.0
+                                                    for row in faults.tests for tst in row)
+
     def verdict(self, t: float, window_s: float, faults: Any) -> JointVerdict | None:
         """The joint fit of the last ``window_s`` seconds from the baseline model; None without enough data."""
         mem = float(faults.memory_s.max())
@@ -296,8 +307,8 @@ class JointChecker:
             r, u, y = r[start:], u[start:], y[start:]
             n = u.size
         ref = faults.joint_reference
-        value, std = (faults.baseline.value, faults.baseline.std) if ref is None else (ref.value, ref.std)
-        peak_std, ident = (None, None) if ref is None else (ref.peak_own_std, ref.identifiable)
+        value, std = faults.joint_basis()
+        peak_std, ident = (None, None) if ref is None or not ref.converged else (ref.peak_own_std, ref.identifiable)
         thetas0 = [guess_theta(0.0 if s.n == 0 else float(b[0]), float(b[1]), float(b[2]))
                    for b, s in zip(value, self.structures, strict=True)]
         ok, modal, cov, msg = joint_fit(r if self.closed_loop else None, u, y, self.rate, self.structures, thetas0,

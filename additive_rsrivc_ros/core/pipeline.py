@@ -31,6 +31,7 @@ from .decision import Hold, ModeDecision, decide
 from .estimator import EstimatorHealth, MonitorSettings, RecursiveEstimator
 from .faults import FaultEvent, FaultMonitor, FaultSettings, HealthMonitor, HealthStatus, Level
 from .joint_check import JointChecker, applicable_mask
+from .time_scale import StampSpacing
 from .vocabulary import (
     ALIGN_APPROXIMATE_RELATIVE,
     BASELINE_FIELDS,
@@ -231,7 +232,19 @@ class MonitorPipeline:
     def _new_estimator(self) -> RecursiveEstimator:
         est = self._factory(self.cfg)
         est.set_memory(self.memory_s)
+        self._est_memory = self.memory_s.copy()
         return est
+
+    def _apply_memory(self) -> None:
+        """The estimator's memories: the configured ones, shortened while the fault monitor tracks a detected change
+        of a mode (S7, variable forgetting; never below 50 samples). Applied here only."""
+        if self.est is None or self.faults is None:
+            return
+        fast = np.maximum(self.memory_s * self.faults.memory_scale(), 50.0 / self.rate)
+        mem = np.minimum(self.memory_s, fast)
+        if not np.array_equal(mem, self._est_memory):
+            self.est.set_memory(mem)
+            self._est_memory = mem
 
     @property
     def finding_modes(self) -> bool:
@@ -273,6 +286,7 @@ class MonitorPipeline:
         self.t_last: float | None = None      # absolute time of the last accepted sample
         self.t_stamp_last: float | None = None  # last stamp accepted by step 1 (the aligner may hold samples back)
         self.clock_offset = 0.0                 # added to every stamp since a recorder clock stepped back (s)
+        self.spacing = StampSpacing(self.rate)  # loop_rate_hz against the stamps' own spacing
         self.next_publish = 0.0               # time (since t0) of the next report
         self.initialized = False
         self._data_start_tried = False        # guesses replaced by modes from the data (once per run)
@@ -350,10 +364,11 @@ class MonitorPipeline:
                 mem = np.full(self.K, float(mem[0]))
             if mem.shape != (self.K,) or not np.all(mem * self.rate >= 2.0):
                 raise PipelineError(f"modes.memory_s must list {self.K} memories of at least two samples")
-            self.est.set_memory(mem)
             self.memory_s = mem
             self.faults.set_memory(mem)
             self.health.memory_s = mem
+            self._est_memory = np.full(self.K, math.nan)
+            self._apply_memory()
         if "publish_rate_hz" in params:
             rate = float(params["publish_rate_hz"])
             if not (rate > 0 and math.isfinite(rate)):
@@ -430,6 +445,9 @@ class MonitorPipeline:
         idx = np.flatnonzero(ok_t)
         if idx.size:
             self.t_stamp_last = float(t[idx[-1]])
+            self.spacing.add(t[idx])
+            if self.spacing.error:
+                self.health.note("time_scale", self._rel(float(t[idx[-1]])), self.spacing.error)
         return t[idx], r[idx], u[idx], y[idx]
 
     def _rebase_clock_steps(self, t: np.ndarray) -> np.ndarray:
@@ -1008,6 +1026,7 @@ class MonitorPipeline:
                                      mode_hold=status.mode_hold(self.K))
             self.pending_opened += upd.opened
             self.pending_closed += upd.closed
+            self._apply_memory()
             upd = None if status.hold else self.joint.step(t_rep, self.faults)
             if upd is not None:
                 self.pending_opened += upd.opened
@@ -1035,6 +1054,9 @@ class MonitorPipeline:
         health["stuck"] = self.stuck
         health["baseline_source"] = None if self.faults is None or self.faults.baseline is None else \
             self.faults.baseline.source
+        if self.spacing.error:           # the model's time scale contradicts the stamps: no number
+            modal = np.full_like(modal, np.nan)
+        health["time_scale"] = self.spacing.error or None
         rep = Report(time_s=t_rep, modal=modal, **self._fault_fields(), events_opened=self.pending_opened,
                      events_closed=self.pending_closed, health=health, phase=self.phase,
                      estimating=self.initialized, notices=self.notices, estimator_health=est_health,
@@ -1249,6 +1271,9 @@ class MonitorPipeline:
                 self._marked_gaps = self.est.health.reprimes
             if self.faults is not None:
                 self.faults.set_state(state["faults"])
+                # the estimator's saved forgetting already holds a shortened memory (S7): only record it
+                self._est_memory = np.minimum(self.memory_s, np.maximum(self.memory_s * self.faults.memory_scale(),
+                                                                        50.0 / self.rate))
             self.health.set_state(state["health"])
             self.t0 = None if p["t0"] is None else float(p["t0"])
             self.t_last = None if p["t_last"] is None else float(p["t_last"])

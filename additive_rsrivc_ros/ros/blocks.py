@@ -1,8 +1,8 @@
 """Block input: r, u, y rows of the controller, paired by its sample counter (ROS-free, used by the monitor node).
 
 One ``Float64MultiArray`` per block on ``block.topic`` (layout: docs/INTERFACE.md "Signals in", checked by
-:func:`..ros.convert.block_rows`); here the index column is checked and rows become samples timed ``t = t_anchor +
-(index - index_anchor) / loop_rate_hz``: arrival times never move a sample. Missing indices are a gap (``block_gaps``)
+:func:`block_rows`); the index column is checked and rows become samples timed ``t = t_anchor + (index -
+index_anchor) / loop_rate_hz``: arrival times never move a sample. Missing indices are a gap (``block_gaps``)
 handled by the pipeline as on every path; rows after a hole wait ``block.reorder_s`` for the late block, later ones are
 dropped (``block_late_samples``); rows released before with the same values are dropped (``block_duplicate_samples``),
 with other values, or an index going back beyond ``DUPLICATE_MEMORY_S``, they are a controller restart
@@ -31,6 +31,7 @@ INVARIANT_EVERY_S = 0.1      # the invariant is evaluated on the block that comp
 INVARIANT_WARN = 1e-6        # relative invariant residual above which the block rows do not fit the controller
 MAX_INDEX = float(2 ** 53)   # integers are exact in float64 below this
 SKIPPED_MEMORY = 256         # declared gaps remembered to classify a late block
+BLOCK_COLUMNS = ("index", "reference", "input", "output")
 
 
 class BlockSync(InputSync):
@@ -128,11 +129,21 @@ class BlockSync(InputSync):
         """Nothing to re-pair (rows are paired by index): only say what happened."""
         self._event(now_ns, reason)
 
+    def flush(self, now_ns: int, ros_now_s: float) -> Aligned | None:
+        """End of a record (offline): every held row is released now; a hole left before it is a gap."""
+        out: list[tuple[np.ndarray, np.ndarray, np.ndarray]] = []
+        self._drain_blocks(now_ns, ros_now_s, out)
+        self._release(now_ns, ros_now_s, out, force=True)
+        return self._aligned(out)
+
     def collect(self, now_ns: int, *, idle_since_ns: int = 0, ros_now_s: float = 0.0) -> Aligned | None:
         """Convert and check the queued blocks, release the rows whose turn has come (see the module docstring)."""
         out: list[tuple[np.ndarray, np.ndarray, np.ndarray]] = []
         self._drain_blocks(now_ns, ros_now_s, out)
         self._release(now_ns, ros_now_s, out, force=False)
+        return self._aligned(out)
+
+    def _aligned(self, out: list[tuple[np.ndarray, np.ndarray, np.ndarray]]) -> Aligned | None:
         if not out:
             return None
         t = np.concatenate([o[0] for o in out])
@@ -436,3 +447,31 @@ def index_problem(index: np.ndarray) -> str:
     if index.size > 1 and np.any(np.diff(index) <= 0):
         return "index not strictly increasing within the block"
     return ""
+
+
+def block_rows(msg: Any) -> tuple[Any, str]:
+    """A block message (docs/INTERFACE.md "Signals in") as an ``(N, 4)`` float64 array of rows ``index,
+    reference, input, output``, or ``(None, reason)``.
+
+    Strict: exactly two dimensions labelled ``sample`` (size N >= 1) and ``signal`` (size 4), strides row-major
+    (``4 N`` and ``4``; 0 = not set is accepted), ``len(data) - data_offset == 4 N``. A column-major or transposed
+    block is refused, never read with its columns mixed up. The index column is checked by
+    :func:`..ros.blocks.index_problem`."""
+    dims = list(msg.layout.dim)
+    if len(dims) != 2:
+        return None, f"layout has {len(dims)} dimensions, expected 2 (sample, signal)"
+    d0, d1 = dims
+    if d0.label != "sample" or d1.label != "signal":
+        return None, f"dimension labels {d0.label!r}, {d1.label!r}, expected 'sample', 'signal'"
+    n, off = int(d0.size), int(msg.layout.data_offset)
+    if int(d1.size) != len(BLOCK_COLUMNS):
+        return None, f"dimension 'signal' has size {d1.size}, expected 4 (index, reference, input, output)"
+    if n < 1:
+        return None, "no rows (dimension 'sample' has size 0)"
+    if int(d0.stride) not in (0, 4 * n) or int(d1.stride) not in (0, 4):
+        return None, f"strides {d0.stride}, {d1.stride} are not row-major ({4 * n}, 4)"
+    size = len(msg.data)
+    if size - off != 4 * n:
+        return None, f"data holds {size - off} values after data_offset {off}, expected {4 * n} (N = {n} rows x 4)"
+    data = np.frombuffer(msg.data, dtype=np.float64) if size else np.empty(0)
+    return data[off:off + 4 * n].reshape(n, 4).copy(), ""

@@ -15,6 +15,7 @@ from std_msgs.msg import Float64MultiArray, MultiArrayDimension
 from ..config import Param
 from ..core.vocabulary import BASELINE_FIELDS, FLAG_FIELDS, MODE_FIELDS, MODE_KEYS, num  # noqa: F401 (cv.* in ros/)
 from ..status import StatusRecord
+from .blocks import BLOCK_COLUMNS, block_rows  # noqa: F401 (cv.block_rows; ROS-free, offline too)
 
 PARAM_TYPE = {
     "bool": Parameter.Type.BOOL, "int": Parameter.Type.INTEGER, "double": Parameter.Type.DOUBLE,
@@ -140,37 +141,6 @@ def modes_stamped(modal: Any, stamp_ns: int, frame_id: str = "") -> Any:
 
 
 BLOCK_TYPE = "std_msgs/msg/Float64MultiArray"
-BLOCK_COLUMNS = ("index", "reference", "input", "output")
-
-
-def block_rows(msg: Any) -> tuple[Any, str]:
-    """A block message (docs/INTERFACE.md "Signals in") as an ``(N, 4)`` float64 array of rows ``index,
-    reference, input, output``, or ``(None, reason)``.
-
-    Strict: exactly two dimensions labelled ``sample`` (size N >= 1) and ``signal`` (size 4), strides row-major
-    (``4 N`` and ``4``; 0 = not set is accepted), ``len(data) - data_offset == 4 N``. A column-major or transposed
-    block is refused, never read with its columns mixed up. The index column is checked by
-    :func:`..ros.blocks.index_problem`."""
-    import numpy as np
-
-    dims = list(msg.layout.dim)
-    if len(dims) != 2:
-        return None, f"layout has {len(dims)} dimensions, expected 2 (sample, signal)"
-    d0, d1 = dims
-    if d0.label != "sample" or d1.label != "signal":
-        return None, f"dimension labels {d0.label!r}, {d1.label!r}, expected 'sample', 'signal'"
-    n, off = int(d0.size), int(msg.layout.data_offset)
-    if int(d1.size) != len(BLOCK_COLUMNS):
-        return None, f"dimension 'signal' has size {d1.size}, expected 4 (index, reference, input, output)"
-    if n < 1:
-        return None, "no rows (dimension 'sample' has size 0)"
-    if int(d0.stride) not in (0, 4 * n) or int(d1.stride) not in (0, 4):
-        return None, f"strides {d0.stride}, {d1.stride} are not row-major ({4 * n}, 4)"
-    size = len(msg.data)
-    if size - off != 4 * n:
-        return None, f"data holds {size - off} values after data_offset {off}, expected {4 * n} (N = {n} rows x 4)"
-    data = np.frombuffer(msg.data, dtype=np.float64) if size else np.empty(0)
-    return data[off:off + 4 * n].reshape(n, 4).copy(), ""
 
 
 def block_message(index: Any, r: Any, u: Any, y: Any) -> Float64MultiArray:

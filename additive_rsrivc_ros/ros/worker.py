@@ -129,7 +129,9 @@ class WorkerMixin:
         if reports:
             self._reports_made += len(reports)
             t0 = pipe.t0 or 0.0                # the data time of a report: origin + time since the first sample
-            self._modes_queue.extend((t0 + r.time_s, r.modal) for r in reports if r.K)   # ~/modes once K is known
+            # ~/modes once K is known; none while loop_rate_hz contradicts the samples' stamps (a wrong time scale)
+            self._modes_queue.extend((t0 + r.time_s, r.modal) for r in reports
+                                     if r.K and not r.health.get("time_scale"))
             self._latest_report = reports[-1]
             self._snapshot = (reports[-1], reports[-1].modal)
         for note in (n for r in reports for n in r.notices):   # automatic start: found / failed
