@@ -274,6 +274,12 @@ def _mode_summaries(series: DiagnosisSeries, rows: Sequence[dict], sig: Signals,
     return modes
 
 
+def _mode_finding(pipe: Any) -> Any:
+    """The automatic start's evidence (``core.modefind.ModeFindResult``: order table, FRF) when it found the modes."""
+    search = pipe.search
+    return search.evidence if search is not None and search.found is not None else None
+
+
 def diagnose(args: argparse.Namespace, stdout: TextIO, stderr: TextIO, state: dict | None = None) -> int:
     """The work behind :func:`main`; raises the tools' one-line errors.
 
@@ -338,7 +344,7 @@ def diagnose(args: argparse.Namespace, stdout: TextIO, stderr: TextIO, state: di
                          rate_hz=cfg.loop_rate_hz, closed_loop=cfg.closed_loop,
                          input_delay_samples=cfg.input_delay_samples, duration_s=duration, params=dict(cfg.params),
                          info=info, truth=truth, param_help={k: p.description for k, p in table.items()},
-                         verdict=verdict)
+                         verdict=verdict, mode_finding=_mode_finding(pipe))
     rows = rp.summary_rows(inp)
     t_report = t_est
     if not args.no_report and n:
@@ -368,6 +374,7 @@ def diagnose(args: argparse.Namespace, stdout: TextIO, stderr: TextIO, state: di
     }
     summary["alignment"] = _alignment_summary(last)
     summary["identifiability"] = identifiability
+    summary["mode_finding"] = inp.mode_finding.to_dict() if inp.mode_finding is not None else None
     (tmp.tmp / "summary.json").write_text(json.dumps(json_clean(summary), indent=2, allow_nan=False) + "\n",
                                           encoding="utf-8")
     tmp.commit()
