@@ -275,9 +275,12 @@ def _mode_summaries(series: DiagnosisSeries, rows: Sequence[dict], sig: Signals,
 
 
 def _mode_finding(pipe: Any) -> Any:
-    """The automatic start's evidence (``core.modefind.ModeFindResult``: order table, FRF) when it found the modes."""
+    """The automatic start's evidence (``core.modefind.ModeFindResult``: order table, FRF) when the modes in use are
+    the ones it found (not after a restart from the data, whose evidence the pipeline does not keep)."""
     search = pipe.search
-    return search.evidence if search is not None and search.found is not None else None
+    if search is None or search.found is None or search.evidence is None:
+        return None
+    return search.evidence if search.found.message == search.evidence.message else None
 
 
 def diagnose(args: argparse.Namespace, stdout: TextIO, stderr: TextIO, state: dict | None = None) -> int:
