@@ -5,11 +5,12 @@ lowest held-out output error; K is the last order that gained significantly on h
 (``order_selection``: per K the errors, ``accepted`` and the fitted ``modes``) is drawn as modal analysis draws
 stabilization diagrams: one row per K, one marker per fitted mode at its natural frequency, filled when the order below
 has a mode within :data:`STABLE_FREQUENCY` in frequency and :data:`STABLE_DAMPING` in damping, open when it is new or
-has moved. The chosen row is shaded and labelled, the right margin gives each row's held-out error. Above, on the same
-frequency axis: the valid bins of the nonparametric FRF (:mod:`.core.frf`), the chosen model and the FRF peaks the
-scan started from. Each row's markers are an SVG group of class ``stab-K<K>`` (plus ``chosen``; a rigid body, frequency
-0, is a triangle at the left edge in ``stab-K<K> rigid``), so that a reader can relate the figure to the JSON table.
-``rsrivc_identify`` writes it next to its JSON, ``rsrivc_diagnose`` puts it into ``report.html``.
+has moved. The chosen row is shaded and labelled; the right margin gives each row's held-out error and its change
+from K - 1. Above, on the same frequency axis: the valid bins of the nonparametric FRF (:mod:`.core.frf`), the chosen
+model and the FRF peaks the scan started from. Each row's markers are an SVG group of class ``stab-K<K>`` (plus
+``chosen``; a rigid body, frequency 0, is a triangle at the left edge in ``stab-K<K> rigid``), so that a reader can
+relate the figure to the JSON table. ``rsrivc_identify`` writes it next to its JSON, ``rsrivc_diagnose`` puts it into
+``report.html``.
 """
 
 from __future__ import annotations
@@ -55,7 +56,18 @@ def stable_flags(rows: Sequence[Mapping[str, Any]]) -> dict[int, list[bool]]:
     return out
 
 
-def _row_status(row: Mapping[str, Any]) -> str:
+def _row_note(row: Mapping[str, Any], below: Mapping[str, Any] | None, chosen_k: int | None) -> str:
+    """The right-margin text of a row: its held-out mean squared error, its change from the order below (K - 1) and
+    what the scan made of it."""
+    err, prev = row.get("validation_error"), (below or {}).get("validation_error")
+    note = f"held-out MSE {err:.3g}" if isinstance(err, int | float) else "held-out MSE –"
+    if isinstance(err, int | float) and isinstance(prev, int | float) and prev > 0:
+        note += f" ({100.0 * (err / prev - 1.0):+.1f} %)"
+    status = _row_status(row, chosen_k)
+    return note + (f", {status}" if status else "")
+
+
+def _row_status(row: Mapping[str, Any], chosen_k: int | None = None) -> str:
     """What the scan did with an order, in a few words."""
     if row.get("accepted"):
         return "chosen"
@@ -67,6 +79,8 @@ def _row_status(row: Mapping[str, Any]) -> str:
         return first if len(first) <= 40 else first[:39] + "…"
     if row.get("redundant"):
         return "gain not from its added mode"
+    if chosen_k is not None and int(row["K"]) > chosen_k:
+        return "no significant gain"
     return ""
 
 
@@ -123,6 +137,8 @@ def _diagram_panel(ax: Any, rows: Sequence[Mapping[str, Any]], peaks_hz: Sequenc
     flags = stable_flags(rows)
     ks = [int(r["K"]) for r in rows]
     labels = {0: "FRF peaks"}
+    chosen_k = next((int(r["K"]) for r in rows if r.get("accepted")), None)
+    by_k = {int(r["K"]): r for r in rows}
     for row in rows:
         k = int(row["K"])
         chosen = bool(row.get("accepted"))
@@ -141,10 +157,7 @@ def _diagram_panel(ax: Any, rows: Sequence[Mapping[str, Any]], peaks_hz: Sequenc
         if n_rigid:
             ax.plot(np.full(n_rigid, f_range[0] * 1.03), np.full(n_rigid, k), ls="", marker="v", ms=7,
                     color=COLORS["stable"], gid=tag + " rigid")
-        err = row.get("validation_error")
-        note = (f"held-out {err:.3g}" if isinstance(err, int | float) else "held-out –")
-        status = _row_status(row)
-        ax.text(1.0, k, note + (f", {status}" if status else ""), size=7.5, xcoord="axes", dx=6, va="center",
+        ax.text(1.0, k, _row_note(row, by_k.get(k - 1), chosen_k), size=7.5, xcoord="axes", dx=6, va="center",
                 color=COLORS["chosen"] if chosen else "#333")
     p = np.array([v for v in peaks_hz if v > 0], float)
     ax.plot(p, np.zeros(p.size), ls="", marker="o", ms=4, color=COLORS["peak"], gid="stab-peaks")
@@ -167,7 +180,7 @@ def stabilization_figure(rows: Sequence[Mapping[str, Any]], *, frf: Any = None, 
     rate = float(rate_hz if rate_hz is not None else (frf.rate_hz if frf is not None else 1.0))
     f_range = _frequency_range(rows, peaks_hz, frf, rate)
     n_rows = len(rows) + 1
-    fig = Figure(11.0, 3.0 + 0.42 * n_rows, left_in=1.25, right_in=2.6, top_in=0.75, hspace=0.06)
+    fig = Figure(12.0, 3.0 + 0.42 * n_rows, left_in=1.25, right_in=3.4, top_in=0.75, hspace=0.06)
     ax_frf, ax_st = fig.subplots(2, 1, sharex=True, height_ratios=(2.6, 0.55 * n_rows))[:, 0]
     ax_frf.set_xscale("log")
     ax_frf.set_xlim(*f_range)
