@@ -28,6 +28,8 @@ STABLE_FREQUENCY = 0.01
 """Relative frequency change up to which a mode counts as the same mode as one of the next smaller order."""
 STABLE_DAMPING = 0.05
 """Relative damping change up to which it also counts as stable in damping (modal analysis' usual 1 % / 5 %)."""
+RIGID_AT = 1.12
+"""A rigid body (frequency 0) is drawn at this multiple of the lowest frequency shown (the left edge)."""
 MAX_FRF_DOTS = 600
 """Up to this many valid FRF bins are drawn as dots (the estimates they are), more as a line."""
 COLORS = {"stable": "#1565c0", "new": "#1565c0", "peak": "#616161", "chosen": "#2e7d32", "model": "#e65100"}
@@ -106,11 +108,13 @@ def _frf_panel(ax: Any, frf: Any, model: tuple[Sequence[np.ndarray], Sequence[An
     if frf is not None:
         ok = frf.valid & (frf.freqs_hz > 0)
         mag = 20.0 * np.log10(np.maximum(np.abs(frf.G), 1e-300))
-        if int(ok.sum()) <= MAX_FRF_DOTS:
+        dots = int(ok.sum()) <= MAX_FRF_DOTS
+        if dots:
             ax.plot(frf.freqs_hz[ok], mag[ok], ls="", marker="o", ms=3, color="#78909c")
         else:
             ax.plot(frf.freqs_hz, np.where(ok, mag, np.nan), color="#78909c", lw=1.0)
-        entries.append(LegendEntry("FRF of the data (valid bins)", "#78909c", "line", ls="", marker="o"))
+        entries.append(LegendEntry("FRF of the data (valid bins)", "#78909c", "line", ls="" if dots else "-",
+                                   lw=1.0, marker="o" if dots else None))
     if model is not None and model[0]:
         f = np.geomspace(f_range[0], f_range[1], 1500)
         g = discrete_model_frf(model[0], model[1], frf.rate_hz if frf is not None else 2.0 * f_range[1], f,
@@ -155,7 +159,7 @@ def _diagram_panel(ax: Any, rows: Sequence[Mapping[str, Any]], peaks_hz: Sequenc
                 gid=tag)
         n_rigid = sum(1 for m in modes if m[0] == 0.0)
         if n_rigid:
-            ax.plot(np.full(n_rigid, f_range[0] * 1.03), np.full(n_rigid, k), ls="", marker="v", ms=7,
+            ax.plot(np.full(n_rigid, f_range[0] * RIGID_AT), np.full(n_rigid, k), ls="", marker="v", ms=7,
                     color=COLORS["stable"], gid=tag + " rigid")
         ax.text(1.0, k, _row_note(row, by_k.get(k - 1), chosen_k), size=7.5, xcoord="axes", dx=6, va="center",
                 color=COLORS["chosen"] if chosen else "#333")
@@ -189,10 +193,13 @@ def stabilization_figure(rows: Sequence[Mapping[str, Any]], *, frf: Any = None, 
     chosen = next((int(r["K"]) for r in rows if r.get("accepted")), None)
     ax_frf.set_title(title or (f"Model order: K = {chosen} chosen by held-out output error" if chosen is not None
                                else "Model order: no order chosen"))
-    fig.legend([LegendEntry("mode stable to the order below (1 % f, 5 % ζ)", COLORS["stable"], "line", ls="",
-                            marker="o"),
-                LegendEntry("new or moved mode", COLORS["new"], "line", ls="", marker="o", mfc="none"),
-                LegendEntry("chosen order", COLORS["chosen"], alpha=0.3)], size=8.0)
+    legend = [LegendEntry("mode stable to the order below (1 % f, 5 % ζ)", COLORS["stable"], "line", ls="",
+                          marker="o"),
+              LegendEntry("new or moved mode", COLORS["new"], "line", ls="", marker="o", mfc="none"),
+              LegendEntry("chosen order", COLORS["chosen"], alpha=0.3)]
+    if any(m[0] == 0.0 for r in rows for m in _modes(r)):
+        legend.insert(2, LegendEntry("▼ rigid body b0/p^l (at the left edge)", COLORS["stable"], "line", ls=""))
+    fig.legend(legend, size=8.0)
     return fig
 
 
