@@ -193,6 +193,7 @@ class ReportInput:
     frf_end: FrfEstimate | None = None
     param_help: dict[str, str] = field(default_factory=dict)
     verdict: Verdict | None = None           # from the reports (..verdict.assess); None: from ``series``
+    mode_finding: Any = None                 # the automatic start's core.modefind.ModeFindResult (None: guesses)
 
     def get_verdict(self) -> Verdict:
         return self.verdict if self.verdict is not None else assess_series(self.events, self.series,
@@ -610,6 +611,11 @@ def render_html(inp: ReportInput, figures: Mapping[str, bytes]) -> str:
                 "known input delay, zero-order hold) at the first and the last estimate. Dots: nonparametric "
                 "estimate from the first and the last quarter of the data, only at frequencies the excitation "
                 "reaches. A model that fits lies on the dots of its own time window."),
+        "order": ("Model order: why K modes", "Below: the automatic start's order scan, one row per model order K "
+                  "with a marker per fitted mode (filled: within 1 % in frequency and 5 % in damping of a mode of "
+                  "order K - 1; open: new or moved), grey dots the peaks read off the FRF; right: each order's "
+                  "held-out output error. The shaded row is the order chosen (the last significant gain on "
+                  "held-out data). Above: the FRF of the search window's data and the chosen model."),
         "health": ("Estimator health", "Health level and its indicators: residual variance, condition number of "
                    "the instrumental-variable matrix (high: poor excitation), and the largest relative "
                    "uncertainty of the modal estimates."),
@@ -661,6 +667,10 @@ def write_report(inp: ReportInput, out_dir: str | Path, *, modes_svg: bool = Tru
         if frf is not None:
             figures["frf"] = frf.svg("b")
         figures["health"] = health_figure(inp).svg("h")
+    if inp.mode_finding is not None:
+        from .stabilization_plot import from_mode_finding
+
+        figures["order"] = from_mode_finding(inp.mode_finding, inp.input_delay_samples).svg("o")
     if modes_svg and "modes" in figures:
         (out_dir / "modes.svg").write_text(as_file(figures["modes"]), encoding="utf-8")   # drawn once
     path = out_dir / "report.html"

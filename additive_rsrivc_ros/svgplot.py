@@ -116,6 +116,7 @@ class LegendEntry:
     marker: str | None = None
     hatch: str | None = None
     edgecolor: str | None = None
+    mfc: str | None = None         # marker face colour: "none" draws an open circle
 
 
 class Axes:
@@ -139,10 +140,13 @@ class Axes:
 
     # ---------------------------------------------------------------------------------------------- drawing
     def plot(self, x: Any, y: Any, color: str = "#1565c0", lw: float = 1.5, ls: str = "-", label: str | None = None,
-             marker: str | None = None, ms: float = 4.0, alpha: float = 1.0, mfc: str | None = None) -> None:
-        """A line (``ls`` ``-``, ``--``, ``:`` or ``""`` for markers only) and/or circle markers."""
+             marker: str | None = None, ms: float = 4.0, alpha: float = 1.0, mfc: str | None = None,
+             gid: str | None = None) -> None:
+        """A line (``ls`` ``-``, ``--``, ``:`` or ``""`` for markers only) and/or circle markers; ``gid``: the SVG
+        ``class`` of a group around what it draws (a reader can then find e.g. one order's markers)."""
         self.layers.append(_Layer("line", np.asarray(x, float).ravel(), np.asarray(y, float).ravel(),
-                                  style=dict(color=color, lw=lw, ls=ls, marker=marker, ms=ms, alpha=alpha, mfc=mfc),
+                                  style=dict(color=color, lw=lw, ls=ls, marker=marker, ms=ms, alpha=alpha, mfc=mfc,
+                                             gid=gid),
                                   label=label))
 
     def step(self, x: Any, y: Any, **kw: Any) -> None:
@@ -397,7 +401,9 @@ class Axes:
             elif ly.kind == "band":
                 body.extend(self._band_svg(ly, xl, yl))
             elif ly.kind == "line":
-                body.extend(self._line_svg(ly, xl, yl))
+                drawn = self._line_svg(ly, xl, yl)
+                gid = st.get("gid")
+                body.extend([f'<g class="{_esc(gid)}">', *drawn, "</g>"] if gid else drawn)
             elif ly.kind == "errorbar":
                 px = float(self._map(ly.x, xl, "x")[0])
                 lo, mid, hi = self._map(ly.y, yl, "y")
@@ -510,16 +516,23 @@ class Figure:
         self._legend_size = 10.0
         self._hatches: dict[tuple[str, str], str] = {}
 
-    def subplots(self, nrows: int = 1, ncols: int = 1, sharex: bool = False) -> np.ndarray:
-        """A ``(nrows, ncols)`` array of axes; ``sharex``: one x range, tick labels on the bottom row only."""
+    def subplots(self, nrows: int = 1, ncols: int = 1, sharex: bool = False,
+                 height_ratios: Sequence[float] | None = None) -> np.ndarray:
+        """A ``(nrows, ncols)`` array of axes; ``sharex``: one x range, tick labels on the bottom row only;
+        ``height_ratios``: relative row heights (default equal; the gap between rows is ``hspace`` of their mean)."""
         left, right, top, bottom = self.margins
         W, H = self.w - left - right, self.h - top - bottom
         aw = W / (ncols + self.wspace * (ncols - 1))
-        ah = H / (nrows + self.hspace * (nrows - 1))
+        ratios = np.ones(nrows) if height_ratios is None else np.asarray(height_ratios, float)
+        if ratios.size != nrows or not np.all(ratios > 0):
+            raise ValueError(f"height_ratios needs {nrows} positive values, got {list(ratios)}")
+        ah = H / (nrows + self.hspace * (nrows - 1))        # mean row height
+        heights = ah * nrows * ratios / ratios.sum()
+        tops = top + np.concatenate([[0.0], np.cumsum(heights[:-1] + self.hspace * ah)])
         grid = np.empty((nrows, ncols), dtype=object)
         for i in range(nrows):
             for j in range(ncols):
-                grid[i, j] = Axes(self, left + j * aw * (1 + self.wspace), top + i * ah * (1 + self.hspace), aw, ah)
+                grid[i, j] = Axes(self, left + j * aw * (1 + self.wspace), float(tops[i]), aw, float(heights[i]))
                 self.axes.append(grid[i, j])
         if sharex:
             for j in range(ncols):
@@ -588,7 +601,8 @@ def legend_handle(fig: Figure, e: LegendEntry, x: float, cy: float) -> str:
             s += (f'<line x1="{_f(x)}" y1="{_f(cy)}" x2="{_f(x + 24)}" y2="{_f(cy)}" '
                   f'{_stroke(e.color, e.lw, e.ls, e.alpha)}/>')
         if e.marker == "o":
-            s += f'<circle cx="{_f(x + 12)}" cy="{_f(cy)}" r="3" fill="{_color(e.color)}"/>'
+            fill = "none" if e.mfc == "none" else _color(e.color)
+            s += f'<circle cx="{_f(x + 12)}" cy="{_f(cy)}" r="3" fill="{fill}" stroke="{_color(e.color)}"/>'
         return s
     fill = f'fill="url(#{fig.hatch_id(e.hatch, e.edgecolor or "k")})"' if e.hatch else _fill(e.color, e.alpha)
     stroke = f' stroke="{_color(e.edgecolor)}"' if e.edgecolor else ""

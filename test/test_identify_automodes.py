@@ -7,6 +7,7 @@ import json
 
 import numpy as np
 import pytest
+from figure_checks import assert_figure_matches_table, parse_svg
 from frf_cases import CONTROLLER, DELAY, FS, MODES, no_guess_params_yaml
 
 from additive_rsrivc_ros.bagio import write_bag
@@ -47,6 +48,10 @@ def test_identify_finds_the_modes_and_writes_a_params_file_diagnose_runs_with(ba
         assert abs(m["damping_ratio"] / truth.damping_ratio - 1.0) < 0.15
     table = doc["order_selection"]
     assert [row["K"] for row in table if row["accepted"]] == [2]
+    # the order scan as a figure next to the JSON: one marker per fitted mode of each order, K = 2 marked
+    figure = tmp_path / "id.order.svg"
+    assert doc["order_selection_figure"] == str(figure)
+    assert assert_figure_matches_table(parse_svg(figure.read_text()), table) == 2
     assert doc["frf"]["band_hz"][0] < 5.0 < 40.0 < doc["frf"]["band_hz"][1]
     assert any(abs(p / 40.0 - 1.0) < 0.02 for p in doc["frf"]["peaks_hz"])
     # the written params file: complete, the identified modes, the baseline, the input params kept
@@ -83,8 +88,14 @@ def test_diagnose_without_guesses_starts_from_the_data(bag, tmp_path, capsys):
     """rsrivc_diagnose with no guesses: modes found on the first init_duration_s, then tracked."""
     bag_path, params = bag
     ddir = tmp_path / "diag"
-    assert diagnose.main([bag_path, "--params-file", params, "--out", str(ddir), "--no-report", "--quiet"]) == 0
+    assert diagnose.main([bag_path, "--params-file", params, "--out", str(ddir), "--quiet"]) == 0
     assert "no mode guesses: found 2 mode(s)" in capsys.readouterr().err
+    # report.html shows why K = 2: the automatic start's order scan, as summary.json's mode_finding has it
+    finding = json.loads((ddir / "summary.json").read_text())["mode_finding"]
+    html = (ddir / "report.html").read_text()
+    assert "Model order: why K modes" in html
+    assert assert_figure_matches_table(parse_svg(html[html.index('<svg', html.index("why K modes")):]),
+                                       finding["order_selection"]) == finding["K"] == 2
     rows = list(csv.DictReader((ddir / "estimates.csv").open()))
     last = {int(row["mode"]): row for row in rows}
     assert sorted(last) == [1, 2]

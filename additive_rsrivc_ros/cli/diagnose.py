@@ -274,6 +274,15 @@ def _mode_summaries(series: DiagnosisSeries, rows: Sequence[dict], sig: Signals,
     return modes
 
 
+def _mode_finding(pipe: Any) -> Any:
+    """The automatic start's evidence (``core.modefind.ModeFindResult``: order table, FRF) when the modes in use are
+    the ones it found (not after a restart from the data, whose evidence the pipeline does not keep)."""
+    search = pipe.search
+    if search is None or search.found is None or search.evidence is None:
+        return None
+    return search.evidence if search.found.message == search.evidence.message else None
+
+
 def diagnose(args: argparse.Namespace, stdout: TextIO, stderr: TextIO, state: dict | None = None) -> int:
     """The work behind :func:`main`; raises the tools' one-line errors.
 
@@ -338,7 +347,7 @@ def diagnose(args: argparse.Namespace, stdout: TextIO, stderr: TextIO, state: di
                          rate_hz=cfg.loop_rate_hz, closed_loop=cfg.closed_loop,
                          input_delay_samples=cfg.input_delay_samples, duration_s=duration, params=dict(cfg.params),
                          info=info, truth=truth, param_help={k: p.description for k, p in table.items()},
-                         verdict=verdict)
+                         verdict=verdict, mode_finding=_mode_finding(pipe))
     rows = rp.summary_rows(inp)
     t_report = t_est
     if not args.no_report and n:
@@ -368,6 +377,7 @@ def diagnose(args: argparse.Namespace, stdout: TextIO, stderr: TextIO, state: di
     }
     summary["alignment"] = _alignment_summary(last)
     summary["identifiability"] = identifiability
+    summary["mode_finding"] = inp.mode_finding.to_dict() if inp.mode_finding is not None else None
     (tmp.tmp / "summary.json").write_text(json.dumps(json_clean(summary), indent=2, allow_nan=False) + "\n",
                                           encoding="utf-8")
     tmp.commit()

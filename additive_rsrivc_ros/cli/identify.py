@@ -205,9 +205,12 @@ def run(bag: str, params_file: str, out: str, method: str = "auto", max_iteratio
                           f"samples [{float(sig.t[k[0]]):.6g}, {float(sig.t[k[-1]]):.6g}] s ({sc.used} of {sig.n} "
                           "samples)").lstrip("; ")
     _add_mode_finding(doc, found, cfg, sig.r[k] if closed else None, sig.u[k], sig.y[k])
+    figure = _order_figure(doc, found, cfg, out_path)
     doc["model_order"] = _model_order(res, cfg, sig.r[k] if closed else None, sig.u[k], sig.y[k])
     doc = json_clean(doc)
     atomic_write_text(out_path, json.dumps(doc, indent=2, allow_nan=False) + "\n")
+    if figure is not None:
+        atomic_write_text(*figure)
     if out_params:
         write_params_file(cfg, doc, out_params, node_name, baseline, f"{bag} with {params_file}")
     return doc
@@ -255,6 +258,19 @@ def _add_mode_finding(doc: dict, found, cfg: MonitorConfig, r, u, y) -> None:
         doc["frf"]["peaks_hz"] = [c.natural_frequency_hz for c in find_candidates(frf, cfg.input_delay_samples)
                                   if c.natural_frequency_hz > 0]
     doc["order_selection"] = []
+
+
+def _order_figure(doc: dict, found, cfg: MonitorConfig, out_path: Path) -> tuple[Path, str] | None:
+    """With modes found from the data: the order scan as a stabilization diagram beside the FRF
+    (:mod:`..stabilization_plot`), to be written as ``FILE.order.svg`` next to the JSON (key
+    ``order_selection_figure``)."""
+    if found is None:
+        return None
+    from ..stabilization_plot import figure_path, order_svg
+
+    path = figure_path(out_path)
+    doc["order_selection_figure"] = str(path)
+    return path, order_svg(found, cfg.input_delay_samples)
 
 
 def _model_order(res, cfg: MonitorConfig, r, u, y) -> dict:

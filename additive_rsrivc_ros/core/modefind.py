@@ -85,12 +85,16 @@ class OrderRow:
     message: str = ""
     redundant: bool = False  # a mode of this fit adds less than the margin: its reduction is a K - 1 model
     residual: np.ndarray | None = field(default=None, repr=False, compare=False)  # held-out output error
+    modes: list[Candidate] = field(default_factory=list)  # the submodels of this order's kept fit (none: no fit)
 
     def to_dict(self) -> dict[str, Any]:
         def num(v: float) -> float | None:
             return float(v) if np.isfinite(v) else None
         return {"K": self.K, "fit_error": num(self.fit_error), "validation_error": num(self.validation_error),
-                "accepted": self.accepted, "converged": self.converged, "message": self.message}
+                "accepted": self.accepted, "converged": self.converged, "message": self.message,
+                "redundant": self.redundant,
+                "modes": [{"natural_frequency_hz": num(c.natural_frequency_hz), "damping_ratio": num(c.damping_ratio),
+                           "gain": num(c.gain), "integrators": c.integrators} for c in self.modes]}
 
 
 @dataclass
@@ -799,6 +803,8 @@ def order_table(u, y, rate_hz: float, r, controller, input_delay: int, candidate
     chosen = _choice(table, margin)
     if chosen is not None:
         chosen.accepted = True
+    for row in table:   # the evidence of each order: its kept fit's submodels (the stabilization figure)
+        row.modes = _fitted_candidates(fits[row.K]) if row.K in fits and np.isfinite(row.validation_error) else []
     return table, fits
 
 
