@@ -129,6 +129,21 @@ def reconstruct_missing(den: np.ndarray, num: np.ndarray, r: np.ndarray, u: np.n
 _EMPTY_BLOCK = AlignedBlock(np.empty(0), np.empty(0), np.empty(0), np.empty(0), np.empty(0, dtype=bool))
 
 
+@dataclass(frozen=True)
+class AlignmentSettings:
+    """The ``alignment.*`` parameters (rows in ``config.py``): whether the stream aligner runs, and its options."""
+
+    mode: str = "auto"           # auto | off
+    max_shift: int = 3           # largest index offset of u or r against y searched (samples)
+    lag_s: float = 0.008         # samples are released this late (s)
+    switch_nats: float = 40.0    # evidence a different offset needs before the streams are re-aligned
+
+    def aligner_options(self, rate_hz: float) -> AlignerOptions:
+        """The :class:`InvariantAligner` keywords at ``rate_hz`` (the lag in samples, rounded up)."""
+        return AlignerOptions(max_shift=self.max_shift, lag=int(math.ceil(self.lag_s * rate_hz)),
+                              switch_nats=self.switch_nats)
+
+
 class AlignerOptions(TypedDict, total=False):
     """The keyword options of :class:`InvariantAligner` (``alignment.*`` parameters and tuning)."""
 

@@ -19,6 +19,7 @@ from typing import TYPE_CHECKING, Any, Protocol, Self, runtime_checkable
 import numpy as np
 
 if TYPE_CHECKING:   # annotations only: scipy.signal (controller) is slow to import
+    from .alignment import AlignmentSettings
     from .controller import DiscreteController
     from .model import SubmodelStructure
 
@@ -199,6 +200,10 @@ class MonitorSettings(Protocol):
     def max_mode_count(self) -> int: ...
     @property
     def frequency_range_hz(self) -> tuple[float, float] | None: ...
+    @property
+    def alignment(self) -> AlignmentSettings: ...
+    @property
+    def mode_memories_s(self) -> tuple[float, ...]: ...
 
     @property
     def K(self) -> int: ...
