@@ -56,7 +56,7 @@ setup(
         "mcap": ["mcap", "ruamel.yaml.clib"],
         # rsrivc_fleet only (rosdistro has no dask key; the node never needs it)
         "fleet": ["dask[distributed]"],
-        "test": ["pytest", "ruff", "mcap", "mcap-ros2-support"],
+        "test": ["pytest", "ruff", "mypy", "types-PyYAML", "mcap", "mcap-ros2-support"],
         # rsrivc_monitor without a ROS 2 installation: ROS 2 Jazzy's Python packages as wheels (rosdep users have
         # them from /opt/ros/jazzy; package.xml's exec_depends)
         "ros": ["ros-jazzy-rclpy", "ros-jazzy-common-interfaces", "ros-jazzy-rmw-fastrtps-cpp"],

@@ -16,10 +16,10 @@ import json
 import math
 import os
 import shutil
-from collections.abc import Sequence
+from collections.abc import Mapping, Sequence
 from dataclasses import dataclass, field, replace
 from pathlib import Path
-from typing import Any
+from typing import Any, Protocol
 
 import numpy as np
 import yaml
@@ -34,7 +34,7 @@ from rosbags.interfaces import (
 from rosbags.rosbag2 import Reader, Writer
 from rosbags.rosbag2.enums import CompressionFormat, CompressionMode, StoragePlugin
 
-from .config import MonitorConfig
+from .core.estimator import SignalSettings
 from .core.vocabulary import one_line
 
 FLOAT64 = "std_msgs/msg/Float64"
@@ -365,6 +365,17 @@ def _read_fast(path: Path, sigcfg: dict, topic_to_sig: dict, extra: list, by_top
         return None
 
 
+class SignalSource(Protocol):
+    """What :func:`read_signals` reads of a configuration (``config.MonitorConfig``, or a view of a bag's topics)."""
+
+    @property
+    def closed_loop(self) -> bool: ...
+    @property
+    def loop_rate_hz(self) -> float: ...
+    @property
+    def signals(self) -> Mapping[str, SignalSettings]: ...
+
+
 def bag_topic(sig: Any) -> Any:
     """A bag stores absolute topic names: a relative configured topic ``name`` (the node resolves it in its
     namespace, /name in the root namespace) matches the bag's ``/name``."""
@@ -372,7 +383,7 @@ def bag_topic(sig: Any) -> Any:
     return sig if topic.startswith("/") else replace(sig, topic="/" + topic)
 
 
-def read_signals(bag: str | Path, config: MonitorConfig) -> Signals:
+def read_signals(bag: str | Path, config: SignalSource) -> Signals:
     """Read and check ``r``, ``u``, ``y`` (and the truth topics, if any) of a bag for ``config``.
 
     Raises :class:`BagError` (one line) when the bag is missing, has no metadata, is unreadable, truncated or
@@ -447,7 +458,7 @@ def read_signals(bag: str | Path, config: MonitorConfig) -> Signals:
     return _assemble(path, config, sigcfg, raw, log_ns, truth_raw, fault_raw)
 
 
-def _assemble(path: Path, config: MonitorConfig, sigcfg: dict, raw: dict, log_ns: dict, truth_raw: list,
+def _assemble(path: Path, config: SignalSource, sigcfg: dict, raw: dict, log_ns: dict, truth_raw: list,
               fault_raw: list) -> Signals:
     values: dict[str, np.ndarray] = {}
     stamps: dict[str, np.ndarray] = {}

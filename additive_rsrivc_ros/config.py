@@ -19,7 +19,7 @@ import math
 from collections.abc import Mapping
 from dataclasses import dataclass, field, fields, replace
 from pathlib import Path
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 import numpy as np
 import yaml
@@ -27,6 +27,10 @@ import yaml
 from .core.controller import DiscreteController
 from .core.model import SubmodelStructure, guess_structure, guess_theta
 from .core.params import ESTIMATOR_PARAMS, FAULT_PARAMS, EstimatorOptions, Param
+
+if TYPE_CHECKING:   # annotations only: imported where used (the fault monitor and aligner are heavier)
+    from .core.alignment import AlignmentSettings
+    from .core.faults import FaultSettings
 
 DEFAULT_NODE_NAME = "additive_rsrivc_monitor"
 
@@ -331,6 +335,27 @@ class MonitorConfig:
     @property
     def structures(self) -> list[SubmodelStructure]:
         return [m.structure for m in self.modes]
+
+    @property
+    def alignment(self) -> AlignmentSettings:
+        """The ``alignment.*`` parameters, typed."""
+        from .core.alignment import AlignmentSettings
+
+        p = self.params
+        return AlignmentSettings(str(p.get("alignment.mode", "auto")), int(p.get("alignment.max_shift", 3)),
+                                 float(p.get("alignment.lag_s", 0.008)), float(p.get("alignment.switch_nats", 40.0)))
+
+    @property
+    def mode_memories_s(self) -> tuple[float, ...]:
+        """``modes.memory_s`` as given (one per mode, one for all, or none: the memories of found modes)."""
+        return tuple(float(v) for v in self.params.get("modes.memory_s", []))
+
+    @property
+    def fault_settings(self) -> FaultSettings:
+        """The ``faults.*`` parameters, typed (:class:`.core.faults.FaultSettings`)."""
+        from .core.faults import FaultSettings
+
+        return FaultSettings.from_params(self.params)
 
     @property
     def forgetting_factors(self) -> np.ndarray:

@@ -13,7 +13,9 @@ chunks before its channel) raises :class:`FastPathUnsupported`; callers fall bac
 
 from __future__ import annotations
 
+from collections.abc import Iterable
 from pathlib import Path
+from typing import Any
 
 import numpy as np
 from numpy.lib.stride_tricks import sliding_window_view
@@ -137,6 +139,7 @@ def read_topics(path: str | Path, topics: set[str]) -> dict[str, tuple[np.ndarra
     try:
         with open(path, "rb") as fh:
             indexed = _indexed_chunks(fh)
+            records: Iterable[Any]
             if indexed is not None:
                 channel_topic.update(indexed[0])
                 records = indexed[1]
@@ -165,12 +168,12 @@ def read_topics(path: str | Path, topics: set[str]) -> dict[str, tuple[np.ndarra
                         cid, topic = _channel_from_content(data, int(p))
                         channel_topic[cid] = topic
                     ids = np.flatnonzero(np.bincount(chan)) if chan.size else chan   # ids are u16: no hashing
-                    for cid in ids:
-                        topic = channel_topic.get(int(cid))
+                    for chan_id in ids:
+                        topic = channel_topic.get(int(chan_id))
                         if topic is None:
                             raise FastPathUnsupported("message before its channel")
                         if topic in topics:
-                            sel = chan == cid
+                            sel = chan == chan_id
                             parts[topic].append((logt[sel], off[sel], size[sel], buf))
     except FastPathUnsupported:
         raise

@@ -114,5 +114,5 @@ def configure() -> str | None:
     os.environ[AUTO_MARKER] = path
     numba_config = sys.modules.get("numba.core.config")
     if numba_config is not None:
-        numba_config.CACHE_DIR = path
+        vars(numba_config)["CACHE_DIR"] = path   # the module numba reads its setting from
     return path

@@ -13,9 +13,13 @@ from __future__ import annotations
 
 import functools
 import gc
-from collections.abc import Callable
+from typing import Protocol
 
-Main = Callable[[list[str] | None], int]
+
+class Main(Protocol):
+    """A tool's ``main``: command-line arguments (None: ``sys.argv``) -> exit status."""
+
+    def __call__(self, argv: list[str] | None = None) -> int: ...
 
 
 def console_entry(main: Main) -> Main:

@@ -134,6 +134,10 @@ class TruthData:
     def has_modes(self) -> bool:
         return self.t is not None and self.modes is not None and len(self.t) > 0
 
+    def mode_rows(self) -> np.ndarray | None:
+        """``modes`` when the bag has truth modes (:attr:`has_modes`), else None."""
+        return self.modes if self.has_modes else None
+
     def fault_intervals(self, end_s: float) -> list[dict]:
         """Active intervals of each truth fault: ``{start, end, kind, mode, quantity, direction, label}``."""
         out: list[dict] = []
@@ -245,7 +249,7 @@ def nonparametric_frf(u: np.ndarray, y: np.ndarray, rate_hz: float, r: np.ndarra
     if n < 64:
         raise ValueError(f"window too short for a spectral estimate ({n} finite samples)")
     est = estimate_frf(u[sl], y[sl], rate_hz, None if x is None else x[sl], nperseg=nperseg)
-    v = est.valid & ~est.leakage
+    v = est.valid if est.leakage is None else est.valid & ~est.leakage
     t0 = t_start_s + sl.start / rate_hz
     return FrfEstimate(est.freqs_hz[v], est.G[v], est.coherence[v], t0, t0 + n / rate_hz, est.uncertainty[v])
 
@@ -307,8 +311,9 @@ def modes_figure(inp: ReportInput) -> Figure:
             ax.plot(t, est, color="#1565c0", lw=1.3, label="estimate")
             if np.any(np.isfinite(s.baseline[:, i, q])):
                 ax.plot(t, s.baseline[:, i, q], color="k", ls="--", lw=1.0, label="baseline")
-            if truth.has_modes and i < truth.modes.shape[1]:
-                ax.plot(truth.t, truth.modes[:, i, q], color="#2e7d32", ls=":", lw=1.6, label="truth (bag)")
+            tm = truth.mode_rows()
+            if tm is not None and i < tm.shape[1]:
+                ax.plot(truth.t, tm[:, i, q], color="#2e7d32", ls=":", lw=1.6, label="truth (bag)")
             ax.grid()
             if i == 0:
                 ax.set_title(QUANTITY_LABELS[q])
@@ -316,7 +321,7 @@ def modes_figure(inp: ReportInput) -> Figure:
                 ax.set_ylabel(f"mode {i + 1}")
             if i == K - 1:
                 ax.set_xlabel("time since first sample [s]")
-            _robust_ylim(ax, est, sd, truth.modes[:, i, q] if truth.has_modes and i < truth.modes.shape[1] else None)
+            _robust_ylim(ax, est, sd, tm[:, i, q] if tm is not None and i < tm.shape[1] else None)
     entries: dict[str, LegendEntry] = {}
     for ax in axes.ravel():
         for e in ax.legend_entries():
@@ -352,8 +357,8 @@ def timeline_figure(inp: ReportInput) -> Figure:
     fig = _figure(13.0, 0.35 * len(labels) + 1.4, left_in=1.5, right_in=3.2)
     ax = fig.subplots()[0, 0]
     ypos = {lab: len(labels) - 1 - j for j, lab in enumerate(labels)}
-    for b in inp.get_verdict().blind_intervals:   # where the structural tests were blind
-        ax.axvspan(b.start_s, b.end_s, color="#bdbdbd" if b.startup else "#ffcc80", alpha=0.35)
+    for blind in inp.get_verdict().blind_intervals:   # where the structural tests were blind
+        ax.axvspan(blind.start_s, blind.end_s, color="#bdbdbd" if blind.startup else "#ffcc80", alpha=0.35)
     t = s.time_s
     if t.size:                                     # health band: one bar per run of equal level
         lvl = np.minimum(s.health_level, 3)
@@ -451,9 +456,10 @@ def frf_figure(inp: ReportInput) -> Figure | None:
             ax_m.axvline(fm, color="0.4", ls=":", lw=0.9)
             ax_m.text(fm, 1.0, f"mode {i + 1}", size=8, color="0.3", ycoord="axes", dx=2, dy=-10)
     tr = inp.truth
-    if tr.has_modes:
+    tm = tr.mode_rows()
+    if tm is not None and tr.t is not None:
         for j, ls, lab in ((0, "--", "start"), (-1, ":", "end")):
-            rows = tr.modes[j]
+            rows = tm[j]
             if np.all(np.isfinite(rows[:, :3])) and np.all(rows[:, 0] > 0):
                 th = [theta_from_modal(*row[:3]) for row in rows]
                 g = model_frf(th, [SubmodelStructure()] * len(th), f, inp.rate_hz, inp.input_delay_samples)
@@ -540,8 +546,9 @@ def summary_rows(inp: ReportInput) -> list[dict[str, Any]]:
             std = s.modal[j, i, q + 3] if j is not None else math.nan
             base = s.baseline[-1, i, q] if s.n else math.nan
             truth = math.nan
-            if inp.truth.has_modes and i < inp.truth.modes.shape[1]:
-                truth = float(inp.truth.modes[-1, i, q])
+            tm = inp.truth.mode_rows()
+            if tm is not None and i < tm.shape[1]:
+                truth = float(tm[-1, i, q])
             ev = [e for e in inp.events if int(e["mode"]) == i + 1 and e["quantity"] == QUANTITIES[q]]
             open_ = [e for e in ev if e.get("clear_time_s") in (None, "")]
             fault = "-"
@@ -567,7 +574,7 @@ def _table(header: Iterable[str], rows: Iterable[Iterable[str]]) -> str:
     return f"<table><tr>{head}</tr>{body}</table>"
 
 
-def render_html(inp: ReportInput, figures: Mapping[str, bytes]) -> str:
+def render_html(inp: ReportInput, figures: Mapping[str, str]) -> str:
     """The report page; ``figures`` maps modes/timeline/frf/health to SVG text (missing ones are skipped)."""
     v = inp.get_verdict()
     level, text = v.level, v.text

@@ -323,9 +323,12 @@ class Axes:
 
     def _ticks(self, which: str, lim: tuple[float, float]) -> tuple[np.ndarray, list[str], np.ndarray, float]:
         """Major ticks, their labels, minor ticks and the labels' rotation of one axis."""
-        fixed = self.xticks if which == "x" else self.yticks
-        if fixed is not None:
-            return np.asarray(fixed[0], float), list(fixed[1]), np.zeros(0), (fixed[2] if which == "x" else 0.0)
+        if which == "x" and self.xticks is not None:
+            ticks, labels, rotation = self.xticks
+            return np.asarray(ticks, float), list(labels), np.zeros(0), rotation
+        if which != "x" and self.yticks is not None:
+            ticks, labels = self.yticks
+            return np.asarray(ticks, float), list(labels), np.zeros(0), 0.0
         if (self.xscale if which == "x" else self.yscale) == "log":
             major, minor = log_ticks(*lim)
             return major, [f"{v:g}" for v in major], minor, 0.0
@@ -345,8 +348,10 @@ class Axes:
                 pos = self._map(vals, lim, which)
                 for p in pos[np.isfinite(pos) & (pos >= lo - 0.5) & (pos <= hi + 0.5)]:
                     tick = 4 if is_major else 2
-                    grid = (p, y0, p, y0 + h) if which == "x" else (x0, p, x0 + w, p)
-                    mark = (p, y0 + h, p, y0 + h + tick) if which == "x" else (x0 - tick, p, x0, p)
+                    grid: tuple[float, float, float, float] = \
+                        (p, y0, p, y0 + h) if which == "x" else (x0, p, x0 + w, p)
+                    mark: tuple[float, float, float, float] = \
+                        (p, y0 + h, p, y0 + h + tick) if which == "x" else (x0 - tick, p, x0, p)
                     if which in self.grid_axes:
                         out.append(_line(*grid, 'stroke="#ccc" stroke-width="' + ("0.8" if is_major else "0.5") + '"'))
                     out.append(_line(*mark, 'stroke="#444" stroke-width="0.8"'))

@@ -149,7 +149,9 @@ def is_warm() -> bool:
     import os
 
     directory = os.environ.get("NUMBA_CACHE_DIR")
-    return bool(directory) and (Path(directory) / MARKER).is_file()
+    if not directory:
+        return False
+    return (Path(directory) / MARKER).is_file()
 
 
 @console_entry

@@ -21,6 +21,22 @@ def test_paper_example_loads_with_truth_modes():
     assert cfg.controller.numerator == PAPER_PID_NUM and cfg.controller.denominator == PAPER_PID_DEN
 
 
+def test_typed_views_of_the_alignment_memory_and_fault_parameters():
+    """What core reads of the parameters, typed: the values given (not the defaults), the lag in whole samples."""
+    from additive_rsrivc_ros.core.faults import FaultSettings
+
+    p = validate_params({"loop_rate_hz": 1000.0, "closed_loop": False, "modes.natural_frequency_hz": [3.0, 30.0],
+                         "modes.damping_ratio": [0.1, 0.1], "modes.gain": [1.0, 1.0], "modes.memory_s": [7.0],
+                         "alignment.mode": "off", "alignment.max_shift": 5, "alignment.lag_s": 0.0101,
+                         "alignment.switch_nats": 55.0, "faults.min_change.damping": 0.33})
+    cfg = MonitorConfig.from_params(p)
+    al = cfg.alignment
+    assert (al.mode, al.max_shift, al.lag_s, al.switch_nats) == ("off", 5, 0.0101, 55.0)
+    assert al.aligner_options(cfg.loop_rate_hz) == {"max_shift": 5, "lag": 11, "switch_nats": 55.0}
+    assert cfg.mode_memories_s == (7.0,) and [m.memory_s for m in cfg.modes] == [7.0, 7.0]
+    assert cfg.fault_settings == FaultSettings.from_params(p) and cfg.fault_settings != FaultSettings.from_params({})
+
+
 MONITOR_CONFIGS = sorted(p for p in CONFIG_DIR.glob("*.yaml") if not p.name.startswith("diagnostic_aggregator"))
 
 

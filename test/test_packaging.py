@@ -51,9 +51,10 @@ ROSDEP_KEYS = {
     "python3-rosbags-pip": "rosdep/python.yaml:7996",
     "python3-pytest": "rosdep/python.yaml:7446",
     "python3-ruff-pip": "rosdep/python.yaml:8114",
+    "python3-mypy": "rosdep/python.yaml:5749",
     "mcap-ros2-support": "rosdep/python.yaml:328",
 }
-TEST_DEPENDS = {"python3-pytest", "python3-ruff-pip", "mcap-ros2-support"}
+TEST_DEPENDS = {"python3-pytest", "python3-ruff-pip", "mcap-ros2-support", "python3-mypy"}
 
 
 def _package_imports(paths=None) -> set[str]:

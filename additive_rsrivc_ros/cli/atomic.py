@@ -68,8 +68,9 @@ def _unraisable(hook: Callable) -> Callable:
     """A ``sys.unraisablehook`` that keeps an :class:`Interrupted` swallowed by a C callback (e.g. numba's llvmlite
     object-cache callback during compilation) for :func:`raise_if_interrupted` instead of printing a traceback."""
     def handle(info: object) -> None:
-        if isinstance(getattr(info, "exc_value", None), Interrupted):
-            _swallowed.append(info.exc_value.signum)
+        exc = getattr(info, "exc_value", None)
+        if isinstance(exc, Interrupted):
+            _swallowed.append(exc.signum)
             return
         hook(info)
     return handle
@@ -103,8 +104,8 @@ def interrupts(final: bool = False) -> Iterator[None]:
         yield
     finally:
         sys.unraisablehook = hook
-        for s, h in old.items():
-            signal.signal(s, signal.SIG_IGN if final else h if h is not None else signal.SIG_DFL)
+        for signum, h in old.items():
+            signal.signal(signum, signal.SIG_IGN if final else h if h is not None else signal.SIG_DFL)
 
 
 @contextmanager

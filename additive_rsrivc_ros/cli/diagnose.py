@@ -39,7 +39,7 @@ from .parser import OneLineParser
 
 if TYPE_CHECKING:
     from ..bagio import Signals
-    from ..config import MonitorConfig
+    from ..core.estimator import MonitorSettings
     from ..core.faults import FaultEvent
     from ..core.pipeline import MonitorPipeline, Report
     from ..report import DiagnosisSeries, ReportInput
@@ -113,7 +113,7 @@ def _print_notices(reports: Sequence[Report], stderr: TextIO) -> None:
               file=stderr)
 
 
-def run_pipeline(sig: Signals, cfg: MonitorConfig, *, chunk_s: float = 1.0, progress: Progress | None = None,
+def run_pipeline(sig: Signals, cfg: MonitorSettings, *, chunk_s: float = 1.0, progress: Progress | None = None,
                  pipeline: MonitorPipeline | None = None) -> tuple[list[Report], list[FaultEvent]]:
     """Feed the bag's samples through a fresh :class:`MonitorPipeline` (or ``pipeline``); return
     ``(reports, events)``. Without mode guesses the pipeline finds the modes first (``core/autostart.py``);
@@ -240,7 +240,7 @@ def _warn_bad_samples(sig: Signals, stderr: TextIO) -> None:
               f"is a skipped sample on a kept grid, a surplus one is left out ({by})", file=stderr)
 
 
-def _frf_estimates(inp: ReportInput, sig: Signals, cfg: MonitorConfig) -> None:
+def _frf_estimates(inp: ReportInput, sig: Signals, cfg: MonitorSettings) -> None:
     """Nonparametric FRFs of the first and last data windows for the report (None where too short)."""
     from .. import report as rp
 
@@ -302,7 +302,7 @@ def diagnose(args: argparse.Namespace, stdout: TextIO, stderr: TextIO, state: di
     t_start = time.monotonic()
     if not (math.isfinite(args.chunk_s) and args.chunk_s > 0):
         raise ValueError(f"--chunk-s must be > 0, got {args.chunk_s}")
-    cfg = load_config(args.params_file, args.node_name or DEFAULT_NODE_NAME)
+    cfg: MonitorSettings = load_config(args.params_file, args.node_name or DEFAULT_NODE_NAME)
     bag = Path(args.bag)
     out = _out_dir(bag, args.out)
     check_replaceable(out, OWNED_FILES)            # fail before the long work, not after it
@@ -508,8 +508,9 @@ def _diagnose_or_interrupt(args: argparse.Namespace, state: dict[str, Any]) -> i
     try:
         return diagnose(args, sys.stdout, sys.stderr, state)
     except Exception:
-        if received() is not None:   # a library turned the interrupt into its own exception
-            raise Interrupted(received()) from None
+        signum = received()
+        if signum is not None:   # a library turned the interrupt into its own exception
+            raise Interrupted(signum) from None
         raise
 
 

@@ -120,6 +120,8 @@ def _beam_change_case(case: Case) -> Any:
 
     cfg_path = sc.config_dir() / "beam_healthy.yaml"
     cfg = load_config(cfg_path)
+    if case.beam_change is None:
+        raise ValueError(f"case {case.label} has no beam change")
     mode, quantity, rel, start = case.beam_change
     changes = [ModalChange(mode, sim_quantity_of(quantity), rel, start)]
     rng = np.random.default_rng([case.seed, 11])
@@ -151,6 +153,7 @@ def run_pipeline(data: Any, block_s: float = 0.1) -> tuple[list[FaultEvent], lis
             reports.append(_report_row(rep))
     for rep in pipe.flush():
         reports.append(_report_row(rep))
+    assert pipe.faults is not None   # the cases give the modes: the fault monitor exists from the start
     return list(pipe.faults.events), reports, time.perf_counter() - t_wall
 
 

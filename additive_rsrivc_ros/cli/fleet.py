@@ -50,7 +50,7 @@ import time
 from collections.abc import Callable, Sequence
 from dataclasses import dataclass
 from pathlib import Path
-from typing import Any, TextIO
+from typing import Any, NoReturn, TextIO
 
 from ..core.vocabulary import BASELINE_KEYS, FINDING_KEYS, FLEET_HEADER, QUANTITIES, json_clean, num, one_line
 from ..process_exit import console_entry
@@ -66,7 +66,7 @@ class ArgError(ValueError):
 
 
 class _Parser(argparse.ArgumentParser):
-    def error(self, message: str) -> None:  # one line instead of a usage dump
+    def error(self, message: str) -> NoReturn:  # one line instead of a usage dump
         print(f"{PROG}: error: {message}", file=sys.stderr)
         raise SystemExit(2)
 

@@ -187,13 +187,14 @@ def run(bag: str, params_file: str, out: str, method: str = "auto", max_iteratio
     sig = align_record_signals(read_signals(bag, cfg), cfg, warn)
     sc = screen_record(sig, cfg, FaultSettings.from_params(cfg.params), warn)
     k = sc.index
+    r = sig.r if closed else None
     found = None
     if cfg.auto_modes or modes is not None:
         from ..core.modefind import autostart_config
 
-        cfg, found = autostart_config(cfg, sig.r[k] if closed else None, sig.u[k], sig.y[k], modes)
+        cfg, found = autostart_config(cfg, None if r is None else r[k], sig.u[k], sig.y[k], modes)
     res = identify(sig.u[k], sig.y[k], cfg.loop_rate_hz, cfg.structures, [m.theta0() for m in cfg.modes],
-                   r=sig.r[k] if closed else None, controller=cfg.controller if closed else None,
+                   r=None if r is None else r[k], controller=cfg.controller if closed else None,
                    input_delay=cfg.input_delay_samples, method=method, max_iterations=iters, tol=tol,
                    projection=cfg.estimator.stability_projection)
     raise_if_interrupted()
@@ -204,9 +205,9 @@ def run(bag: str, params_file: str, out: str, method: str = "auto", max_iteratio
         doc["message"] = (f"{doc.get('message') or ''}; identified on its longest gap-free segment without bad "
                           f"samples [{float(sig.t[k[0]]):.6g}, {float(sig.t[k[-1]]):.6g}] s ({sc.used} of {sig.n} "
                           "samples)").lstrip("; ")
-    _add_mode_finding(doc, found, cfg, sig.r[k] if closed else None, sig.u[k], sig.y[k])
+    _add_mode_finding(doc, found, cfg, None if r is None else r[k], sig.u[k], sig.y[k])
     figure = _order_figure(doc, found, cfg, out_path)
-    doc["model_order"] = _model_order(res, cfg, sig.r[k] if closed else None, sig.u[k], sig.y[k])
+    doc["model_order"] = _model_order(res, cfg, None if r is None else r[k], sig.u[k], sig.y[k])
     doc = json_clean(doc)
     atomic_write_text(out_path, json.dumps(doc, indent=2, allow_nan=False) + "\n")
     if figure is not None:
@@ -224,7 +225,7 @@ def align_record_signals(sig: Signals, cfg: MonitorConfig, warn: Callable[[str],
     from ..core.alignment import align_record
     from ..core.pipeline import _make_aligner
 
-    if _make_aligner(cfg) is None or sig.n < 2:
+    if _make_aligner(cfg) is None or sig.n < 2 or cfg.controller is None or sig.r is None:
         return sig
     p = cfg.params
     blk, st = align_record(cfg.controller, cfg.loop_rate_hz, sig.t, sig.r, sig.u, sig.y,
@@ -322,11 +323,12 @@ def main(argv: list[str] | None = None) -> int:
             doc = run(args.bag, args.params_file, args.out, args.method, args.max_iterations, args.tol,
                       args.node_name, modes=args.modes, out_params=args.out_params, baseline=args.baseline)
         except Exception as exc:
-            if received() is None:
+            signum = received()
+            if signum is None:
                 return _error(exc)
-            exc = Interrupted(received())   # a library turned the interrupt into its own exception
-            print(f"rsrivc_identify: interrupted ({exc.name}); the output file left as it was", file=sys.stderr)
-            return exc.exit_code
+            intr = Interrupted(signum)   # a library turned the interrupt into its own exception
+            print(f"rsrivc_identify: interrupted ({intr.name}); the output file left as it was", file=sys.stderr)
+            return intr.exit_code
         except KeyboardInterrupt as exc:
             print(f"rsrivc_identify: interrupted ({getattr(exc, 'name', 'SIGINT')}); the output file left as it was",
                   file=sys.stderr)

@@ -21,13 +21,15 @@ import time
 from collections.abc import Callable, Iterable, Iterator
 from dataclasses import dataclass, field
 from pathlib import Path
-from types import SimpleNamespace
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 import numpy as np
 
 from ..process_exit import console_entry
 from ..signal_stop import SignalStop, StopFlag
+
+if TYPE_CHECKING:
+    from ..config import SignalConfig
 
 #: the simulation's truth topics (bagio.TRUTH_MODES_TOPIC, TRUTH_FAULT_TOPIC; bagio is not imported here: it loads
 #: rosbags): replayed, but --wait-for-subscribers does not wait for them (no monitor reads them)
@@ -250,6 +252,15 @@ class BlockPlan:
         return int(self.index.size)
 
 
+@dataclass(frozen=True)
+class _TopicsView:
+    """The block topics of a bag as :func:`..bagio.read_signals` reads a configuration (``bagio.SignalSource``)."""
+
+    closed_loop: bool
+    loop_rate_hz: float
+    signals: dict[str, SignalConfig]
+
+
 def plan_blocks(plan: BagPlan, topics: list[str] | None) -> BlockPlan:
     """Read r, u, y of the bag for ``--block`` (one-line :class:`ReplayError` on failure); see the module docstring.
 
@@ -271,8 +282,8 @@ def plan_blocks(plan: BagPlan, topics: list[str] | None) -> BlockPlan:
         raise ReplayError(f"bag {plan.path}: {names[-1]} has {n_out} message(s): no sample grid for --block")
     out_ns = np.fromiter((stamp for _, stamp, _ in iter_bag(BagPlan(plan.path, {names[-1]: ""}, {}, 0, 0))),
                          dtype=np.int64)
-    view = SimpleNamespace(closed_loop=closed, loop_rate_hz=1.0 / mean_sample_spacing(out_ns),
-                           signals={s: SignalConfig(t, FLOAT64) for s, t in zip(sig_names, names, strict=True)})
+    view = _TopicsView(closed_loop=closed, loop_rate_hz=1.0 / mean_sample_spacing(out_ns),
+                       signals={s: SignalConfig(t, FLOAT64) for s, t in zip(sig_names, names, strict=True)})
     try:
         sig = read_signals(plan.path, view)
     except BagError as exc:

@@ -170,6 +170,10 @@ def warmup_s(thetas: Sequence[np.ndarray], structures: Sequence[SubmodelStructur
     return warmup_samples(list(thetas), list(structures), rate_hz, n) / rate_hz
 
 
+# the data of :func:`_fit`: u, y, rate_hz, r, controller, input_delay
+FitData = tuple[np.ndarray, np.ndarray, float, np.ndarray | None, DiscreteController | None, int]
+
+
 def _fit(u, y, rate_hz: float, r, controller, input_delay: int, structures, thetas, max_iterations: int,
          warmup: float):
     """Offline additive (CL)SRIVC ([A-SRIVC] eq. 29) from ``thetas``, the first ``warmup`` s only warming up the
@@ -292,7 +296,7 @@ def _explained(frf: FRFEstimate, usable: np.ndarray, threshold: float, f_hz: flo
     return any(_local_misfit(frf, z1, usable, f_hz) <= threshold for z1 in explaining)
 
 
-def _extra_mode(cand: Any, fit_K: Any, data: tuple, structures: list[SubmodelStructure], band: tuple[float, float],
+def _extra_mode(cand: Any, fit_K: Any, data: FitData, structures: list[SubmodelStructure], band: tuple[float, float],
                 thresholds: np.ndarray, max_iterations: int, warmup: float) -> ExtraMode:
     """Refit with the candidate as submodel K + 1 (step 3) and measure how it moves the modelled modes (step 4)."""
     from .filters import ClosedLoopUnstableError
@@ -371,7 +375,8 @@ def check_model_order(thetas: Sequence[np.ndarray], structures: Sequence[Submode
     if n < MIN_WINDOW_S * rate_hz:
         return OrderCheckResult("skipped", f"only {n / rate_hz:.2f} s of contiguous valid samples "
                                 f"(need {MIN_WINDOW_S:g} s)", seconds=time.perf_counter() - c0)
-    data = (u[seg], y[seg], rate_hz, None if r is None else r[seg], controller if closed else None, input_delay)
+    data: FitData = (u[seg], y[seg], rate_hz, None if r is None else r[seg], controller if closed else None,
+                     input_delay)
     thresholds = relevance * np.asarray(min_change, float)
     from .filters import ClosedLoopUnstableError
 
@@ -412,7 +417,7 @@ def check_model_order(thetas: Sequence[np.ndarray], structures: Sequence[Submode
             out.extras.append(extra)
             if extra.moves:
                 break
-            if extra.real:
+            if extra.real and extra.thetas is not None:   # real: the K + 1 fit succeeded
                 explaining.append(misfit(frf, model_frf_on_bins(frf, extra.thetas, [*structures, cand.structure],
                                                                 input_delay))[0])
     out.seconds = time.perf_counter() - c0
@@ -461,8 +466,8 @@ def check_initial_model(thetas: Sequence[np.ndarray], structures: Sequence[Submo
 
 def _verdict(res: OrderCheckResult, thresholds: np.ndarray) -> tuple[str, str]:
     """State and the one health line."""
-    if res.wrong_delay:
-        d = res.delay
+    d = res.delay
+    if d is not None and d.better is not None:   # res.wrong_delay
         return "misfit", (f"the configured input delay misfits the data: with input_delay_samples {d.better} instead "
                           f"of {d.configured} the model's output error on this window is {100 * d.error_ratio:.2g} % "
                           "of it; check input_delay_samples (the loop's delay is part of the model): not a fault of "

@@ -15,7 +15,7 @@ from __future__ import annotations
 
 import math
 from dataclasses import dataclass, field
-from typing import NamedTuple
+from typing import NamedTuple, TypedDict, Unpack
 
 import numpy as np
 
@@ -129,6 +129,32 @@ def reconstruct_missing(den: np.ndarray, num: np.ndarray, r: np.ndarray, u: np.n
 _EMPTY_BLOCK = AlignedBlock(np.empty(0), np.empty(0), np.empty(0), np.empty(0), np.empty(0, dtype=bool))
 
 
+@dataclass(frozen=True)
+class AlignmentSettings:
+    """The ``alignment.*`` parameters (rows in ``config.py``): whether the stream aligner runs, and its options."""
+
+    mode: str = "auto"           # auto | off
+    max_shift: int = 3           # largest index offset of u or r against y searched (samples)
+    lag_s: float = 0.008         # samples are released this late (s)
+    switch_nats: float = 40.0    # evidence a different offset needs before the streams are re-aligned
+
+    def aligner_options(self, rate_hz: float) -> AlignerOptions:
+        """The :class:`InvariantAligner` keywords at ``rate_hz`` (the lag in samples, rounded up)."""
+        return AlignerOptions(max_shift=self.max_shift, lag=int(math.ceil(self.lag_s * rate_hz)),
+                              switch_nats=self.switch_nats)
+
+
+class AlignerOptions(TypedDict, total=False):
+    """The keyword options of :class:`InvariantAligner` (``alignment.*`` parameters and tuning)."""
+
+    max_shift: int
+    lag: int
+    switch_nats: float
+    drift: float
+    scale_memory: int
+    rounding: float
+
+
 def _fir(coef: np.ndarray, x: np.ndarray) -> np.ndarray:
     """``sum_i coef[i] x[k - i]`` for every ``k >= len(coef) - 1`` (valid part only)."""
     return np.convolve(x, coef, mode="valid")
@@ -183,7 +209,8 @@ class InvariantAligner:
         self._last_ui = -1                # last released u / r absolute index
         self._last_ri = -1
         self._last_t = math.nan
-        self._hist = (np.empty(0), np.empty(0), np.empty(0))   # last released r, u, y (reconstruction window)
+        # last released r, u, y (reconstruction window)
+        self._hist: tuple[np.ndarray, ...] = (np.empty(0), np.empty(0), np.empty(0))
 
     # ------------------------------------------------------------------------------------------- input
     def push(self, t: np.ndarray, r: np.ndarray | None, u: np.ndarray, y: np.ndarray) -> AlignedBlock:
@@ -624,7 +651,7 @@ def _cusum_scan(u, r, y, n_have, j0, n, a0, b0, d, nc, hyp, cur, G, rho, k0, swi
 
 
 def align_record(controller: DiscreteController, rate_hz: float, t: np.ndarray, r: np.ndarray, u: np.ndarray,
-                 y: np.ndarray, **options: float) -> tuple[AlignedBlock, AlignmentStats]:
+                 y: np.ndarray, **options: Unpack[AlignerOptions]) -> tuple[AlignedBlock, AlignmentStats]:
     """A whole record through :class:`InvariantAligner` (offline tools: one push and a flush)."""
     al = InvariantAligner(controller, rate_hz, **options)
     a, b = al.push(t, r, u, y), al.flush()

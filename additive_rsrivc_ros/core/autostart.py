@@ -158,6 +158,7 @@ class ModeSearch:
             self.found = FoundModes(modal, [m.integrators for m in new.modes], window_s, res.message, seconds,
                                     self.attempts)
             return new, "no mode guesses: " + self.found.describe()
+        assert problem is not None   # autostart_config returns modes or raises
         self.failures += 1
         wait = 0.0
         may_grow = excited and self.growth < MAX_GROWTH

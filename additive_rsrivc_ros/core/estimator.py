@@ -14,11 +14,12 @@ from __future__ import annotations
 
 from collections.abc import Mapping, Sequence
 from dataclasses import dataclass, fields
-from typing import TYPE_CHECKING, Any, Protocol, runtime_checkable
+from typing import TYPE_CHECKING, Any, Protocol, Self, runtime_checkable
 
 import numpy as np
 
 if TYPE_CHECKING:   # annotations only: scipy.signal (controller) is slow to import
+    from .alignment import AlignmentSettings
     from .controller import DiscreteController
     from .model import SubmodelStructure
 
@@ -101,15 +102,25 @@ class RecursiveEstimator(Protocol):
         """The current health record."""
         ...
 
+    @property
+    def thetas(self) -> list[np.ndarray]:
+        """Latest parameter vector per mode ([RA-SRIVC] eq. 7 order; the model-order check reads it)."""
+        ...
+
 
 class ModeSettings(Protocol):
     """One mode's initial guess and memory (``config.ModeConfig``)."""
 
-    natural_frequency_hz: float
-    damping_ratio: float
-    gain: float
-    integrators: int
-    memory_s: float
+    @property
+    def natural_frequency_hz(self) -> float: ...
+    @property
+    def damping_ratio(self) -> float: ...
+    @property
+    def gain(self) -> float: ...
+    @property
+    def integrators(self) -> int: ...
+    @property
+    def memory_s(self) -> float: ...
 
     @property
     def structure(self) -> SubmodelStructure: ...
@@ -120,53 +131,85 @@ class ModeSettings(Protocol):
 class EstimatorSettings(Protocol):
     """Options of the recursive estimator (``config.EstimatorOptions``)."""
 
-    block_sweeps: int
-    refinements: int
-    stability_projection: bool
-    output_subsampling: int
-    p0_relative_a: float
-    p0_relative_b: float
-    p0_policy: str
-    init_method: str
-    init_max_iterations: int
-    filter_smoothing: str
-    init_warmup_s: float
-    order_check_memory_lengths: float
-    order_check_relevance: float
+    @property
+    def block_sweeps(self) -> int: ...
+    @property
+    def refinements(self) -> int: ...
+    @property
+    def stability_projection(self) -> bool: ...
+    @property
+    def output_subsampling(self) -> int: ...
+    @property
+    def p0_relative_a(self) -> float: ...
+    @property
+    def p0_relative_b(self) -> float: ...
+    @property
+    def p0_policy(self) -> str: ...
+    @property
+    def init_method(self) -> str: ...
+    @property
+    def init_max_iterations(self) -> int: ...
+    @property
+    def filter_smoothing(self) -> str: ...
+    @property
+    def init_warmup_s(self) -> float: ...
+    @property
+    def guess_spread(self) -> float: ...
+    @property
+    def order_check_memory_lengths(self) -> float: ...
+    @property
+    def order_check_relevance(self) -> float: ...
 
 
 class SignalSettings(Protocol):
     """Topic and message type of one input signal (``config.SignalConfig``)."""
 
-    topic: str
-    type: str
+    @property
+    def topic(self) -> str: ...
+    @property
+    def type(self) -> str: ...
 
 
 class MonitorSettings(Protocol):
     """The configuration ``core`` reads (``config.MonitorConfig``, a frozen dataclass: ``dataclasses.replace``
     works on it)."""
 
-    loop_rate_hz: float
-    closed_loop: bool
-    controller: DiscreteController | None
-    input_delay_samples: int
-    modes: Sequence[ModeSettings]
-    init_duration_s: float
-    publish_rate_hz: float
-    estimator: EstimatorSettings
-    signals: Mapping[str, SignalSettings]
-    params: dict[str, Any]
-    mode_count: int
-    max_mode_count: int
-    frequency_range_hz: tuple[float, float] | None
+    @property
+    def loop_rate_hz(self) -> float: ...
+    @property
+    def closed_loop(self) -> bool: ...
+    @property
+    def controller(self) -> DiscreteController | None: ...
+    @property
+    def input_delay_samples(self) -> int: ...
+    @property
+    def modes(self) -> Sequence[ModeSettings]: ...
+    @property
+    def init_duration_s(self) -> float: ...
+    @property
+    def publish_rate_hz(self) -> float: ...
+    @property
+    def estimator(self) -> EstimatorSettings: ...
+    @property
+    def signals(self) -> Mapping[str, SignalSettings]: ...
+    @property
+    def params(self) -> dict[str, Any]: ...
+    @property
+    def mode_count(self) -> int: ...
+    @property
+    def max_mode_count(self) -> int: ...
+    @property
+    def frequency_range_hz(self) -> tuple[float, float] | None: ...
+    @property
+    def alignment(self) -> AlignmentSettings: ...
+    @property
+    def mode_memories_s(self) -> tuple[float, ...]: ...
 
     @property
     def K(self) -> int: ...
-
     @property
     def structures(self) -> list[SubmodelStructure]: ...
-
     @property
     def auto_modes(self) -> bool: ...
 
-    def with_modes(self, modal: np.ndarray, integrators: list[int] | None = None) -> MonitorSettings: ...
+    def with_modes(self, modal: np.ndarray, integrators: list[int] | None = None) -> Self: ...

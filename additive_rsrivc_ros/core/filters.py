@@ -19,6 +19,9 @@ from .controller import DiscreteController
 from .model import SubmodelStructure, parallel_state_space, split_theta
 from .zoh import zoh_matrices
 
+# a continuous realization (A, B, C, D)
+StateSpace = tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]
+
 
 class ClosedLoopUnstableError(ValueError):
     """The controller does not stabilize the (ZOH-equivalent) model: ``S_uo r`` would diverge."""
@@ -212,7 +215,7 @@ def svf_continuous(a: np.ndarray, integrators: int = 0) -> tuple[np.ndarray, np.
     return A, B, C, D
 
 
-def submodel_continuous(theta: np.ndarray, st: SubmodelStructure) -> tuple[np.ndarray, ...]:
+def submodel_continuous(theta: np.ndarray, st: SubmodelStructure) -> StateSpace:
     """Realization ``(A, B, C, D)`` of ``B(p) / (p^l A(p))`` (one output), [A-SRIVC] eq. 2 / Remark 6."""
     a, b = split_theta(theta, st)
     A, Bv, C, D = svf_continuous(a, st.integrators)
@@ -221,13 +224,13 @@ def submodel_continuous(theta: np.ndarray, st: SubmodelStructure) -> tuple[np.nd
     return A, Bv, bb @ C, np.array([bb @ D])
 
 
-def instrument_continuous(theta: np.ndarray, st: SubmodelStructure) -> tuple[np.ndarray, ...]:
+def instrument_continuous(theta: np.ndarray, st: SubmodelStructure) -> StateSpace:
     """Cascade ``B/(p^l A)`` then ``1/A``: outputs ``p^j B / (p^l A^2)``, j = 0..n ([A-SRIVC] eqs. 10, 20, 31)."""
     a, b = split_theta(theta, st)
     return instrument_continuous_poly(a, b, st.integrators)
 
 
-def instrument_continuous_poly(a: np.ndarray, b: np.ndarray, integrators: int = 0) -> tuple[np.ndarray, ...]:
+def instrument_continuous_poly(a: np.ndarray, b: np.ndarray, integrators: int = 0) -> StateSpace:
     """:func:`instrument_continuous` for any denominator ``A`` (ascending; anti-monic or monic, [UNS-SRIVC] §6)."""
     a = np.asarray(a, dtype=float)
     A1, B1, C1, D1 = svf_continuous(a, integrators)

@@ -76,10 +76,10 @@ class FRFEstimate:
                 "n_valid": int(np.sum(self.valid))}
 
 
-def longest_finite(*signals: np.ndarray | None) -> slice:
+def longest_finite(first: np.ndarray | None, second: np.ndarray, *rest: np.ndarray | None) -> slice:
     """The longest stretch where every given signal (``None``: absent) is finite; the second sets the length."""
-    ok = np.ones(signals[1].size, dtype=bool)
-    for s in signals:
+    ok = np.ones(second.size, dtype=bool)
+    for s in (first, second, *rest):
         if s is not None:
             ok &= np.isfinite(s)
     edges = np.flatnonzero(np.diff(np.concatenate(([0], ok.astype(int), [0]))))
@@ -112,7 +112,8 @@ def coherence_threshold(n_segments: int, alpha: float = 0.01) -> float:
     return 1.0 - alpha ** (1.0 / max(n_segments - 1, 1))
 
 
-def estimate_frf(u: Sequence[float], y: Sequence[float], rate_hz: float, r: Sequence[float] | None = None, *,
+def estimate_frf(u: Sequence[float] | np.ndarray, y: Sequence[float] | np.ndarray, rate_hz: float,
+                 r: Sequence[float] | np.ndarray | None = None, *,
                  nperseg: int | None = None, excitation_floor: float = 1e-8, max_relative_std: float = 0.3,
                  min_averages: int = 16, alpha: float | None = None) -> FRFEstimate:
     """FRF of the plant from ``u`` to ``y`` (indirect through ``r`` when given). See the module docstring."""

@@ -63,8 +63,8 @@ def _pade_low(a: np.ndarray, even: tuple[np.ndarray, np.ndarray, np.ndarray], m:
     powers = [np.eye(a.shape[0]), *even][:(m + 1) // 2]
     if m == 9:
         powers.append(even[2] @ even[0])
-    u = sum(b[2 * k + 1] * p for k, p in enumerate(powers))
-    v = sum(b[2 * k] * p for k, p in enumerate(powers))
+    u = sum((b[2 * k + 1] * p for k, p in enumerate(powers)), np.zeros_like(a))
+    v = sum((b[2 * k] * p for k, p in enumerate(powers)), np.zeros_like(a))
     return a @ u, v
 
 

@@ -16,9 +16,9 @@ mode (:func:`_check_relevance`); the chosen model is refitted on the whole recor
 
 from __future__ import annotations
 
-from collections.abc import Iterator
+from collections.abc import Iterable, Iterator
 from dataclasses import dataclass, field, replace
-from typing import Any
+from typing import Any, TypeVar
 
 import numpy as np
 
@@ -49,6 +49,8 @@ QUICK_FRF_FTOL = 1e-4  # refine_on_frf of the starts of an order after one that 
 # evaluations at a flat misfit)
 DEGENERATE_BAND_BINS = 0.02  # a start refined on the FRF to a mode narrower than this many bins is dropped
 FINER_BAND_BINS = 20  # ... below this many bins of the default resolution, where a peak has too few bins
+
+SettingsT = TypeVar("SettingsT", bound=MonitorSettings)   # autostart_config returns the type it is given
 
 
 @dataclass(frozen=True)
@@ -419,8 +421,11 @@ def _nested_start(best_fit: Any, candidates: list[Candidate], K: int, skip: int 
 
 
 def _fitted_candidates(fit: Any) -> list[Candidate]:
-    return [Candidate(*(modal_from_theta(t, s) if s.n == 2 else (0.0, 0.0, t[0])), 0.0, s.integrators)
-            for t, s in zip(fit.thetas, fit.structures, strict=True)]
+    out = []
+    for t, s in zip(fit.thetas, fit.structures, strict=True):
+        f, z, g = modal_from_theta(t, s) if s.n == 2 else (0.0, 0.0, t[0])
+        out.append(Candidate(f, z, g, 0.0, s.integrators))
+    return out
 
 
 def _residual_start(best_fit: Any, frf: FRFEstimate, K: int, input_delay: int,
@@ -765,13 +770,13 @@ def order_table(u, y, rate_hz: float, r, controller, input_delay: int, candidate
         if misses >= STOP_AFTER_MISSES:  # larger K are not tried
             table.append(OrderRow(K, np.inf, np.inf, message=f"not tried ({misses} orders in a row without gain)"))
             continue
-        starts = ([_start(candidates, K)] if best_fit is None else
-                  [_nested_start(best_fit, candidates, K, skip) for skip in range(ALTERNATIVES)])
-        starts = [st for st in starts if st is not None]
+        tried = ([_start(candidates, K)] if best_fit is None else
+                 [_nested_start(best_fit, candidates, K, skip) for skip in range(ALTERNATIVES)])
+        starts = [st for st in tried if st is not None]
         # the smaller model's FRF on the bins: its residual gives a start, and whether it fits decides `quick`
         G_best = model_frf_on_bins(frf, best_fit.thetas, best_fit.structures, input_delay) \
             if best_fit is not None and frf is not None else None
-        if G_best is not None:
+        if G_best is not None and frf is not None:
             extra = _residual_start(best_fit, frf, K, input_delay, frequency_range_hz, G_best)
             if extra is not None and not any(_same_start(extra, st) for st in starts):
                 starts.append(extra)
@@ -784,11 +789,13 @@ def order_table(u, y, rate_hz: float, r, controller, input_delay: int, candidate
             continue
         # the model to beat already fits the FRF: the added mode has nothing to fit but noise, so its starts' FRF
         # refinement and its fits stop once their misfit no longer falls (QUICK_FRF_FTOL, SCAN_SETTLE)
-        quick = G_best is not None and fits_its_frf(frf, G_best)
+        quick = G_best is not None and frf is not None and fits_its_frf(frf, G_best)
+        runs: Iterable[list[Candidate]] = starts
         if frf is not None and FRF_REFINE:
-            starts = _with_frf_refined(starts, frf, input_delay, QUICK_FRF_FTOL if quick else 1e-8)
-        row, res = None, None
-        for st in starts:
+            runs = _with_frf_refined(starts, frf, input_delay, QUICK_FRF_FTOL if quick else 1e-8)
+        row: OrderRow | None = None
+        res = None
+        for st in runs:
             cand_row, cand_res = _evaluate(K, st, u, y, rate_hz, r, controller, input_delay, split, max_iterations,
                                            best_fit if quick else None, margin)
             if row is None or cand_row.validation_error < row.validation_error:
@@ -797,6 +804,7 @@ def order_table(u, y, rate_hz: float, r, controller, input_delay: int, candidate
                 break  # a gain: no need to try the other peaks
         if res is not None:
             fits[K] = res
+        assert row is not None   # starts is not empty: every start gives a row
         table.append(row)
         if res is not None and chosen is not None and _beats(row, chosen, margin):
             _check_relevance(table, fits, res, u, y, rate_hz, r, controller, input_delay, split, margin)
@@ -889,8 +897,8 @@ def find_modes(u, y, rate_hz: float, *, r=None, controller=None, input_delay: in
                           frf, candidates, res, message)
 
 
-def autostart_config(cfg: MonitorSettings, r, u, y, count: int | None = None,
-                     refit_tol: float = FINAL_TOL) -> tuple[MonitorSettings, ModeFindResult]:
+def autostart_config(cfg: SettingsT, r, u, y, count: int | None = None,
+                     refit_tol: float = FINAL_TOL) -> tuple[SettingsT, ModeFindResult]:
     """The automatic start of a :class:`config.MonitorConfig` without guesses: modes found on the given
     data (the longest finite stretch; ``count`` None: ``modes.count``), returned as the configuration with those
     modes as guesses, and the evidence. ``refit_tol``: see :func:`find_modes` (the pipeline passes

@@ -15,7 +15,7 @@ from __future__ import annotations
 import math
 from collections.abc import Mapping, Sequence
 from pathlib import Path
-from typing import Any, NamedTuple
+from typing import Any, Literal, NamedTuple, overload
 
 import numpy as np
 
@@ -137,7 +137,7 @@ def sandwich_from_offline(p0: np.ndarray, cov0: np.ndarray, sigma2_0: float) -> 
     return s
 
 
-def closed_loop_matrix(kinds: Sequence[int], thetas: Sequence[np.ndarray], rate_hz: float, controller: Any,
+def closed_loop_matrix(kinds: Sequence[int] | np.ndarray, thetas: Sequence[np.ndarray], rate_hz: float, controller: Any,
                        input_delay: int = 0) -> np.ndarray:
     """State matrix of the noise-free sampled loop ``u = C_d(q)(r - y)`` about the frozen ZOH model ([RA-SRIVC] eq. 10).
 
@@ -162,7 +162,7 @@ def closed_loop_matrix(kinds: Sequence[int], thetas: Sequence[np.ndarray], rate_
     return a
 
 
-def closed_loop_spectral_radius(kinds: Sequence[int], thetas: Sequence[np.ndarray], rate_hz: float,
+def closed_loop_spectral_radius(kinds: Sequence[int] | np.ndarray, thetas: Sequence[np.ndarray], rate_hz: float,
                                 controller: Any, input_delay: int = 0) -> float:
     """Largest modulus of the poles of :func:`closed_loop_matrix` (NaN if the model is not finite)."""
     if not all(np.all(np.isfinite(np.asarray(t, float))) for t in thetas):
@@ -245,10 +245,10 @@ class RecursiveAdditiveSRIVC:
         h = 1.0 / self.rate_hz
 
         theta = np.zeros((K, kn.NT))
-        for i, (th, s) in enumerate(zip(theta0, structures, strict=True)):
+        for i, (th, st) in enumerate(zip(theta0, structures, strict=True)):
             th = np.asarray(th, dtype=float).ravel()
-            if th.shape != (s.n_theta,) or not np.all(np.isfinite(th)):
-                raise ValueError(f"theta0[{i}] must be {s.n_theta} finite values, got {th}")
+            if th.shape != (st.n_theta,) or not np.all(np.isfinite(th)):
+                raise ValueError(f"theta0[{i}] must be {st.n_theta} finite values, got {th}")
             if kind[i] == 0:
                 a1, a2, flag = kn.project_second_order(th[0], th[1])
                 if a2 == 0.0:
@@ -265,7 +265,7 @@ class RecursiveAdditiveSRIVC:
         else:
             cnum, cden = np.zeros(1), np.ones(1)
         d = int(input_delay)
-        s = {
+        s: dict[str, np.ndarray] = {
             "kind": kind,
             "lam": np.zeros(K),
             "muf": np.zeros(K),
@@ -545,7 +545,7 @@ class RecursiveAdditiveSRIVC:
             self.set_filter_memory(tau)
         self._filter_policy = policy
 
-    def set_filter_memory(self, filter_memory_s: float | Sequence[float] | None) -> None:
+    def set_filter_memory(self, filter_memory_s: float | Sequence[float] | np.ndarray | None) -> None:
         """Time constant (s) of the filter model ``A_f,i`` per mode; ``None`` = ``FILTER_PERIODS`` periods.
 
         [RA-SRIVC] Remark 4.4 carries the filter states across coefficient changes, which is exact only while the
@@ -625,6 +625,11 @@ class RecursiveAdditiveSRIVC:
                      s["gam"], s["ubuf"], s["zbuf"], s["ce"], s["cz"], s["ist"], s["fst"], s["proj"], s["rej"],
                      s["rejr"], trace)
 
+    @overload
+    def update(self, r: Any, u: Any, y: Any, valid: Any = None, *, trace: Literal[True]) -> np.ndarray: ...
+    @overload
+    def update(self, r: Any, u: Any, y: Any, valid: Any = None, *, trace: bool = False) -> np.ndarray | None: ...
+
     def update(self, r: Any, u: Any, y: Any, valid: Any = None, *, trace: bool = False) -> np.ndarray | None:
         """Process any number of samples ([RA-SRIVC] Algorithm 2 lines 2-16 per sample).
 
@@ -696,9 +701,8 @@ class RecursiveAdditiveSRIVC:
             try:
                 from .offline import identify
             except ImportError:  # pragma: no cover - offline core not installed
-                identify = None
                 self.init_message = "offline core unavailable: using the guesses"
-            if identify is not None:
+            else:
                 def fit_once(r: np.ndarray, u: np.ndarray, y: np.ndarray) -> Any:
                     ok = np.isfinite(u) & np.isfinite(y) & (np.isfinite(r) if self.closed_loop else True)
                     return identify(u[ok], y[ok], self.rate_hz, self.structures, guesses,
@@ -856,10 +860,11 @@ class RecursiveAdditiveSRIVC:
                         P[np.ix_(b, b)] + C[np.ix_(b, b)], d[b])
                 except np.linalg.LinAlgError:
                     return fit, ""
-        post = post.reshape(self.K, 3)
-        if not np.all(np.isfinite(post[app])) or np.any(post[:, :2][app[:, :2]] <= 0.0):
+        post_modal = post.reshape(self.K, 3)
+        if not np.all(np.isfinite(post_modal[app])) or np.any(post_modal[:, :2][app[:, :2]] <= 0.0):
             return fit, ""
-        out = [np.array([post[i, 2]]) if st.n == 0 else theta_from_modal(*post[i]) for i, st in enumerate(sts)]
+        out = [np.array([post_modal[i, 2]]) if st.n == 0 else theta_from_modal(*post_modal[i])
+               for i, st in enumerate(sts)]
         names = [f"mode {i + 1} {'shape' if q == 0 else 'gain'}" for i, q in sorted(kept) if q != 1 and app[i, q]]
         note = f"; guesses as a prior (spread {100 * s:g} %)" + (
             f", kept: {', '.join(names)} (the guess predicts held-out data as well)" if names else "")
@@ -961,7 +966,7 @@ class RecursiveAdditiveSRIVC:
 
     def save(self, path: str | Path) -> None:
         """Write the state to an ``.npz`` file."""
-        np.savez(Path(path), **self.get_state())
+        np.savez(Path(path), **self.get_state())  # type: ignore[arg-type]  # numpy>=2.1 stub: **kwds may fill allow_pickle
 
     def load(self, path: str | Path) -> None:
         """Restore the state written by :meth:`save` into this (identically configured) estimator."""

@@ -130,9 +130,9 @@ def _tau2(x: np.ndarray, w: np.ndarray, q: float) -> float:
     return max(0.0, (q - df) / denom) if denom > 0 else 0.0
 
 
-def drift_test(x: Sequence[float], y: Sequence[float], se: Sequence[float], *, min_change: float,
-               spread_factor: float, alpha: float, mode: int = 1, quantity: str = "natural_frequency",
-               indices: Sequence[int] | None = None) -> TrendTest:
+def drift_test(x: Sequence[float] | np.ndarray, y: Sequence[float] | np.ndarray, se: Sequence[float] | np.ndarray, *,
+               min_change: float, spread_factor: float, alpha: float, mode: int = 1,
+               quantity: str = "natural_frequency", indices: Sequence[int] | None = None) -> TrendTest:
     """Random-effects trend test of levels ``y`` (standard errors ``se``) against recording order ``x``."""
     x = np.asarray(x, float)
     y = np.asarray(y, float)

@@ -43,6 +43,8 @@ class BlockSync(InputSync):
     never given to the pipeline); the block-specific ones are in :meth:`extra_values`.
     """
 
+    wake: threading.Event   # always an event here: the worker sleeps until a block arrives
+
     def __init__(self, rate_hz: float, *, closed_loop: bool, label: str,
                  convert: Callable[[Any], tuple[np.ndarray | None, str]], reorder_s: float = 0.05,
                  controller: Any = None, gap_s: float = 0.1, silent_s: float = 1.0, max_queue: int = 1 << 20,
@@ -76,10 +78,11 @@ class BlockSync(InputSync):
         self.last_malformed = ""
         self._malformed_logged_ns = 0
         self._malformed_since_log = 0
-        self._den = self._num = None
+        self._den: np.ndarray | None = None
+        self._num: np.ndarray | None = None
         if controller is not None and self.closed_loop:
             self._den, self._num = np.asarray(controller.den, float), np.asarray(controller.num, float)
-        self._order = 0 if self._den is None else max(self._den.size, self._num.size) - 1
+        self._order = 0 if self._den is None or self._num is None else max(self._den.size, self._num.size) - 1
         self._tail: tuple[np.ndarray, np.ndarray] | None = None     # last released rows for the invariant
         self.invariant_relative = math.nan
         self._inv_rows = 0
@@ -161,8 +164,8 @@ class BlockSync(InputSync):
             rows, err = self.convert(msg)
             if rows is not None:
                 err = index_problem(rows[:, 0])
-            if err:
-                self._malformed(now_ns, err)
+            if err or rows is None:
+                self._malformed(now_ns, err or "no rows")
                 continue
             self.counters.received[0] += rows.shape[0]
             self.last_arrival_ns[0] = arrival
@@ -285,7 +288,7 @@ class BlockSync(InputSync):
         in_gap = np.zeros(k.size, dtype=bool)
         for lo, hi in self.skipped:
             in_gap |= (k >= lo) & (k <= hi)
-        late = ~seen & (in_gap | (k >= self.next_k - self.mem_k.size))
+        late = ~seen & (in_gap | (k >= self._next() - self.mem_k.size))
         return (int(same.sum()), int((seen & ~same).sum()), int(late.sum()), int((~seen & ~late).sum()))
 
     def _hold(self, k: np.ndarray, vals: np.ndarray, arrival_ns: int) -> None:
@@ -311,14 +314,14 @@ class BlockSync(InputSync):
         """Release held rows from the next expected index on; a hole waits ``reorder_s`` (or ``force``)."""
         while self.held:
             k, vals, arrival = self.held[0]
-            if k[0] > self.next_k:
+            if k[0] > self._next():
                 held_rows = sum(h[0].size for h in self.held)
                 oldest = min(h[2] for h in self.held)
                 if not (force or now_ns - oldest >= self.reorder_ns or held_rows > self.max_queue):
                     return
-                self._gap(self.next_k, int(k[0]) - 1, now_ns)
+                self._gap(self._next(), int(k[0]) - 1, now_ns)
             self.held.pop(0)
-            keep = k >= self.next_k            # a later block may have overlapped an earlier held one
+            keep = k >= self._next()            # a later block may have overlapped an earlier held one
             k, vals = k[keep], vals[keep]
             if k.size == 0:
                 continue
@@ -326,6 +329,12 @@ class BlockSync(InputSync):
             for j in holes:                    # rows missing inside one block: a gap at once (nothing can fill it)
                 self._gap(int(k[j]) + 1, int(k[j + 1]) - 1, now_ns)
             self._emit(k, vals, arrival, ros_now_s, out)
+
+    def _next(self) -> int:
+        """The next expected index (known from the first block on)."""
+        if self.next_k is None:
+            raise RuntimeError("no block received yet: no expected index")
+        return self.next_k
 
     def _gap(self, lo: int, hi: int, now_ns: int) -> None:
         n = hi - lo + 1
@@ -376,7 +385,7 @@ class BlockSync(InputSync):
         """The controller's counter started a new run: release what is held, then anchor the new run after a gap."""
         self._release(now_ns, ros_now_s, out, force=True)
         why = (f"{conflict} rows reuse indices already received with other values" if conflict else
-               f"the index went back from {self.next_k - 1} to {int(k[0])}")
+               f"the index went back from {self._next() - 1} to {int(k[0])}")
         self.block["restarts"] += 1
         self.block["conflicting_samples"] += conflict
         self._event(now_ns, f"controller restart on {self.labels[0]} ({why}): new index run from {int(k[0])}, "
@@ -392,7 +401,7 @@ class BlockSync(InputSync):
     def _check_invariant(self, k: np.ndarray, vals: np.ndarray) -> None:
         """Closed loop: relative residual of ``D(q^-1) u = N(q^-1)(r - y)`` ([RA-SRIVC] eq. 10) over adjacent rows."""
         p = self._order
-        if self._den is None:
+        if self._den is None or self._num is None:
             return
         tail, self._tail = self._tail, ((k[-p:].copy(), vals[-p:].copy()) if p else None)
         self._inv_rows += k.size

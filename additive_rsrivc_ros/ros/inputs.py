@@ -25,6 +25,7 @@ from ..config import MonitorConfig, ParamError, SignalConfig
 from . import convert as cv
 from . import sync as input_sync
 from .blocks import BlockSync
+from .channel import ChannelState
 from .sync import InputSync
 
 JOINT_STATE = "sensor_msgs/msg/JointState"
@@ -47,7 +48,7 @@ def first_line(exc: Exception) -> str:
     return str(exc).splitlines()[0] if str(exc) else type(exc).__name__
 
 
-class InputsMixin:
+class InputsMixin(ChannelState):
     """Topic names, input stage, subscriptions (part of :class:`.monitor_node.MonitorNode`)."""
 
     def _resolve_topics(self, cfg: MonitorConfig) -> dict[str, str]:
@@ -118,8 +119,9 @@ class InputsMixin:
                                       f"(its topics: {', '.join(self.topics.values())})")
 
     def _float_cb(self, i: int) -> Callable[[Float64], None]:
-        q = self.sync.queues[i]
-        over, cap = self.sync.overflow, self.sync.max_queue
+        sync = self.configured_sync()
+        q = sync.queues[i]
+        over, cap = sync.overflow, sync.max_queue
         mono = time.monotonic_ns
 
         def cb(msg: Float64) -> None:
@@ -130,7 +132,10 @@ class InputsMixin:
         return cb
 
     def _block_cb(self) -> Callable[[Float64MultiArray], None]:
-        enqueue, mono = self.sync.enqueue, time.monotonic_ns
+        sync = self.configured_sync()
+        if not isinstance(sync, BlockSync):
+            raise TypeError("block input needs the block input stage (BlockSync)")
+        enqueue, mono = sync.enqueue, time.monotonic_ns
 
         def cb(msg: Float64MultiArray) -> None:
             if self._active:
@@ -138,8 +143,9 @@ class InputsMixin:
         return cb
 
     def _joint_cb(self, i: int, sig: str, sc: SignalConfig) -> Callable[[JointState], None]:
-        q = self.sync.queues[i]
-        over, cap = self.sync.overflow, self.sync.max_queue
+        sync = self.configured_sync()
+        q = sync.queues[i]
+        over, cap = sync.overflow, sync.max_queue
         mono = time.monotonic_ns
         joint, fld = sc.joint, sc.field
 
@@ -163,7 +169,7 @@ class InputsMixin:
         found = dict(self.get_topic_names_and_types())
         wrong = []
         for s in self.signals:
-            sc = self.cfg.signals[s]
+            sc = self.configured_cfg().signals[s]
             topic = self.topics[s]
             others = [t for t in found.get(topic, []) if t != sc.type]
             if others:

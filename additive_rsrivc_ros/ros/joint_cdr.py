@@ -95,7 +95,7 @@ def decode_run(raws: list[bytes], layout: Layout, fields: tuple[str, ...]
     buf = np.frombuffer(b"".join(raws), dtype=np.uint8).reshape(m, layout.length)
     st = np.ascontiguousarray(buf[:, 4:12]).view("<u4")
     stamps = (st[:, 0].view("<i4").astype(np.int64) * 1_000_000_000 + st[:, 1]).tolist()
-    out = {}
+    out: dict[str, tuple[np.ndarray, np.ndarray | None]] = {}
     for f in fields:
         off, n = layout.fields[f]
         if n == width:

@@ -11,7 +11,6 @@ the group's shared subscriptions (:mod:`.joint_fanout`) or, with block input, fr
 
 from __future__ import annotations
 
-import functools
 import threading
 import time
 from collections.abc import Mapping
@@ -24,21 +23,11 @@ from std_srvs.srv import Trigger
 from ..config import MonitorConfig, param_table
 from ..core.pipeline import MonitorPipeline
 from .inputs import InputsMixin, signal_names
-from .monitor_node import MonitorNode
 from .params import ParametersMixin
 from .publishing import PublishingMixin
 from .state import StateMixin
 from .sync import InputSync
 from .worker import WorkerMixin
-
-
-class _Value:
-    """What ``get_parameter`` returns: an object with ``.value``."""
-
-    __slots__ = ("value",)
-
-    def __init__(self, value: Any) -> None:
-        self.value = value
 
 
 class JointChannel(ParametersMixin, InputsMixin, StateMixin, WorkerMixin, PublishingMixin):
@@ -88,11 +77,11 @@ class JointChannel(ParametersMixin, InputsMixin, StateMixin, WorkerMixin, Publis
         """``/<ns>/<node>/<joint>``: its statuses are ``<ns>/<node>/<joint>: ...``."""
         return f"{self.group.get_fully_qualified_name()}/{self.joint}"
 
-    def get_parameter(self, name: str) -> _Value:
+    def parameter_value(self, name: str) -> Any:
         """The joint's effective value (its own, else the shared one); ``use_sim_time`` is the node's."""
         if name == "use_sim_time":
-            return self.group.get_parameter(name)
-        return _Value(self.group.joint_values(self.joint)[name])
+            return self.group.get_parameter(name).value
+        return self.group.joint_values(self.joint)[name]
 
     def _check_graph(self) -> None:
         """A topic of this joint carrying another message type: name the topic and both types (the node's graph,
@@ -100,7 +89,7 @@ class JointChannel(ParametersMixin, InputsMixin, StateMixin, WorkerMixin, Publis
         found = self.group.graph()
         wrong = []
         for s in self.signals:
-            want = "std_msgs/msg/Float64MultiArray" if s == "block" else self.cfg.signals[s].type
+            want = "std_msgs/msg/Float64MultiArray" if s == "block" else self.configured_cfg().signals[s].type
             topic = self.topic_of[s]
             others = [t for t in found.get(topic, []) if t != want]
             if others:
@@ -122,7 +111,7 @@ class JointChannel(ParametersMixin, InputsMixin, StateMixin, WorkerMixin, Publis
         self.topic_of = dict(topic_of)
         self.topics = {s: topic_of[s] if s == "block" else
                        f"{topic_of[s]}[{cfg.signals[s].joint}].{cfg.signals[s].field}" for s in self.signals}
-        MonitorNode._configure_runtime(self, cfg, dict(values))
+        self._configure_runtime(cfg, dict(values))
 
     def create_outputs(self, diag_pub: Any) -> None:
         """``~/<joint>/modes`` (and ``~/<joint>/modes_stamped``), the shared /diagnostics publisher and the joint's
@@ -131,9 +120,9 @@ class JointChannel(ParametersMixin, InputsMixin, StateMixin, WorkerMixin, Publis
         self._modes_pub = node.create_lifecycle_publisher(Float64MultiArray, f"~/{j}/modes", 10)
         self._modes_stamped_pub = node.create_lifecycle_publisher(PointCloud2, f"~/{j}/modes_stamped", 10)
         self._diag_pub = diag_pub
-        self._srvs = [node.create_service(Trigger, f"~/{j}/{name}", functools.partial(srv, self))
-                      for name, srv in (("reset", MonitorNode._srv_reset), ("rebaseline", MonitorNode._srv_rebaseline),
-                                        ("save_state", MonitorNode._srv_save))]
+        self._srvs = [node.create_service(Trigger, f"~/{j}/{name}", srv)
+                      for name, srv in (("reset", self._srv_reset), ("rebaseline", self._srv_rebaseline),
+                                        ("save_state", self._srv_save))]
 
     def destroy_outputs(self) -> None:
         node = self.group

@@ -15,6 +15,7 @@ episode; the joint's other topic then has an unmatched stamp, which its stamped 
 from __future__ import annotations
 
 from collections import deque
+from collections.abc import Iterable
 from dataclasses import dataclass
 from typing import Any
 
@@ -158,9 +159,10 @@ class SharedJointTopic:
         self._feed_raw(run, now_ns)
 
     def _feed_raw(self, run: list[tuple[bytes, int]], now_ns: int) -> None:
-        if run:
-            stamps, mats = decode_run([r for r, _ in run], self._layout, self.fields)
-            self._feed_run(list(self._layout.names), stamps, [a for _, a in run], mats, now_ns)
+        layout = self._layout    # the run's (a run is only ever collected under a layout)
+        if run and layout is not None:
+            stamps, mats = decode_run([r for r, _ in run], layout, self.fields)
+            self._feed_run(list(layout.names), stamps, [a for _, a in run], mats, now_ns)
 
     def _feed(self, run: list[tuple[Any, int]], names: list[str], now_ns: int) -> None:
         """One run of message objects with the same name list -> every reader's queue."""
@@ -183,6 +185,7 @@ class SharedJointTopic:
                 continue
             mat, ok = mats[r.field]
             vals = mat[:, col].tolist()
+            rows: Iterable[tuple[Any, int, int]]
             if ok is None:
                 rows = zip(vals, arrivals, stamps, strict=True)
                 k = n

@@ -207,7 +207,7 @@ class JointGroupNode(LifecycleNode):
         for ch in self.channels.values():
             ch.create_outputs(self._diag_pub)
         topics = ", ".join(f"{t} ({len(s.readers)} signals)" for t, s in self.shared.items())
-        blocks = [j for j, ch in self.channels.items() if ch.cfg.block_input]
+        blocks = [j for j, ch in self.channels.items() if ch.configured_cfg().block_input]
         self.get_logger().info(
             f"configured: {len(self.channels)} joints ({', '.join(self.channels)}); shared topics: {topics or 'none'}"
             + (f"; block input: {', '.join(blocks)}" if blocks else "") + f"; worker period {self._period_s:g} s"
@@ -257,17 +257,18 @@ class JointGroupNode(LifecycleNode):
         self._raw = joint_cdr.checked_against_rclpy()
         rate: dict[str, float] = {}
         for ch in self.channels.values():
-            r = ch.cfg.loop_rate_hz
-            if ch.cfg.block_input:
+            cfg, sync = ch.configured_cfg(), ch.configured_sync()
+            r = cfg.loop_rate_hz
+            if cfg.block_input:
                 self._create_sub(Float64MultiArray, ch.topic_of["block"], ch._block_cb(), self._qos(r), opts)
                 continue
             for i, s in enumerate(ch.signals):
                 topic = ch.topic_of[s]
                 if topic not in self.shared:
-                    self.shared[topic] = SharedJointTopic(topic, ch.sync.max_queue, raw=self._raw,
+                    self.shared[topic] = SharedJointTopic(topic, sync.max_queue, raw=self._raw,
                                                           msg_type=JointState)
-                self.shared[topic].max_queue = max(self.shared[topic].max_queue, ch.sync.max_queue)
-                sc = ch.cfg.signals[s]
+                self.shared[topic].max_queue = max(self.shared[topic].max_queue, sync.max_queue)
+                sc = cfg.signals[s]
                 self.shared[topic].add_reader(Reader(ch, i, s, sc.joint, sc.field))
                 rate[topic] = max(rate.get(topic, 0.0), r)
         for topic, shared in self.shared.items():

@@ -14,7 +14,7 @@ from __future__ import annotations
 
 import threading
 import time
-from typing import Any
+from typing import Any, Protocol
 
 import rclpy
 from diagnostic_msgs.msg import DiagnosticArray
@@ -39,6 +39,10 @@ from .worker import STALL_NS, WorkerMixin
 
 class MonitorNode(ParametersMixin, InputsMixin, StateMixin, WorkerMixin, PublishingMixin, LifecycleNode):
     """Managed node around :class:`MonitorPipeline`; see the module docstring."""
+
+    _active: bool                      # activated: inputs are taken, outputs published
+    idle_since_ns: int                 # the executor's last wait without work (spin)
+    looking_since_ns: int              # start of the executor's current uninterrupted run (0: not yet)
 
     def __init__(self, node_name: str = DEFAULT_NODE_NAME, **kwargs: Any) -> None:
         super().__init__(node_name, **kwargs)
@@ -105,11 +109,12 @@ class MonitorNode(ParametersMixin, InputsMixin, StateMixin, WorkerMixin, Publish
             self._destroy_interfaces()
             return self._reject(exc)
         self._create_outputs()
+        sync = self.configured_sync()
         self.get_logger().info(
             f"configured: K={cfg.K or 'from the data'}, {cfg.loop_rate_hz:g} Hz, "
             f"{'closed' if cfg.closed_loop else 'open'} loop, "
-            f"inputs {', '.join(self.topics[s] for s in self.signals)} ({self.sync.pairing}), QoS {qos_text}, input "
-            f"queues bounded at {self.sync.max_queue} samples per topic (<= {self.sync.queue_bytes() / 1e6:.3g} MB)")
+            f"inputs {', '.join(self.topics[s] for s in self.signals)} ({sync.pairing}), QoS {qos_text}, input "
+            f"queues bounded at {sync.max_queue} samples per topic (<= {sync.queue_bytes() / 1e6:.3g} MB)")
         self.warn_duplicate_name()       # again after activation, once discovery has seen the graph
         return TransitionCallbackReturn.SUCCESS
 
@@ -117,20 +122,6 @@ class MonitorNode(ParametersMixin, InputsMixin, StateMixin, WorkerMixin, Publish
         self.config_error = str(exc)
         self.get_logger().error(f"configuration rejected: {exc}")
         return TransitionCallbackReturn.FAILURE
-
-    def _configure_runtime(self, cfg: MonitorConfig, values: dict[str, Any]) -> None:
-        """The input stage and the worker/publisher periods of a configuration; statistics start afresh."""
-        self.sync = self._make_sync(cfg, values)
-        self._use_sim_time = bool(self.get_parameter("use_sim_time").value)
-        if self.pipeline.t_last is not None:
-            self.sync.set_time_floor(self.pipeline.t_last)
-        self._stale_timeout_s = values["stale_timeout_s"]
-        self._publish_period_s = 1.0 / cfg.publish_rate_hz
-        self._diag_period_s = values["diagnostics_period_s"]
-        self._hardware_id = values["hardware_id"]
-        self._block_period_s = values["block_period_s"]
-        self._block_batch_s, self._block_step_due = values["block.batch_s"], 0.0
-        self._reset_stats()
 
     def _create_outputs(self) -> None:
         self._modes_pub = self.create_lifecycle_publisher(Float64MultiArray, "~/modes", 10)
@@ -202,42 +193,16 @@ class MonitorNode(ParametersMixin, InputsMixin, StateMixin, WorkerMixin, Publish
             self._closed = True
             self.save_state()
 
-    # ------------------------------------------------------------------------------------ services
-    def _srv_reset(self, request: Trigger.Request, response: Trigger.Response) -> Trigger.Response:
-        with self.lock:
-            if self.pipeline is None:
-                response.success, response.message = False, "not configured"
-                return response
-            self.pipeline.reset()
-            self.sync.resync(time.monotonic_ns(), "reset requested", count=False)
-            self.sync.set_time_floor(None)
-        response.success, response.message = True, "estimator, baseline and fault state reset"
-        return response
+class Spun(Protocol):
+    """What :func:`spin` records on the node it spins (:class:`MonitorNode`, ``JointGroupNode``)."""
 
-    def _srv_rebaseline(self, request: Trigger.Request, response: Trigger.Response) -> Trigger.Response:
-        with self.lock:
-            if self.pipeline is None:
-                response.success, response.message = False, "not configured"
-                return response
-            closed = self.pipeline.rebaseline()
-        response.success = True
-        response.message = f"learning a new baseline; {len(closed)} open fault event(s) closed"
-        return response
+    idle_since_ns: int
+    looking_since_ns: int
 
-    def _srv_save(self, request: Trigger.Request, response: Trigger.Response) -> Trigger.Response:
-        path = self.get_parameter("state_file").value
-        if not path:
-            response.success, response.message = False, "parameter state_file is empty"
-            return response
-        try:
-            response.message = self.save_state()
-            response.success = True
-        except OSError as exc:
-            response.success, response.message = False, f"cannot write {path}: {exc}"
-        return response
+    def note_stall(self, start_ns: int, end_ns: int) -> None: ...
 
 
-def spin(node: MonitorNode, executor: Executor, started_ns: int, stop: StopFlag) -> None:
+def spin(node: Spun, executor: Executor, started_ns: int, stop: StopFlag) -> None:
     """``spin_once`` loop until ``stop`` is set (see the module docstring); records when the executor was idle
     (input pause checks) and when it did not run (the node's own stalls, from ``started_ns``: start-up counts as
     one)."""

@@ -21,6 +21,7 @@ from ..core.faults import FaultSettings
 from ..core.pipeline import PipelineError
 from . import convert as cv
 from . import sync as input_sync
+from .channel import ChannelState
 
 ALLOWED_EXTRA_PARAMS = ("use_sim_time", "start_type_description_service")
 REQUIRED_PARAMS = ("loop_rate_hz",)     # no usable default: absent means the params file did not reach the node
@@ -79,7 +80,7 @@ def checked_config(values: Mapping[str, Any], *, strict: bool = True) -> tuple[d
     return valid, cfg
 
 
-class ParametersMixin:
+class ParametersMixin(ChannelState):
     """Declaration of the table's parameters and their runtime changes (part of :class:`.monitor_node.MonitorNode`)."""
 
     def _declare_all(self) -> None:
@@ -100,6 +101,10 @@ class ParametersMixin:
                     self._parameters[p.name] = Parameter(p.name, cv.PARAM_TYPE[p.type], [])
             else:
                 self.declare_parameter(p.name, p.default, cv.descriptor(p))
+
+    def parameter_value(self, name: str) -> Any:
+        """The current value of the node's parameter ``name``."""
+        return self.get_parameter(name).value
 
     def values(self) -> dict[str, Any]:
         """Current parameter values, flat ``{name: plain value}``."""

@@ -25,37 +25,11 @@ from ..core.faults import Level
 from ..core.pipeline import Report
 from ..status import Finding, StatusRecord, estimator_summary, mode_summary
 from . import convert as cv
+from .channel import ChannelState, RingStats  # noqa: F401 - RingStats: its home was here
 from .sync import InputSync
 
 MODES_QUEUE = 10_000        # ~/modes messages the publisher may fall behind before the oldest are coalesced (counted)
 QUANTITIES = ("natural_frequency", "damping", "gain")   # the fault flags' quantities in a mode's message
-
-
-class RingStats:
-    """Last ``n`` values of a float series (the delays)."""
-
-    def __init__(self, n: int = 1 << 16) -> None:
-        self.buf = np.empty(n)
-        self.i = 0
-        self.full = False
-
-    def extend(self, x: np.ndarray) -> None:
-        x = np.asarray(x, dtype=float).ravel()[-self.buf.size:]
-        n = x.size
-        j = self.i + n
-        if j <= self.buf.size:
-            self.buf[self.i:j] = x
-        else:
-            k = self.buf.size - self.i
-            self.buf[self.i:] = x[:k]
-            self.buf[: n - k] = x[k:]
-            self.full = True
-        self.i = j % self.buf.size
-        if j == self.buf.size:
-            self.full = True
-
-    def values(self) -> np.ndarray:
-        return self.buf if self.full else self.buf[: self.i]
 
 
 def alignment_values(al: Mapping[str, Any]) -> dict[str, Any]:
@@ -86,7 +60,7 @@ DUPLICATE_NAME_CHECK_S = 2.0
 of a running graph takes a few hundred milliseconds on loopback)."""
 
 
-class PublishingMixin:
+class PublishingMixin(ChannelState):
     """The publisher thread and the composition of ``/diagnostics`` (part of :class:`.monitor_node.MonitorNode`)."""
 
     def warn_duplicate_name(self) -> bool:
@@ -188,7 +162,7 @@ class PublishingMixin:
 
     def _mode_records(self, rep: Report | None, modal: np.ndarray | None, silent: list[str]) -> list[StatusRecord]:
         """One ``<node>: mode <i>`` record per mode (none while the modes are being found)."""
-        n_modes = self.cfg.K if modal is None else len(modal)
+        n_modes = self.configured_cfg().K if modal is None else len(modal)
         silent_text = "no data on " + ", ".join(self.topics[s] for s in silent) if silent else ""
         out = []
         rate_error = self.sync is not None and bool(self.sync.rate_error)
@@ -198,7 +172,7 @@ class PublishingMixin:
                                         "no estimate published: loop_rate_hz disagrees with the data's timing",
                                         {f: math.nan for f in cv.MODE_FIELDS}))
                 continue
-            vals = {f: math.nan for f in cv.MODE_FIELDS} if modal is None else \
+            vals: dict[str, Any] = {f: math.nan for f in cv.MODE_FIELDS} if modal is None else \
                 {f: float(modal[i, j]) for j, f in enumerate(cv.MODE_FIELDS)}
             found = None
             if rep is not None and rep.K == n_modes:
@@ -217,8 +191,11 @@ class PublishingMixin:
         now = time.monotonic_ns()
         if now - self._delay_cache_ns > 1_000_000_000 or math.isnan(self._delay_cache[0]):
             v = self.delays_ms.values().copy()
-            self._delay_cache = tuple(float(x) for x in np.percentile(v, (50, 95, 100))) if v.size \
-                else (math.nan,) * 3
+            if v.size:
+                p50, p95, p100 = (float(x) for x in np.percentile(v, (50, 95, 100)))
+                self._delay_cache = (p50, p95, p100)
+            else:
+                self._delay_cache = (math.nan, math.nan, math.nan)
             self._delay_cache_ns = now
         return self._delay_cache
 
@@ -243,7 +220,7 @@ class PublishingMixin:
 
     def _estimator_values(self, rep: Report | None, h: Mapping[str, Any], silent: list[str]) -> dict[str, Any]:
         """Key/values of the estimator status (counters, health, timing), in the published order."""
-        sync, pipe = self.sync, self.pipeline
+        sync, pipe = self.configured_sync(), self.configured_pipeline()
         sc = sync.counters
         est = rep.estimator_health if rep is not None else None     # core/estimator.py EstimatorHealth
         cond = [c for c in (est.cond if est is not None else ()) if c is not None]
@@ -300,9 +277,9 @@ class PublishingMixin:
 
     def _estimator_record(self, rep: Report | None, silent: list[str]) -> StatusRecord:
         """The ``<node>: estimator`` record: values, and level and reasons composed by :func:`estimator_summary`."""
-        sync = self.sync
+        sync = self.configured_sync()
         h = dict(rep.health) if rep is not None else {}
-        h.update(self.pipeline.counters.to_dict())      # live counters (the report may be older)
+        h.update(self.configured_pipeline().counters.to_dict())      # live counters (the report may be older)
         vals = self._estimator_values(rep, h, silent)
         lasting = self._input_reasons(sync)
         recent = time.monotonic_ns() - sync.last_event_ns < 5e9 and sync.last_event_ns > 0

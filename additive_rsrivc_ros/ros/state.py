@@ -12,8 +12,11 @@ import os
 import time
 from pathlib import Path
 
+from std_srvs.srv import Trigger
+
 from ..config import MonitorConfig
 from ..core.pipeline import MonitorPipeline, PipelineError
+from .channel import ChannelState
 
 
 def beside(path: str) -> str:
@@ -43,8 +46,9 @@ def write_atomic(path: str, text: str) -> None:
             os.unlink(tmp)
 
 
-class StateMixin:
-    """Restore and save of the pipeline state (part of :class:`.monitor_node.MonitorNode`)."""
+class StateMixin(ChannelState):
+    """Restore and save of the pipeline state, and the reset, rebaseline and save_state services (part of
+    :class:`.monitor_node.MonitorNode`)."""
 
     def _restore(self, cfg: MonitorConfig, state_file: str) -> MonitorPipeline | None:
         """The pipeline restored from ``state_file``, or None. A refused file (corrupt, another node's fully
@@ -71,7 +75,7 @@ class StateMixin:
     def save_state(self) -> str:
         """Write the pipeline state atomically (temp file, fsync, ``os.replace``) to ``state_file`` or, when
         that file was refused at start, beside it; returns a one-line result."""
-        path = self._save_path if self.pipeline is not None else self.get_parameter("state_file").value
+        path = self._save_path if self.pipeline is not None else self.parameter_value("state_file")
         if not path:
             return "state_file is empty: nothing saved"
         with self.lock:
@@ -82,3 +86,38 @@ class StateMixin:
         write_atomic(path, json.dumps(doc))
         self.get_logger().info(f"state saved to {path}")
         return f"state saved to {path}"
+
+    # ------------------------------------------------------------------------------------ services
+    def _srv_reset(self, request: Trigger.Request, response: Trigger.Response) -> Trigger.Response:
+        with self.lock:
+            if self.pipeline is None:
+                response.success, response.message = False, "not configured"
+                return response
+            self.pipeline.reset()
+            sync = self.configured_sync()
+            sync.resync(time.monotonic_ns(), "reset requested", count=False)
+            sync.set_time_floor(None)
+        response.success, response.message = True, "estimator, baseline and fault state reset"
+        return response
+
+    def _srv_rebaseline(self, request: Trigger.Request, response: Trigger.Response) -> Trigger.Response:
+        with self.lock:
+            if self.pipeline is None:
+                response.success, response.message = False, "not configured"
+                return response
+            closed = self.pipeline.rebaseline()
+        response.success = True
+        response.message = f"learning a new baseline; {len(closed)} open fault event(s) closed"
+        return response
+
+    def _srv_save(self, request: Trigger.Request, response: Trigger.Response) -> Trigger.Response:
+        path = self.parameter_value("state_file")
+        if not path:
+            response.success, response.message = False, "parameter state_file is empty"
+            return response
+        try:
+            response.message = self.save_state()
+            response.success = True
+        except OSError as exc:
+            response.success, response.message = False, f"cannot write {path}: {exc}"
+        return response

@@ -18,6 +18,7 @@ import bisect
 import math
 import threading
 from collections import deque
+from collections.abc import Callable, Mapping
 from dataclasses import dataclass, field
 from typing import Any
 
@@ -38,10 +39,10 @@ def pause_gap_s(gap_s: float, rate_hz: float) -> float:
     return gap_s if gap_s > 0.0 else max(0.1, 10.0 / rate_hz)
 
 
-def settings(values: dict[str, Any], rate_hz: float) -> dict[str, Any]:
+def settings(values: Mapping[str, Any], rate_hz: float) -> dict[str, Any]:
     """:meth:`InputSync.update` arguments from the parameters in ``values`` (at start-up all of them, on a runtime
     change the changed ones): ``stale_timeout_s`` and ``sync.{max_backlog,gap,quiet,hold}_s``."""
-    convert = {"stale_timeout_s": ("silent_s", float),
+    convert: dict[str, tuple[str, Callable[[Any], float]]] = {"stale_timeout_s": ("silent_s", float),
                "sync.max_backlog_s": ("max_backlog", lambda s: backlog_samples(float(s), rate_hz)),
                "sync.gap_s": ("gap_s", lambda s: pause_gap_s(float(s), rate_hz)),
                "sync.quiet_s": ("quiet_s", float), "sync.hold_s": ("hold_s", float)}

@@ -14,15 +14,21 @@ import math
 import threading
 import time
 from collections import deque
+from collections.abc import Mapping
+from typing import TYPE_CHECKING, Any
 
-from .publishing import MODES_QUEUE, RingStats
+from .channel import ChannelState, RingStats
+from .publishing import MODES_QUEUE
 from .sync import Aligned, InputSync
+
+if TYPE_CHECKING:
+    from ..config import MonitorConfig
 
 STALL_NS = 250_000_000     # the executor or the worker not running for this long is a stall of the node itself
 BLOCK_IDLE_S = 0.05          # block input: longest worker sleep without a new block (reorder timeouts, rate checks)
 
 
-class WorkerMixin:
+class WorkerMixin(ChannelState):
     """The estimation worker and its statistics (part of :class:`.monitor_node.MonitorNode`)."""
 
     def _reset_stats(self) -> None:
@@ -53,8 +59,23 @@ class WorkerMixin:
         self.worker_stall_max_s = 0.0
         self._clock_pts: list[tuple[int, float]] = []
 
+    def _configure_runtime(self, cfg: MonitorConfig, values: Mapping[str, Any]) -> None:
+        """The input stage and the worker/publisher periods of a configuration; statistics start afresh."""
+        sync = self.sync = self._make_sync(cfg, values)
+        self._use_sim_time = bool(self.parameter_value("use_sim_time"))
+        t_last = self.configured_pipeline().t_last
+        if t_last is not None:
+            sync.set_time_floor(t_last)
+        self._stale_timeout_s = values["stale_timeout_s"]
+        self._publish_period_s = 1.0 / cfg.publish_rate_hz
+        self._diag_period_s = values["diagnostics_period_s"]
+        self._hardware_id = values["hardware_id"]
+        self._block_period_s = values["block_period_s"]
+        self._block_batch_s, self._block_step_due = values["block.batch_s"], 0.0
+        self._reset_stats()
+
     def _run_worker(self) -> None:
-        wake = self.sync.wake   # block input: woken per message, not polled every period
+        wake = self.configured_sync().wake   # block input: woken per message, not polled every period
         while not (self._stop.wait(self._block_period_s) if wake is None else self._wait_block(wake)):
             self.guarded_step()
 
@@ -116,14 +137,14 @@ class WorkerMixin:
 
     def _push(self, blk: Aligned) -> None:
         """Feed aligned samples to the pipeline; record timing and delays, queue the reports, log its notices."""
-        pipe = self.pipeline
+        pipe = self.configured_pipeline()
         was_init = pipe.initialized
         c0 = time.perf_counter()
         self._push_started_ns = time.monotonic_ns()
         reports = pipe.push(blk.t, blk.r, blk.u, blk.y)
         self._push_started_ns = 0
         self._busy_s += time.perf_counter() - c0
-        self._data_s += len(blk) / self.cfg.loop_rate_hz
+        self._data_s += len(blk) / self.configured_cfg().loop_rate_hz
         if was_init and pipe.initialized:
             self.delays_ms.extend((time.monotonic_ns() - blk.arrival_ns) * 1e-6)
         if reports:
@@ -163,10 +184,11 @@ class WorkerMixin:
         if not self._use_sim_time:
             return 1.0
         self._clock_pts.append((now, self._ros_now_s()))
-        lo = now - self.sync.rate_window_ns
+        window_ns = self.configured_sync().rate_window_ns
+        lo = now - window_ns
         while len(self._clock_pts) > 2 and self._clock_pts[1][0] <= lo:
             self._clock_pts.pop(0)
         (a0, r0), (a1, r1) = self._clock_pts[0], self._clock_pts[-1]
-        if a1 - a0 < 0.5 * self.sync.rate_window_ns or r1 <= r0:
+        if a1 - a0 < 0.5 * window_ns or r1 <= r0:
             return math.nan
         return (r1 - r0) / ((a1 - a0) * 1e-9)

@@ -71,6 +71,7 @@ def simulate_arm(names: list[str], rate_hz: float, duration_s: float, seed: int 
         changes = [ModalChange(1, "frequency", -fault_size, fault_time_s)] if name == fault_joint else []
         sim = simulate_modes(modes, rate_hz, changes=changes, r=r, controller=ctrl, input_delay=1,
                              noise=white_noise(n, NOISE_STD, rng), rng=rng)
+        assert sim.r is not None   # closed loop: the simulation keeps the reference
         out.append(ArmJoint(name, sim.r, sim.u, sim.y, sim.modal, modes, changes))
     return out
 

@@ -106,6 +106,7 @@ def run_beam(seed: int, *, duration: float = 130.0, change_start: float = 40.0, 
     tr = est.update(r[n0:], sim.u[n0:], sim.y[n0:], trace=True)
     f_hat = 1.0 / (2 * np.pi * np.sqrt(tr[:, :, 1]))
     tt = t[n0:]
+    assert sim.modal is not None   # simulate_modes records the modal truth
     f_true = sim.modal[:2, n0:, 0].T
     rel = np.abs(f_hat / f_true - 1.0)
     after = tt >= change_start + change_len + 0.244

@@ -137,6 +137,12 @@ class SensorFault:
         if self.kind in ("bias", "drift") and (self.value is None or not math.isfinite(self.value)):
             raise ValueError(f"sensor fault {self.kind!r} needs a finite value")
 
+    def required_value(self) -> float:
+        """``value`` of a fault that needs one (bias, drift: checked at construction)."""
+        if self.value is None:
+            raise ValueError(f"sensor fault {self.kind!r} needs a finite value")
+        return self.value
+
     def to_dict(self) -> dict:
         return {"kind": self.kind, "start_s": self.start_s,
                 "duration_s": None if math.isinf(self.duration_s) else self.duration_s,
@@ -203,21 +209,22 @@ def time_vector(rate_hz: float, duration_s: float) -> np.ndarray:
     return np.arange(n) / float(rate_hz)
 
 
-def sum_of_sines(t: np.ndarray, amplitudes: Sequence[float], omegas_rad_s: Sequence[float],
-                 phases: Sequence[float] | None = None) -> np.ndarray:
+def sum_of_sines(t: np.ndarray, amplitudes: Sequence[float] | np.ndarray, omegas_rad_s: Sequence[float] | np.ndarray,
+                 phases: Sequence[float] | np.ndarray | None = None) -> np.ndarray:
     """``sum_j A_j sin(w_j t + phi_j)`` ([RA-SRIVC] §5 reference: ``3 sin(0.005t) + sin 2t + sin 5t + sin 17.5t``)."""
     t = np.asarray(t, dtype=float)
-    amplitudes, omegas = np.asarray(amplitudes, float), np.asarray(omegas_rad_s, float)
-    phases = np.zeros_like(omegas) if phases is None else np.asarray(phases, float)
-    if not (amplitudes.shape == omegas.shape == phases.shape):
+    amps, omegas = np.asarray(amplitudes, float), np.asarray(omegas_rad_s, float)
+    phis = np.zeros_like(omegas) if phases is None else np.asarray(phases, float)
+    if not (amps.shape == omegas.shape == phis.shape):
         raise ValueError("amplitudes, omegas and phases must have the same length")
     out = np.zeros_like(t)
-    for a, w, ph in zip(amplitudes, omegas, phases, strict=True):
+    for a, w, ph in zip(amps, omegas, phis, strict=True):
         out += a * np.sin(w * t + ph)
     return out
 
 
-def multisine(t: np.ndarray, freqs_hz: Sequence[float], rms: float, rng: np.random.Generator) -> np.ndarray:
+def multisine(t: np.ndarray, freqs_hz: Sequence[float] | np.ndarray, rms: float,
+              rng: np.random.Generator) -> np.ndarray:
     """Equal-amplitude multisine with uniformly random phases, scaled to the given RMS."""
     freqs = np.asarray(freqs_hz, float)
     if freqs.size == 0 or np.any(freqs <= 0):
@@ -258,8 +265,8 @@ def prbs(n: int, amplitude: float, rng: np.random.Generator, nbits: int = 10, ho
     return amplitude * (2.0 * np.repeat(seq, hold)[:n] - 1.0)
 
 
-def arma_noise(n: int, std: float, rng: np.random.Generator, c: Sequence[float] = (1.0,),
-               d: Sequence[float] = (1.0,)) -> np.ndarray:
+def arma_noise(n: int, std: float, rng: np.random.Generator, c: Sequence[float] | np.ndarray = (1.0,),
+               d: Sequence[float] | np.ndarray = (1.0,)) -> np.ndarray:
     """Coloured noise ``v = C(q^-1)/D(q^-1) e`` (scipy.signal.lfilter), scaled so that its stationary std is ``std``.
 
     The stationary variance is computed from the impulse response (D must be stable); a burn-in of
@@ -314,9 +321,9 @@ def _sensor_arrays(t: np.ndarray, faults: Sequence[SensorFault], rng: np.random.
     for f in faults:
         win = (t >= f.start_s) & (t < f.start_s + f.duration_s)
         if f.kind == "bias":
-            add[win] += f.value
+            add[win] += f.required_value()
         elif f.kind == "drift":
-            add[win] += f.value * (t[win] - f.start_s)
+            add[win] += f.required_value() * (t[win] - f.start_s)
         elif f.kind == "stuck":
             stuck |= win
             if f.value is None:
@@ -348,11 +355,12 @@ def simulate(thetas: Sequence[np.ndarray], structures: Sequence[SubmodelStructur
     if len(thetas) != len(structures) or len(thetas) == 0:
         raise ValueError("need one theta trajectory per structure and at least one mode")
     closed = controller is not None
+    given = r if closed else u
     if closed and (r is None or u is not None):
         raise ValueError("closed loop needs r (and no u); open loop needs u and no controller")
-    if not closed and u is None:
+    if given is None:
         raise ValueError("open loop needs the input u (or give a controller and r for closed loop)")
-    drive, n = check_drive(r if closed else u, n, rate_hz, input_delay)
+    drive, n = check_drive(given, n, rate_hz, input_delay)
     theta, kinds, ls, full_thetas = pack_thetas(thetas, structures, n)
     rng = np.random.default_rng(0) if rng is None else rng
     v = np.zeros(n) if noise is None else np.asarray(noise, dtype=float)
@@ -360,8 +368,8 @@ def simulate(thetas: Sequence[np.ndarray], structures: Sequence[SubmodelStructur
         raise ValueError(f"noise has shape {v.shape}, expected ({n},)")
     t = np.arange(n) / float(rate_hz)
     add, stuck, stuck_val, hold, nanm, onset = _sensor_arrays(t, sensor_faults, rng)
-    num = controller.num if closed else np.zeros(1)
-    den = controller.den if closed else np.ones(1)
+    num = controller.num if controller is not None else np.zeros(1)
+    den = controller.den if controller is not None else np.ones(1)
     u_out, y, x, e = np.zeros(n), np.zeros(n), np.zeros(n), np.zeros(n)
     for win, k in onset:  # "stuck at the value at onset": the measurement just before the sensor froze
         if k >= 0:

@@ -25,7 +25,7 @@ def _dec_pi() -> Dec:
     """pi to the current precision (decimal module recipe)."""
     decimal.getcontext().prec += 2
     three = Dec(3)
-    lasts, t, s, n, na, d, da = 0, three, 3, 1, 0, 0, 24
+    lasts, t, s, n, na, d, da = Dec(0), three, Dec(3), 1, 0, 0, 24
     while s != lasts:
         lasts = s
         n, na = n + na, na + 8
@@ -131,7 +131,7 @@ def decimal_expm(a1: float, a2: float, h: float, prec: int = 60) -> tuple[np.nda
         ctx.prec = prec
         A1, A2, H = Dec(a1), Dec(a2), Dec(h)
         m = [[Dec(0), H, Dec(0)], [-H / A2, -A1 * H / A2, H / A2], [Dec(0), Dec(0), Dec(0)]]
-        norm = max(sum(abs(v) for v in row) for row in m)
+        norm = max(sum((abs(v) for v in row), Dec(0)) for row in m)
         j = 0
         while norm > Dec("0.5"):
             norm /= 2

@@ -44,9 +44,9 @@ from ..model import (
 from .types import METHODS, IdentificationResult, OfflineData, column_norms, equilibrated_solve, finite_or_none
 
 
-def _check_inputs(u, y, rate_hz, structures, thetas0, r, controller, input_delay) -> tuple[OfflineData, list]:
+def _check_inputs(u, y, rate_hz: float, structures, thetas0, r, controller, input_delay) -> tuple[OfflineData, list]:
     """Validate the data and the initial model; clear ``ValueError`` messages for bad input."""
-    if not (np.isscalar(rate_hz) and np.isfinite(rate_hz) and rate_hz > 0):
+    if not (bool(np.isscalar(rate_hz)) and np.isfinite(rate_hz) and rate_hz > 0):  # bool(): no TypeGuard narrowing
         raise ValueError(f"rate_hz must be a positive finite number, got {rate_hz!r}")
     u = np.asarray(u, dtype=float).ravel()
     y = np.asarray(y, dtype=float).ravel()
@@ -127,7 +127,8 @@ def _instrument_source(data: OfflineData, thetas, structures, closed_loop: bool)
     """``z = u`` (open loop) or ``z = S_uo(q) r`` of the current model, delayed like ``u`` ([A-SRIVC] eq. 20)."""
     if not closed_loop:
         return data.u
-    z, _ = closed_loop_response(thetas, structures, data.h, data.controller, data.r, data.delay, check=False)
+    controller, r = data.loop()
+    z, _ = closed_loop_response(thetas, structures, data.h, controller, r, data.delay, check=False)
     return delay_signal(z, data.delay)
 
 
@@ -143,7 +144,7 @@ def _build(data: OfflineData, thetas, structures, closed_loop: bool, only: int |
     N, P, K = data.n, sum(st.n_theta for st in sts), len(idx)
     Z, Phi, Ups = (np.empty((N, c), order="F") for c in (P, P, K))
     blocks = _blocks(sts)
-    xhat = [None] * len(structures)
+    xhat: list[np.ndarray] = []
     dss = {}
     for i, (th, st) in enumerate(zip(thetas, structures, strict=True)):
         a, b = split_theta(th, st)
@@ -152,9 +153,9 @@ def _build(data: OfflineData, thetas, structures, closed_loop: bool, only: int |
             sl = blocks[idx.index(i)]
             dst = Phi[:, sl.start + st.n: sl.stop]                   # p^j/(p^l A_i) u, [A-SRIVC] eq. 24 / 32
             dss[i].run(data.u, rows=range(st.m + 1), out=dst)
-            xhat[i] = dst @ b
+            xhat.append(dst @ b)
         else:
-            xhat[i] = dss[i].run(data.u, rows=range(st.m + 1)) @ b
+            xhat.append(dss[i].run(data.u, rows=range(st.m + 1)) @ b)
     total = np.sum(xhat, axis=0)
     z = _instrument_source(data, thetas, structures, closed_loop)
     for k, i in enumerate(idx):
@@ -319,12 +320,12 @@ def _finite(thetas) -> bool:
 def relative_change(new: list[np.ndarray], old: list[np.ndarray], scale: np.ndarray) -> float:
     """``||beta_new - beta_old|| / ||beta_old||`` with each parameter scaled by its initial magnitude."""
     bn, bo = np.concatenate(new) / scale, np.concatenate(old) / scale
-    return float(np.linalg.norm(bn - bo) / max(np.linalg.norm(bo), 1e-300))
+    return float(np.linalg.norm(bn - bo) / max(float(np.linalg.norm(bo)), 1e-300))
 
 
 def _cl_ok(data: OfflineData, thetas, structures) -> bool:
     try:
-        return closed_loop_radius(thetas, structures, data.h, data.controller, data.delay) < 1.0
+        return closed_loop_radius(thetas, structures, data.h, data.loop()[0], data.delay) < 1.0
     except (ValueError, np.linalg.LinAlgError):
         return False
 
@@ -567,7 +568,8 @@ def split_additive(theta_u: np.ndarray, su: SubmodelStructure, structures: list[
     """
     a, b = split_theta(theta_u, su)
     roots = np.roots(a[::-1]) if su.n > 0 else np.zeros(0)
-    ref_roots, owner = [], []
+    ref_roots: list[complex] = []
+    owner: list[int] = []
     for i, (th, st) in enumerate(zip(thetas_ref, structures, strict=True)):
         if st.n > 0:
             ai, _ = split_theta(th, st)
@@ -893,16 +895,16 @@ def identify(u, y, rate_hz: float, structures, thetas0, *, r=None, controller: D
                 raise ClosedLoopUnstableError(_unstable_msg(data, [th_u], [su]))
         elif not _cl_ok(data, thetas, structures):
             raise ClosedLoopUnstableError(_unstable_msg(data, thetas, structures))
-    kw = dict(max_iterations=max_iterations, tol=tol, projection=projection)
-
     def run(start: list[np.ndarray]) -> IdentificationResult:
         if method in ("additive-clsrivc", "additive-srivc"):
             return additive_iv(data, structures, start, closed_loop=needs_cl, method=method, settle_tol=settle_tol,
-                               settle_floor=settle_floor, **kw)
+                               settle_floor=settle_floor, max_iterations=max_iterations, tol=tol,
+                               projection=projection)
         if method in ("srivc", "clsrivc"):
-            return unfactored_iv(data, structures, start, closed_loop=needs_cl, method=method, **kw)
+            return unfactored_iv(data, structures, start, closed_loop=needs_cl, method=method,
+                                 max_iterations=max_iterations, tol=tol, projection=projection)
         if method == "bcd-srivc":
-            return bcd_srivc(data, structures, start, **kw)
+            return bcd_srivc(data, structures, start, max_iterations=max_iterations, tol=tol, projection=projection)
         return lssvf(data, structures, start)
 
     res = run(thetas)
@@ -913,7 +915,7 @@ def identify(u, y, rate_hz: float, structures, thetas0, *, r=None, controller: D
 
 def _unstable_msg(data: OfflineData, thetas, structures) -> str:
     try:
-        rho = closed_loop_radius(thetas, structures, data.h, data.controller, data.delay)
+        rho = closed_loop_radius(thetas, structures, data.h, data.loop()[0], data.delay)
         return (f"the controller does not stabilize the initial model (closed-loop spectral radius {rho:.4g} >= 1); "
                 "check the controller, the input delay and the initial guess")
     except ValueError as exc:

@@ -102,6 +102,12 @@ class OfflineData:
     def closed_loop(self) -> bool:
         return self.r is not None and self.controller is not None
 
+    def loop(self) -> tuple[DiscreteController, np.ndarray]:
+        """``(controller, r)`` of closed-loop data; ``ValueError`` in open loop."""
+        if self.controller is None or self.r is None:
+            raise ValueError("closed-loop identification needs both the reference r and the controller")
+        return self.controller, self.r
+
     @property
     def n(self) -> int:
         return self.y.size

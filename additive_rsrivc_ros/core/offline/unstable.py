@@ -145,7 +145,8 @@ def _instrument_clsrivc(data: OfflineData, par: _Param, theta: np.ndarray, by, b
         sts, ths = [st_sim], [th_sim]
     else:
         sts, ths = [SubmodelStructure(n=par.st.n, m=par.st.m, integrators=par.st.integrators)], [at]
-    z, ycl = closed_loop_response(ths, sts, data.h, data.controller, data.r, data.delay, check=True)
+    controller, r = data.loop()
+    z, ycl = closed_loop_response(ths, sts, data.h, controller, r, data.delay, check=True)
     z = delay_signal(z, data.delay)
     fa = by.run(ycl, par.a_indices)
     fb = bu.run(z, range(par.st.m + 1))
@@ -202,7 +203,7 @@ def identify_unstable(data: OfflineData, structures, thetas0, *, method: str, ma
             message = f"iteration {it}: non-finite estimate"
             it -= 1
             break
-        change = np.linalg.norm((new - theta) / scale) / max(np.linalg.norm(theta / scale), 1e-300)
+        change = np.linalg.norm((new - theta) / scale) / max(float(np.linalg.norm(theta / scale)), 1e-300)
         theta = new
         if base == "lssvf-uns":
             converged, message = True, "least squares (one step)"
