@@ -34,6 +34,7 @@ from rosbags.interfaces import (
 from rosbags.rosbag2 import Reader, Writer
 from rosbags.rosbag2.enums import CompressionFormat, CompressionMode, StoragePlugin
 
+from .config import MonitorConfig
 from .core.estimator import SignalSettings
 from .core.vocabulary import one_line
 
@@ -393,7 +394,7 @@ def read_signals(bag: str | Path, config: SignalSource) -> Signals:
     counted in ``nonfinite``: the caller decides.
     """
     path = _resolve(bag)
-    if config.block_input:
+    if isinstance(config, MonitorConfig) and config.block_input:
         return _read_block_bag(path, config)
     wanted = ["input", "output"] + (["reference"] if config.closed_loop else [])
     sigcfg = {name: bag_topic(config.signals[name]) for name in wanted}

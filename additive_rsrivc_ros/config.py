@@ -414,6 +414,10 @@ class MonitorConfig:
         """No guesses: the modes are to be found from the data (core/modefind.py)."""
         return self.K == 0
 
+    def with_memory(self, memory_s: list[float]) -> MonitorConfig:
+        """This configuration with ``modes.memory_s`` set (before the modes are known: the memories they get)."""
+        return replace(self, params={**self.params, "modes.memory_s": list(memory_s)})
+
     def with_modes(self, modal: np.ndarray, integrators: list[int] | None = None) -> MonitorConfig:
         """This configuration with the modes ``modal`` (rows ``f_hz, zeta, gain``; frequency 0 = rigid body with
         ``integrators``) as guesses; ``modes.memory_s`` is kept if it lists one value per mode, else broadcast

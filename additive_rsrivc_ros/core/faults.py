@@ -230,8 +230,9 @@ class BaselineLearner:
         each part's spread by a third of it, not half, so it stands out of the parts' fluctuation."""
         if min(self.n_thirds) < 2:
             return None
-        first, last = (_baseline_from_sums(self.n_thirds[k], *self.thirds[k], dur, memory_s)
-                       for k, dur in ((0, self.t_thirds[0]), (1, self.elapsed_s - self.t_thirds[1])))
+        durations = (self.t_thirds[0], self.elapsed_s - self.t_thirds[1])
+        first, last = (_baseline_from_sums(self.n_thirds[k], self.thirds[k][0], self.thirds[k][1], self.thirds[k][2],
+                                           durations[k], memory_s) for k in (0, 1))
         return first, last
 
     def finish(self, memory_s: np.ndarray, duration_s: float) -> Baseline:
@@ -397,6 +398,7 @@ class SequentialTest:
                                 else math.nan)
         opened = closed = None
         if self.state == "fault":
+            assert self.event is not None      # the fault state always carries its open event
             d = self.direction
             present = d * rel >= clear_fraction * rho and d * z >= k
             if present:
@@ -474,7 +476,7 @@ class FaultMonitor:
     The same guard runs on every estimate of the window, so a plant change never becomes the baseline silently.
     """
 
-    def __init__(self, memory_s: Sequence[float], settings: FaultSettings | None = None, *,
+    def __init__(self, memory_s: Sequence[float] | np.ndarray, settings: FaultSettings | None = None, *,
                  structures: Sequence[SubmodelStructure] | None = None) -> None:
         self.memory_s = np.asarray(memory_s, dtype=float)
         if self.memory_s.ndim != 1 or self.memory_s.size == 0 or not np.all(self.memory_s > 0):
@@ -538,7 +540,7 @@ class FaultMonitor:
             elif old.has_given_baseline:
                 self.rebaseline(self.t_last)
 
-    def set_memory(self, memory_s: Sequence[float]) -> None:
+    def set_memory(self, memory_s: Sequence[float] | np.ndarray) -> None:
         """Follow a runtime memory change (time constants of S1 and of the persistence/clear times)."""
         m = np.asarray(memory_s, dtype=float)
         if m.shape != self.memory_s.shape or not np.all(m > 0):
@@ -1071,6 +1073,7 @@ class FaultMonitor:
             for q in range(3):
                 test = self.tests[i][q]
                 if test.state == "fault" and test.by_joint:
+                    assert test.event is not None      # the fault state always carries its open event
                     if sup[i, q] == test.direction:
                         test.joint_miss = 0
                         test.event.value = float(verdict.value[i, q])
@@ -1199,7 +1202,7 @@ class HealthMonitor:
     """Also the signature of a genuine abrupt structural change: they do not hold structural alarms back,
     they only require that a confirmed fault began together with them (FaultMonitor ``suspect_since``)."""
 
-    def __init__(self, memory_s: Sequence[float], settings: FaultSettings | None = None, *,
+    def __init__(self, memory_s: Sequence[float] | np.ndarray, settings: FaultSettings | None = None, *,
                  reference_modal: np.ndarray | None = None, structures: Sequence[SubmodelStructure] | None = None,
                  rate_hz: float | None = None) -> None:
         self.memory_s = np.asarray(memory_s, dtype=float)
@@ -1283,11 +1286,13 @@ class HealthMonitor:
             c = float(np.nanmax(conds))
             values["condition"] = c
             per_mode = conds.shape == (self.K,)
-            for i in (range(self.K) if per_mode else [None]):
-                ci = c if i is None else float(conds[i])
+            scopes: list[int | None] = list(range(self.K)) if per_mode else [None]
+            for scope in scopes:
+                ci = c if scope is None else float(conds[scope])
                 if not ci <= s.health_max_condition:
-                    self.note("loss_of_excitation", t, f"loss of excitation: {'' if i is None else f'mode {i + 1} '}"
-                              f"IV condition number {ci:.3g} > {s.health_max_condition:.3g}", mode=i)
+                    which = "" if scope is None else f"mode {scope + 1} "
+                    self.note("loss_of_excitation", t, f"loss of excitation: {which}IV condition number {ci:.3g} > "
+                              f"{s.health_max_condition:.3g}", mode=scope)
         # projection storm: fraction of updates that needed the stability projection ([RA-SRIVC] §4.7)
         if est.projections:
             p_now = float(np.sum(np.asarray(est.projections, float)))

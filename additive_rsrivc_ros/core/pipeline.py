@@ -19,7 +19,7 @@ from __future__ import annotations
 import math
 import time
 from collections.abc import Callable, Mapping
-from dataclasses import dataclass, field, replace
+from dataclasses import dataclass, field
 from typing import Any
 
 import numpy as np
@@ -251,6 +251,37 @@ class MonitorPipeline:
         """No guesses and the automatic start has not found the modes yet (K = 0, nothing is estimated)."""
         return self.search is not None and self.search.found is None
 
+    # typed access to the parts that exist once the modes are known (a call before is a programming error)
+    @property
+    def estimator(self) -> RecursiveEstimator:
+        if self.est is None:
+            raise PipelineError("no estimator: the modes are not known yet")
+        return self.est
+
+    @property
+    def fault_monitor(self) -> FaultMonitor:
+        if self.faults is None:
+            raise PipelineError("no fault monitor: the modes are not known yet")
+        return self.faults
+
+    @property
+    def joint_checker(self) -> JointChecker:
+        if self.joint is None:
+            raise PipelineError("no joint check: the modes are not known yet")
+        return self.joint
+
+    @property
+    def mode_search(self) -> ModeSearch:
+        if self.search is None:
+            raise PipelineError("no mode search: the modes were given")
+        return self.search
+
+    @property
+    def stream_aligner(self) -> Any:
+        if self.aligner is None:
+            raise PipelineError("no stream aligner configured")
+        return self.aligner
+
     def _set_modes(self, cfg: MonitorSettings) -> None:
         """Estimator, fault and health monitors for the modes of ``cfg`` (none while the modes are searched)."""
         self.cfg = cfg
@@ -334,7 +365,7 @@ class MonitorPipeline:
     def phase(self) -> str:
         if self.finding_modes:
             return "finding modes"
-        return "initializing" if not self.initialized else self.faults.phase
+        return "initializing" if not self.initialized else self.fault_monitor.phase
 
     # ------------------------------------------------------------------------------------------- runtime params
     def update_params(self, params: Mapping[str, Any]) -> None:
@@ -365,7 +396,7 @@ class MonitorPipeline:
             if mem.shape != (self.K,) or not np.all(mem * self.rate >= 2.0):
                 raise PipelineError(f"modes.memory_s must list {self.K} memories of at least two samples")
             self.memory_s = mem
-            self.faults.set_memory(mem)
+            self.fault_monitor.set_memory(mem)
             self.health.memory_s = mem
             self._est_memory = np.full(self.K, math.nan)
             self._apply_memory()
@@ -380,7 +411,7 @@ class MonitorPipeline:
         mem = [float(v) for v in np.atleast_1d(np.asarray(value, dtype=float))]
         if not mem or not all(m * self.rate >= 2.0 for m in mem):
             raise PipelineError("modes.memory_s must list memories of at least two samples")
-        self.cfg_given = replace(self.cfg_given, params={**self.cfg_given.params, "modes.memory_s": mem})
+        self.cfg_given = self.cfg_given.with_memory(mem)
         if self.search is not None:
             self.search.cfg = self.cfg_given
 
@@ -476,7 +507,7 @@ class MonitorPipeline:
 
     def _ingest_aligned(self, blk: AlignedBlock) -> list[Report]:
         """Samples released by the aligner: its findings become health notes, then the usual validation."""
-        st = self.aligner.stats
+        st = self.stream_aligner.stats
         self._align_notes += [msg for _, msg in st.events]
         st.events.clear()
         if st.late > self._align_late:
@@ -487,9 +518,10 @@ class MonitorPipeline:
             self.health.note("misaligned", self._rel(t_abs), f"{n_late} samples reached the estimator misaligned "
                              "before the shift was detected (estimator re-primed)")
             if self.initialized:
-                self.est.mark_gap()
+                self.estimator.mark_gap()
         if blk.n == 0:
             return []
+        assert blk.r is not None            # the stream aligner runs in closed loop only (it needs r)
         return self._ingest(blk.t, blk.r, blk.u, blk.y, aligner_invalid=blk.invalid)
 
     def _ingest(self, ta: np.ndarray, ra: np.ndarray, ua: np.ndarray, ya: np.ndarray,
@@ -642,13 +674,13 @@ class MonitorPipeline:
         if kind is not None:
             self.health.note(kind, self._rel(t_abs), f"{why} (estimator re-primed)")
         if self.initialized:
-            self.est.mark_gap()
+            self.estimator.mark_gap()
             self._marked_gaps += 1
-            self.joint.recent.clear()
+            self.joint_checker.recent.clear()
         else:
             self._init_buf, self._init_n = [], 0
             if self.finding_modes:           # the search needs contiguous data too: its window starts again
-                self.search.clear()
+                self.mode_search.clear()
 
     def _advance(self, ta, ra, ua, ya, valid, a: int, b: int, *, feed: bool, reports: list[Report],
                  repeated: np.ndarray | None = None) -> None:
@@ -657,11 +689,12 @@ class MonitorPipeline:
         A report at instant T is made once every accepted sample before T was processed; instants that
         fall inside a gap are collapsed into one report.
         """
+        assert self.t0 is not None          # set by the first accepted sample, before any is advanced
         while a < b:
             t_next = self.t0 + self.next_publish
             j = a + int(np.searchsorted(ta[a:b], t_next, side="left"))
             if feed and not self.initialized:
-                j = min(j, a + (self.search.need() if self.finding_modes else self.init_samples - self._init_n))
+                j = min(j, a + (self.mode_search.need() if self.finding_modes else self.init_samples - self._init_n))
             if j > a:
                 if feed:
                     self._consume(ra[a:j], ua[a:j], ya[a:j], valid[a:j], float(ta[j - 1]))
@@ -687,8 +720,9 @@ class MonitorPipeline:
         a, n = 0, u.size
         while a < n:
             if self.initialized:
-                self.est.update(r[a:], u[a:], y[a:], valid[a:])
-                self.joint.add(r[a:], u[a:], np.where(valid[a:], y[a:], np.nan), float(self.faults.memory_s.max()))
+                self.estimator.update(r[a:], u[a:], y[a:], valid[a:])
+                self.joint_checker.add(r[a:], u[a:], np.where(valid[a:], y[a:], np.nan),
+                                       float(self.fault_monitor.memory_s.max()))
                 self._check_order(r[a:], u[a:], y[a:], valid[a:], t_end)
                 return
             b = min(n, a + self.init_samples - self._init_n)
@@ -757,9 +791,9 @@ class MonitorPipeline:
             return
         self._switch_modes(new)
         if auto:
-            attempts = self.search.found.attempts + 1 if self.search.found is not None else 1
+            attempts = self.mode_search.found.attempts + 1 if self.mode_search.found is not None else 1
             modal = np.array([[m.natural_frequency_hz, m.damping_ratio, m.gain] for m in new.modes], dtype=float)
-            self.search.found = FoundModes(modal, [int(m.integrators) for m in new.modes], (a, b),
+            self.mode_search.found = FoundModes(modal, [int(m.integrators) for m in new.modes], (a, b),
                                            f"restart after the model-order check: {found.message}",
                                            time.perf_counter() - c0, attempts)
         self.initialized = False
@@ -786,7 +820,7 @@ class MonitorPipeline:
     def _search_modes(self, r: np.ndarray, u: np.ndarray, y: np.ndarray, valid: np.ndarray, t_end: float) -> None:
         """Automatic start (no guesses; :mod:`.autostart`): buffer the window, search it when full; once the modes
         are found the estimator gets the buffered samples as the guess path would have given them."""
-        search, t_rel = self.search, self._rel(t_end)
+        search, t_rel = self.mode_search, self._rel(t_end)
         if search.waiting(t_rel):         # back-off after repeated failures: these samples are not searched
             return
         search.add(r, u, y, valid, t_end, t_rel)
@@ -841,8 +875,9 @@ class MonitorPipeline:
         """Build estimator and monitors for the modes found; health notes so far are kept (the failed searches'
         ones are closed)."""
         self._switch_modes(cfg, closed=("no_modes", "initializing"))
-        found = self.search.found
-        self.health.note("initializing", t_rel, f"no mode guesses: {found.describe()}; initializing the estimator")
+        found = self.mode_search.found
+        what = "no modes" if found is None else found.describe()
+        self.health.note("initializing", t_rel, f"no mode guesses: {what}; initializing the estimator")
         self._marked_gaps = 0
 
     def _initialize(self, r: np.ndarray, u: np.ndarray, y: np.ndarray, t_end: float) -> None:
@@ -890,7 +925,7 @@ class MonitorPipeline:
         if not self.order_check.enabled:
             return
         try:
-            res = check_initial_model(self.est.thetas, list(self.cfg.structures),
+            res = check_initial_model(self.estimator.thetas, list(self.cfg.structures),
                                       r if self.cfg.closed_loop else None, u, y, self.rate, **self._check_keywords())
         except Exception as exc:  # noqa: BLE001 - a failed check is a line, never a crash
             self.notices.append(f"check of the initial model failed ({type(exc).__name__}: {one_line(exc)})")
@@ -910,7 +945,7 @@ class MonitorPipeline:
     def _fit_initial(self, r: np.ndarray, u: np.ndarray, y: np.ndarray) -> tuple[str, str] | None:
         """Initialize the estimator on the window; ``None``, or ``("failed" | "invalid", why)``."""
         try:
-            self.est.initialize(r, u, y)
+            self.estimator.initialize(r, u, y)
         except Exception as exc:  # noqa: BLE001 - any failure of the offline init is a health incident
             self.counters.init_failures += 1
             return "failed", f"{type(exc).__name__}: {str(exc).splitlines()[0][:120] if str(exc) else ''}"
@@ -953,10 +988,10 @@ class MonitorPipeline:
         data.
         ``modal``: the current estimate's ``(K, 6)`` when the caller has it (else it is computed)."""
         if modal is None:
-            modal = np.asarray(self.est.modal(), dtype=float).reshape(self.K, 6)
+            modal = np.asarray(self.estimator.modal(), dtype=float).reshape(self.K, 6)
         if not np.all(np.isfinite(modal[:, :3])):
             return f"{which} is not finite"
-        rho = float(self.est.closed_loop_max_pole())
+        rho = float(self.estimator.closed_loop_max_pole())
         self.model_max_pole = rho
         if math.isnan(rho) or rho < 1.0:
             return None
@@ -979,7 +1014,7 @@ class MonitorPipeline:
     def _modal(self) -> np.ndarray:
         if not self.initialized:     # no valid model (before the first accepted initialization, or after one
             return np.full((self.K, 6), np.nan)   # was rejected / diverged): NaN, never the guesses
-        return np.asarray(self.est.modal(), dtype=float).reshape(self.K, 6)
+        return np.asarray(self.estimator.modal(), dtype=float).reshape(self.K, 6)
 
     def _report(self, reports: list[Report], t_now: float) -> None:
         """One report at the latest due instant ``<= t_now`` (s since the first sample)."""
@@ -1003,14 +1038,14 @@ class MonitorPipeline:
                 modal = self._modal()     # NaN: no model
         est_health: EstimatorHealth | None = None
         if self.initialized:
-            est_health = self.est.health
+            est_health = self.estimator.health
             if est_health.hold_remaining > 0:
                 auto = est_health.reprimes > self._marked_gaps
                 self.health.note("repriming", t_rep, "estimator filters re-priming after non-finite filter states"
                                  if auto else "estimator filters re-priming after a data break")
             status = self.health.assess(t_rep, modal, est_health)
         elif self.finding_modes:
-            self.health.note("initializing", t_rep, self.search.status_line())
+            self.health.note("initializing", t_rep, self.mode_search.status_line())
             status = self.health.status(t_rep)
             if set(status.values["issues"]) <= {"initializing"}:
                 status.level = Level.STALE    # no model yet, nothing wrong: as a status without data
@@ -1021,25 +1056,25 @@ class MonitorPipeline:
                              "valid data for the offline initialization")
             status = self.health.status(t_rep)
         if self.initialized:
-            upd = self.faults.update(t_rep, modal, hold=status.hold,
-                                     suspect_since=status.values.get("advisory_since"),
-                                     mode_hold=status.mode_hold(self.K))
+            upd = self.fault_monitor.update(t_rep, modal, hold=status.hold,
+                                            suspect_since=status.values.get("advisory_since"),
+                                            mode_hold=status.mode_hold(self.K))
             self.pending_opened += upd.opened
             self.pending_closed += upd.closed
             self._apply_memory()
-            upd = None if status.hold else self.joint.step(t_rep, self.faults)
-            if upd is not None:
-                self.pending_opened += upd.opened
-                self.pending_closed += upd.closed
+            joint = None if status.hold else self.joint_checker.step(t_rep, self.faults)
+            if joint is not None:
+                self.pending_opened += joint.opened
+                self.pending_closed += joint.closed
         health = status.to_dict()
         if self.search is not None:
             health["autostart"] = self.search.info()
         until = None if self.faults is None or self.faults.anomaly_since is None else \
             max(self.faults.restricted_until(i) or t_rep for i in range(self.K))
         if until is not None and t_rep < until:
-            health["reasons"].append(f"output anomaly since t={self.faults.anomaly_since:.1f} s (residual variance "
-                                     f"jump or projection storm): until t={until:.1f} s only a fault that began "
-                                     "with it can be confirmed; after that every persistent deviation is judged "
+            health["reasons"].append(f"output anomaly since t={self.fault_monitor.anomaly_since:.1f} s (residual "
+                                     f"variance jump or projection storm): until t={until:.1f} s only a fault that "
+                                     "began with it can be confirmed; after that every persistent deviation is judged "
                                      "against the baseline")
             health["level"] = max(int(health["level"]), int(Level.WARN))
             health["ok"] = False
@@ -1153,22 +1188,23 @@ class MonitorPipeline:
     def _identifiability_health(self, health: dict[str, Any]) -> None:
         """S6 on the health: what the excitation does not identify jointly, and resonance-peak changes (a change
         of a mode whose gain and damping cannot be told apart is reported here, never as a gain or damping event)."""
-        verdict = self.faults.joint
+        verdict = self.fault_monitor.joint
         health["joint_check"] = None if verdict is None else {
-            "armed": self.faults.joint_armed,
-            "armed_modes": [int(i) + 1 for i in np.flatnonzero(self.faults.joint_armed_modes)],
-            "coupling": verdict.coupling_lines(self.faults.joint_armed_modes, applicable_mask(self.cfg.structures)),
+            "armed": self.fault_monitor.joint_armed,
+            "armed_modes": [int(i) + 1 for i in np.flatnonzero(self.fault_monitor.joint_armed_modes)],
+            "coupling": verdict.coupling_lines(self.fault_monitor.joint_armed_modes,
+                                               applicable_mask(self.cfg.structures)),
             "t": verdict.t, "converged": verdict.converged,
             "not_identifiable": verdict.not_identifiable(applicable_mask(self.cfg.structures)),
             "peak_changes": verdict.peak_lines()}
-        t_multi = self.faults.joint_several_modes_t
-        if math.isfinite(t_multi) and self.faults.anomaly_since is not None:
+        t_multi = self.fault_monitor.joint_several_modes_t
+        if math.isfinite(t_multi) and self.fault_monitor.anomaly_since is not None:
             health["reasons"].append(f"output anomaly: the joint fit of the data after it moves several modes at once "
                                      f"(t={t_multi:.1f} s), which no single structural change explains (a sensor bias "
                                      "or drift?): not confirmed as a fault")
             health["level"] = max(int(health["level"]), int(Level.WARN))
             health["ok"] = False
-        if verdict is None or not self.faults.joint_armed:
+        if verdict is None or not self.fault_monitor.joint_armed:
             return
         peaks = verdict.peak_lines()
         if peaks:
@@ -1197,7 +1233,7 @@ class MonitorPipeline:
         """
         est = None
         if self.initialized:
-            est = {k: plain(v) for k, v in self.est.get_state().items()}
+            est = {k: plain(v) for k, v in self.estimator.get_state().items()}
         found = self.search.found if self.search is not None else None
         return {
             "version": STATE_VERSION, "K": self.K, "loop_rate_hz": self.rate, "model": self._model_record(),
@@ -1260,15 +1296,15 @@ class MonitorPipeline:
             p = state["pipeline"]
             self._new_run()
             if target is not self.cfg_given:
-                self.search.found = found
+                self.mode_search.found = found
                 self._set_modes(target)
             mem = np.asarray(p["memory_s"], dtype=float)
             if mem.shape == (self.K,) and not np.array_equal(mem, self.memory_s):
                 self.update_params({"modes.memory_s": mem.tolist()})
             if state["estimator"] is not None:
-                self.est.set_state({k: np.asarray(v) for k, v in state["estimator"].items()})
+                self.estimator.set_state({k: np.asarray(v) for k, v in state["estimator"].items()})
                 self.initialized = True
-                self._marked_gaps = self.est.health.reprimes
+                self._marked_gaps = self.estimator.health.reprimes
             if self.faults is not None:
                 self.faults.set_state(state["faults"])
                 # the estimator's saved forgetting already holds a shortened memory (S7): only record it
