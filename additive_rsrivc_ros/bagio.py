@@ -384,6 +384,16 @@ def bag_topic(sig: Any) -> Any:
     return sig if topic.startswith("/") else replace(sig, topic="/" + topic)
 
 
+def _connections_by_topic(reader: Any, path: Path) -> dict[str, list]:
+    """The bag's connections per topic; an empty bag is refused."""
+    if reader.message_count == 0:
+        raise BagError(f"{path}: the bag is empty (no messages)")
+    by_topic: dict[str, list] = {}
+    for c in reader.connections:
+        by_topic.setdefault(c.topic, []).append(c)
+    return by_topic
+
+
 def read_signals(bag: str | Path, config: SignalSource) -> Signals:
     """Read and check ``r``, ``u``, ``y`` (and the truth topics, if any) of a bag for ``config``.
 
@@ -404,11 +414,7 @@ def read_signals(bag: str | Path, config: SignalSource) -> Signals:
     fault_raw: list[tuple[int, bytes]] = []
     try:
         with Reader(path) as reader:
-            if reader.message_count == 0:
-                raise BagError(f"{path}: the bag is empty (no messages)")
-            by_topic: dict[str, list] = {}
-            for c in reader.connections:
-                by_topic.setdefault(c.topic, []).append(c)
+            by_topic = _connections_by_topic(reader, path)
             conns = []
             topic_to_sig: dict[str, list[str]] = {}
             for name, s in sigcfg.items():
@@ -540,11 +546,7 @@ def _read_block_bag(path: Path, config: MonitorConfig) -> Signals:
     fault_raw: list[tuple[int, bytes]] = []
     try:
         with Reader(path) as reader:
-            if reader.message_count == 0:
-                raise BagError(f"{path}: the bag is empty (no messages)")
-            by_topic: dict[str, list] = {}
-            for c in reader.connections:
-                by_topic.setdefault(c.topic, []).append(c)
+            by_topic = _connections_by_topic(reader, path)
             if topic not in by_topic:
                 have = ", ".join(sorted(by_topic)) or "none"
                 raise BagError(f"{path}: configured block topic '{topic}' is not in the bag (topics: {have})")
