@@ -13,7 +13,6 @@ rsrivc_warmup`` once (otherwise the first node start compiles, about 20-40 s).
 
 from __future__ import annotations
 
-import argparse
 import contextlib
 import io
 import sys
@@ -22,6 +21,7 @@ import time
 from pathlib import Path
 
 from . import numba_cache
+from .cli.parser import OneLineParser
 from .process_exit import console_entry
 
 #: (scenario, params file, seconds after the init window): every structural code path of the kernels
@@ -154,7 +154,7 @@ def is_warm() -> bool:
 
 @console_entry
 def main(argv: list[str] | None = None) -> int:
-    ap = argparse.ArgumentParser(prog="rsrivc_warmup", description=__doc__.split("\n\n")[0])
+    ap = OneLineParser(prog="rsrivc_warmup", description=__doc__.split("\n\n")[0])
     ap.add_argument("--if-needed", action="store_true", help="do nothing when this source's cache is warm")
     ap.add_argument("--check", action="store_true",
                     help="afterwards, list kernels never compiled and say if the ahead-of-time extension is missing")
