@@ -4,8 +4,8 @@ Every report publishes, per mode, the modal values and their delta-method stds f
 ([RA-SRIVC] §4.2, ``RecursiveAdditiveSRIVC.covariances``), the covariance blocks' problems (a non-finite or indefinite
 block reports NaN std, never 0), the loss-of-excitation relative std from ``sigma^2 P_bar`` and the IV condition
 numbers. Done with numpy, these are some forty small-array calls per report (0.3 ms for K = 2, a tenth of a 60 s
-diagnosis); here they are one call. The arithmetic is that of :func:`.model.modal_from_theta`,
-:func:`.model.modal_std`, :func:`.recursive.covariance_problem` and ``np.linalg.cond``; eigenvalues and singular
+diagnosis); here they are one call. The modal arithmetic is :func:`.model.second_order_modal` (inlined), the rest
+that of :func:`.model.modal_std`, :func:`.recursive.covariance_problem` and ``np.linalg.cond``; eigenvalues and singular
 values of the (at most 3 x 3) blocks come from Jacobi rotations instead of LAPACK, so results agree with those
 to rounding (test/test_report_numbers.py), not bit for bit.
 """
@@ -18,11 +18,14 @@ import numpy as np
 
 from .compiled import kernel
 from .kernel import discretize_mode
+from .model import second_order_modal, second_order_modal_derivatives
 
 #: ``problem`` codes of :func:`report_numbers`, and their names (as :func:`.recursive.covariance_problem` gives)
 PROBLEM_NAMES = ("", "non-finite", "indefinite")
-_TWO_PI = 2.0 * math.pi
 _SWEEPS = 60     # Jacobi sweeps at most (a 3 x 3 block converges in about five)
+# the modal arithmetic's one home (core/model.py), inlined into the kernels
+_second_order_modal = kernel(inline=True)(second_order_modal)
+_second_order_modal_derivatives = kernel(inline=True)(second_order_modal_derivatives)
 
 
 @kernel
@@ -147,8 +150,8 @@ def _modal_values(kind: int, th: np.ndarray, out: np.ndarray) -> None:
     if kind != 0:
         out[0], out[1], out[2] = 0.0, 0.0, th[0]
     elif th[1] > 0.0:
-        sq = math.sqrt(th[1])
-        out[0], out[1], out[2] = 1.0 / (_TWO_PI * sq), th[0] / (2.0 * sq), th[2]
+        f_hz, zeta = _second_order_modal(th[0], th[1])
+        out[0], out[1], out[2] = f_hz, zeta, th[2]
     else:
         out[0], out[1], out[2] = math.nan, math.nan, th[2]
 
@@ -159,9 +162,7 @@ def _modal_stds(kind: int, th: np.ndarray, c: np.ndarray, out: np.ndarray) -> No
     if kind != 0:
         var_f, var_z, var_g = 0.0, 0.0, c[0, 0]
     elif th[1] > 0.0:
-        a1, a2 = th[0], th[1]
-        jf = -0.5 / _TWO_PI * a2 ** -1.5          # df/da2
-        jz1, jz2 = 0.5 / math.sqrt(a2), -0.25 * a1 * a2 ** -1.5    # dzeta/da1, dzeta/da2
+        jf, jz1, jz2 = _second_order_modal_derivatives(th[0], th[1])   # df/da2, dzeta/da1, dzeta/da2
         var_f = jf * c[1, 1] * jf
         var_z = jz1 * (c[0, 0] * jz1 + c[0, 1] * jz2) + jz2 * (c[1, 0] * jz1 + c[1, 1] * jz2)
         var_g = c[2, 2]
