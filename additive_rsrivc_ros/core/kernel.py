@@ -234,376 +234,9 @@ def fold_free_response(i: int, h: float, theta: np.ndarray, thf: np.ndarray, xs:
         S[i, a, 2] -= h * S[i, a, 1]
 
 
-@kernel(inline=True)
-def _sample_signals(rk: float, uk: float, yk: float, valid_k: int, closed: bool,
-                    fst: np.ndarray) -> tuple[float, float, bool]:
-    """Sample ``k``'s reference and input, and whether it may update (valid, all signals finite). An invalid sample
-    gives no update; only the non-finite signals are held (a known input keeps driving the filters, so a skipped
-    output costs no filter transient). Returns ``(r_k, u_k, ok)``."""
-    u_ok = math.isfinite(uk)
-    r_ok = math.isfinite(rk) or not closed
-    ok = valid_k != 0 and u_ok and r_ok and math.isfinite(yk)
-    if not r_ok:
-        rk = fst[F_RLAST]
-    if not u_ok:
-        uk = fst[F_ULAST]
-    return rk, uk, ok
-
-
-@kernel(inline=True)
-def _propagate_banks(K: int, kind: np.ndarray, theta: np.ndarray, thf: np.ndarray, h: float, phi: np.ndarray,
-                     gam: np.ndarray, xs: np.ndarray, vin: np.ndarray, ud_prev: float, zd_prev: float,
-                     T: np.ndarray, zoh_ok: np.ndarray, rejr: np.ndarray) -> bool:
-    """Every mode's four filter banks ``t_{k-1} -> t_k`` with ``theta_bar(t_{k-1})``'s cached ``Phi, Gamma``
-    ([RA-SRIVC] eqs. 26-28, 33-35). A mode whose cached discretization is not finite (a restored snapshot) is
-    re-discretized; one without any is held at rest and counted (``R_DISC``), the others run on. False when a state
-    is not finite (the caller re-primes)."""
-    finite = True
-    for i in range(K):
-        zoh_ok[i] = True
-        mode_finite = True
-        for b in range(N_BANKS):   # _propagate_mode with scalars (no reference counting in this loop)
-            t0, t1 = _advance(phi[i, 0, 0], phi[i, 0, 1], phi[i, 1, 0], phi[i, 1, 1], gam[i, 0], gam[i, 1],
-                              xs[i, b, 0], xs[i, b, 1], _bank_input(b, vin[i, 0], ud_prev, zd_prev, vin[i, 1]))
-            T[i, b, 0] = t0
-            T[i, b, 1] = t1
-            if not (math.isfinite(t0) and math.isfinite(t1)):
-                mode_finite = False
-        if not mode_finite and not _finite_zoh(phi[i], gam[i]):
-            # the cached Phi, Gamma are the cause (the kernel only caches finite ones: a restored snapshot)
-            zoh_ok[i] = _ensure_finite_zoh(i, kind, theta, thf, h, phi, gam)
-            if zoh_ok[i]:
-                _propagate_mode(i, phi, gam, xs, T, vin[i, 0], ud_prev, zd_prev, vin[i, 1])
-                mode_finite = True
-                for b in range(N_BANKS):
-                    if not (math.isfinite(T[i, b, 0]) and math.isfinite(T[i, b, 1])):
-                        mode_finite = False
-            else:
-                T[i, :, :] = 0.0
-                rejr[i, R_DISC] += 1
-                mode_finite = True
-        if not mode_finite:
-            finite = False
-    return finite
-
-
-@kernel(inline=True)
-def _model_outputs(K: int, kind: np.ndarray, ib0: np.ndarray, thf: np.ndarray, T: np.ndarray, zb: int, xu: np.ndarray,
-                   xh: np.ndarray) -> tuple[float, float]:
-    """Each mode's simulated output ``x_i = b0 w_u`` (``xu``, [RA-SRIVC] eq. 22) and its noise-free loop output
-    ``x^_i = b0 w_z`` (``xh``, eq. 28 / 33). Returns ``(y^ = sum x^_i, y_sim = sum x_i)``."""
-    yhat = 0.0
-    for i in range(K):
-        xu[i] = thf[i, ib0[i]] * T[i, BU, 0]
-        if kind[i] != 0:
-            xu[i] += thf[i, 1]   # the rigid body's free response not yet folded (0 unless b0 = 0)
-        xh[i] = thf[i, ib0[i]] * T[i, zb, 0]
-        yhat += xh[i]
-    ysim = 0.0
-    for i in range(K):
-        ysim += xu[i]
-    return yhat, ysim
-
-
-@kernel(inline=True)
-def _residual_output(i: int, K: int, yk: float, kind: np.ndarray, ib0: np.ndarray, tf_it: np.ndarray,
-                     T: np.ndarray) -> float:
-    """Residual output of mode ``i`` with the other modes' latest iterates, ``y~_i = y - sum_{j != i} x^_j``
-    ([RA-SRIVC] eq. 22)."""
-    yt = yk
-    for j in range(K):
-        if j != i:
-            yt -= tf_it[j, ib0[j]] * T[j, BU, 0]
-            if kind[j] != 0:
-                yt -= tf_it[j, 1]
-    return yt
-
-
-@kernel(inline=True)
-def _regressors(i: int, kind_i: int, yt: float, xh_i: float, zb: int, tf_it: np.ndarray, T: np.ndarray,
-                ph: np.ndarray, phh: np.ndarray) -> float:
-    """Filtered output ``y_f`` (returned), regressor ``ph`` and instrument ``phh`` of mode ``i``: second order from
-    the ``[w, w']`` states and ``A_i``'s filter model ([RA-SRIVC] eqs. 26-28, 33); a rigid body ``A = 1`` (eqs.
-    34-35) with its free response ``c0 + c1 t`` (module docstring)."""
-    if kind_i == 0:
-        a1 = tf_it[i, 0]                          # the filters' A (filter model)
-        a2 = tf_it[i, 1]
-        wy = T[i, BY, 0]
-        dwy = T[i, BY, 1]
-        wx = T[i, BX, 0]
-        dwx = T[i, BX, 1]
-        yf = wy                                   # eq. 26
-        ph[0] = -dwy                              # eq. 27
-        ph[1] = -(yt - wy - a1 * dwy) / a2
-        ph[2] = T[i, BU, 0]
-        phh[0] = -dwx                             # eq. 28 / 33
-        phh[1] = -(xh_i - wx - a1 * dwx) / a2
-        phh[2] = T[i, zb, 0]
-    else:
-        yf = yt                                   # eqs. 34-35, A_1 = 1
-        ph[0] = T[i, BU, 0]
-        phh[0] = T[i, zb, 0]
-        ph[1] = 1.0
-        phh[1] = 1.0
-        ph[2] = 0.0
-        phh[2] = 0.0
-    return yf
-
-
-@kernel(inline=True)
-def _iv_denominator(i: int, nt: int, lam_eff: float, yf: float, theta: np.ndarray, P: np.ndarray, ph: np.ndarray,
-                    phh: np.ndarray, Pph: np.ndarray, phP: np.ndarray) -> tuple[float, float, float]:
-    """IV-RLS from ``theta_bar(t_{k-1}), P_bar(t_{k-1})`` ([RA-SRIVC] Algorithm 2 line 7, B.5): ``Pph = P phi^``,
-    ``phP = phi^T P``, the prediction error ``eps = y_f - phi^T theta`` and ``den = lam + phi^T P phi^``; when
-    ``den < lam`` also ``den_abs`` (:func:`iv_denominator_ok`). Returns ``(den, den_abs, eps)``. Loops over the
-    parameters run to the constant NT and stop at nt: the compiler unrolls them (same operations, same order)."""
-    den = lam_eff
-    eps = yf
-    for a in range(NT):
-        if a >= nt:
-            break
-        acc = 0.0
-        acc2 = 0.0
-        for c in range(NT):
-            if c >= nt:
-                break
-            acc += P[i, a, c] * phh[c]
-            acc2 += ph[c] * P[i, c, a]
-        Pph[a] = acc
-        phP[a] = acc2
-        den += ph[a] * acc
-        eps -= ph[a] * theta[i, a]
-    den_abs = lam_eff
-    if not den >= lam_eff:   # phi^T P phi^ < 0: terms cancel, compare with their magnitude
-        for a in range(NT):
-            if a >= nt:
-                break
-            for c in range(NT):
-                if c >= nt:
-                    break
-                den_abs += abs(ph[a] * P[i, a, c] * phh[c])
-    return den, den_abs, eps
-
-
-@kernel(inline=True)
-def _iv_candidate(i: int, nt: int, kind_i: int, den: float, eps: float, lam_eff: float, max_step: float,
-                  theta: np.ndarray, P: np.ndarray, Pph: np.ndarray, phP: np.ndarray, gain: np.ndarray,
-                  thn: np.ndarray, Pn: np.ndarray) -> bool:
-    """The candidate update ([RA-SRIVC] Algorithm 2 lines 8-9, B.6-B.7, erratum 2): ``K = P phi^ / den``,
-    ``theta_n = theta + K eps``, ``P_n = (P - K phi^T P) / lam``. False when a value is not finite or a step
-    exceeds ``max_step`` relative (``a1, a2, b0``; a rigid body's ``b0``)."""
-    good = math.isfinite(eps)
-    inv_lam = 1.0 / lam_eff   # one division instead of nt^2 (the divider is the bottleneck)
-    if good:
-        for a in range(NT):
-            if a >= nt:
-                break
-            gain[a] = Pph[a] / den
-            thn[a] = theta[i, a] + gain[a] * eps
-            if not math.isfinite(thn[a]):
-                good = False
-            if max_step > 0.0 and (kind_i == 0 or a == 0) and \
-                    abs(thn[a] - theta[i, a]) > max_step * abs(theta[i, a]):
-                good = False
-            for c in range(NT):
-                if c >= nt:
-                    break
-                Pn[a, c] = (P[i, a, c] - gain[a] * phP[c]) * inv_lam
-                if not math.isfinite(Pn[a, c]):
-                    good = False
-    return good
-
-
-@kernel(inline=True)
-def _accept_iterate(i: int, nt: int, kind_i: int, fa1: float, fa2: float, n00: float, n01: float, n10: float,
-                    n11: float, ng0: float, ng1: float, finite: bool,
-                    ud_prev: float, zd_prev: float, thn: np.ndarray, Pn: np.ndarray, phh: np.ndarray,
-                    xs: np.ndarray, vin: np.ndarray, th_it: np.ndarray, tf_it: np.ndarray, P_it: np.ndarray,
-                    phi_it: np.ndarray, gam_it: np.ndarray, zl: np.ndarray, T: np.ndarray) -> None:
-    """Mode ``i``'s accepted iterate becomes its latest ([RA-SRIVC] Algorithm 2 line 9): ``theta, P``, the instrument
-    ``zeta`` of the sandwich accumulator, the filter model ``A_f`` with its ZOH ``Phi = [[n00, n01], [n10, n11]],
-    Gamma = [ng0, ng1]``, and the
-    mode's filters re-run from the ``t_{k-1}`` states with it (Remark 4.4); held at rest while re-priming."""
-    for a in range(nt):
-        zl[i, a] = phh[a]
-        th_it[i, a] = thn[a]
-        if kind_i != 0 or a == 2:
-            tf_it[i, a] = thn[a]
-        for c in range(nt):
-            P_it[i, a, c] = Pn[a, c]
-    if kind_i == 0:
-        tf_it[i, 0] = fa1
-        tf_it[i, 1] = fa2
-        phi_it[i, 0, 0] = n00
-        phi_it[i, 0, 1] = n01
-        phi_it[i, 1, 0] = n10
-        phi_it[i, 1, 1] = n11
-        gam_it[i, 0] = ng0
-        gam_it[i, 1] = ng1
-        for b in range(N_BANKS):   # _propagate_mode with the new filter model (scalars)
-            T[i, b, 0], T[i, b, 1] = _advance(
-                n00, n01, n10, n11, ng0, ng1, xs[i, b, 0], xs[i, b, 1],
-                _bank_input(b, vin[i, 0], ud_prev, zd_prev, vin[i, 1]))
-        if not finite:
-            T[i, :, :] = 0.0
-
-
-@kernel(inline=True)
-def _capped(i: int, nt: int, P: np.ndarray, p0diag: np.ndarray, p_cap: float) -> bool:
-    """``P`` wound up: a diagonal entry above ``p_cap`` times its ``P(0)`` (the update then forgets nothing)."""
-    capped = False
-    for a in range(NT):
-        if a >= nt:
-            break
-        if P[i, a, a] > p_cap * p0diag[i, a]:
-            capped = True
-    return capped
-
-
-@kernel(inline=True)
-def _iv_step(i: int, K: int, yk: float, zb: int, kind: np.ndarray, ib0: np.ndarray, ntk: np.ndarray,
-             lam: np.ndarray, cfg_i: np.ndarray, cfg_f: np.ndarray, p0diag: np.ndarray, theta: np.ndarray,
-             P: np.ndarray, tf_it: np.ndarray, T: np.ndarray, xh: np.ndarray, ytil: np.ndarray, zoh_ok: np.ndarray,
-             ph: np.ndarray, phh: np.ndarray, Pph: np.ndarray, phP: np.ndarray, gain: np.ndarray, thn: np.ndarray,
-             Pn: np.ndarray, proj: np.ndarray, rej: np.ndarray, rejr: np.ndarray) -> tuple[bool, float, bool]:
-    """The IV candidate of mode ``i`` ([RA-SRIVC] Algorithm 2 lines 5-9): residual output (eq. 22), regressors,
-    IV-RLS from ``theta_bar(t_{k-1}), P_bar(t_{k-1})`` into ``thn, Pn`` and the stability projection (§4.7). A
-    rejected candidate is counted per reason (``rejr``). Returns ``(good, lambda used, P capped)``."""
-    kind_i = kind[i]
-    nt = ntk[i]
-    yt = _residual_output(i, K, yk, kind, ib0, tf_it, T)
-    ytil[i] = yt
-    if not zoh_ok[i]:
-        rej[i] += 1    # no filters for this mode (counted per sample in R_DISC)
-        return False, 1.0, False
-    yf = _regressors(i, kind_i, yt, xh[i], zb, tf_it, T, ph, phh)
-    capped = _capped(i, nt, P, p0diag, cfg_f[C_PCAP])
-    lam_eff = 1.0 if capped else lam[i]
-    den, den_abs, eps = _iv_denominator(i, nt, lam_eff, yf, theta, P, ph, phh, Pph, phP)
-    if not iv_denominator_ok(den, den_abs, lam_eff):
-        rej[i] += 1
-        rejr[i, R_DEN] += 1
-        return False, lam_eff, capped
-    good = _iv_candidate(i, nt, kind_i, den, eps, lam_eff, cfg_f[C_MAXSTEP], theta, P, Pph, phP, gain, thn, Pn)
-    if good and kind_i == 0:
-        if thn[1] == 0.0:
-            good = False
-        elif cfg_i[C_PROJ] != 0:
-            na1, na2, flag = project_second_order(thn[0], thn[1])
-            if flag:
-                thn[0] = na1
-                thn[1] = na2
-                proj[i] += 1
-    if not good:
-        rej[i] += 1
-        rejr[i, R_STEP] += 1
-    return good, lam_eff, capped
-
-
-@kernel(inline=True)
-def _take_candidate(i: int, nt: int, kind_i: int, mu_f: float, h: float, capped: bool, lam_eff: float,
-                    finite: bool, ud_prev: float, zd_prev: float, thf: np.ndarray, thn: np.ndarray, phh: np.ndarray,
-                    Pn: np.ndarray, xs: np.ndarray, vin: np.ndarray, th_it: np.ndarray, tf_it: np.ndarray,
-                    P_it: np.ndarray, phi_it: np.ndarray, gam_it: np.ndarray, zl: np.ndarray, lz: np.ndarray,
-                    T: np.ndarray, ist: np.ndarray, rej: np.ndarray, rejr: np.ndarray) -> None:
-    """A good candidate's filter model ``a_f = mu_f a_f_bar + (1 - mu_f) a`` (``mu_f = 0``: [RA-SRIVC] Algorithm 2)
-    and its ZOH (eqs. 26-28); without a finite one the candidate is rejected (``R_DISC``), else it becomes mode
-    ``i``'s latest iterate (:func:`_accept_iterate`)."""
-    fa1 = 0.0
-    fa2 = 0.0
-    n00, n01, n10, n11, ng0, ng1 = 0.0, 0.0, 0.0, 0.0, 0.0, 0.0
-    if kind_i == 0:
-        if mu_f == 0.0:
-            fa1 = thn[0]
-            fa2 = thn[1]
-        else:
-            fa1 = mu_f * thf[i, 0] + (1.0 - mu_f) * thn[0]
-            fa2 = mu_f * thf[i, 1] + (1.0 - mu_f) * thn[1]
-        n00, n01, n10, n11, ng0, ng1 = zoh_coefficients(fa1, fa2, h)
-        if not _finite_coefficients(n00, n01, n10, n11, ng0, ng1):
-            rej[i] += 1
-            rejr[i, R_DISC] += 1
-            return
-    if capped:
-        ist[I_CAPPED] += 1
-    lz[i] = lam_eff
-    _accept_iterate(i, nt, kind_i, fa1, fa2, n00, n01, n10, n11, ng0, ng1, finite, ud_prev, zd_prev, thn, Pn, phh,
-                    xs, vin, th_it, tf_it, P_it, phi_it, gam_it, zl, T)
-
-
-@kernel(inline=True)
-def _sandwich_update(i: int, ntk_i: int, lz: np.ndarray, zl: np.ndarray, S: np.ndarray) -> None:
-    """The IV sandwich accumulator follows ``P``: ``S = lam^2 S + zeta zeta^T``, symmetric (module docstring); the
-    rigid body's ``b0`` alone when it has no free response."""
-    if lz[i] > 0.0:
-        l2 = lz[i] * lz[i]
-        m = NT if ntk_i > 1 else 1
-        for a in range(m):
-            for c in range(a, m):
-                s_ac = l2 * S[i, a, c] + zl[i, a] * zl[i, c]
-                S[i, a, c] = s_ac
-                S[i, c, a] = s_ac
-
-
-@kernel(inline=True)
-def _finish_sample(K: int, ok: bool, do_update: bool, yk: float, ysim: float, h: float, kind: np.ndarray,
-                   lam: np.ndarray, T: np.ndarray, ytil: np.ndarray, xh: np.ndarray, xs: np.ndarray,
-                   vin: np.ndarray, theta: np.ndarray, thf: np.ndarray, P: np.ndarray, S: np.ndarray) -> None:
-    """The ``t_k`` states replace the ``t_{k-1}`` states only now, after every mode (docs/DESIGN.md "Conventions"),
-    with the banks' next inputs ``y~_i`` and ``x^_i``; a rigid body's input filter follows the plant's state (its
-    free response, module docstring)."""
-    for i in range(K):
-        for b in range(N_BANKS):
-            xs[i, b, 0] = T[i, b, 0]
-            xs[i, b, 1] = T[i, b, 1]
-        vin[i, 0] = ytil[i]
-        vin[i, 1] = xh[i]
-        if kind[i] != 0:
-            if ok and not do_update:
-                free_response_step(i, lam[i], yk - ysim, theta, P)
-            fold_free_response(i, h, theta, thf, xs, P, S)
-
-
-@kernel(inline=True)
-def _instrument_input(rk: float, yhat: float, cnum: np.ndarray, cden: np.ndarray, ce: np.ndarray, cz: np.ndarray,
-                      ist: np.ndarray) -> float:
-    """Closed-loop instrument input ``z_k = C_d(q) (r_k - y^_k)`` ([RA-SRIVC] eq. 33, erratum 3 in
-    docs/DESIGN.md), the controller's past errors ``ce`` and outputs ``cz`` shifted; a non-finite ``z`` counts and
-    is 0."""
-    ek = rk - yhat
-    zk = cnum[0] * ek
-    for j in range(1, cnum.shape[0]):
-        zk += cnum[j] * ce[j - 1]
-    for j in range(1, cden.shape[0]):
-        zk -= cden[j] * cz[j - 1]
-    if not math.isfinite(zk):
-        zk = 0.0
-        ist[I_NONFINITE_Z] += 1
-    for j in range(ce.shape[0] - 1, 0, -1):
-        ce[j] = ce[j - 1]
-    ce[0] = ek
-    for j in range(cz.shape[0] - 1, 0, -1):
-        cz[j] = cz[j - 1]
-    cz[0] = zk
-    return zk
-
-
-@kernel(inline=True)
-def _update_due(ok: bool, allow_update: bool, subsample: int, ist: np.ndarray) -> bool:
-    """This sample updates: valid, updates allowed, not held after a re-prime (counted), every ``subsample``-th."""
-    if ok and allow_update:
-        if ist[I_HOLD] > 0:
-            ist[I_HOLD] -= 1
-            ist[I_HELD] += 1
-        else:
-            do_update = ist[I_SUBCOUNT] % subsample == 0
-            ist[I_SUBCOUNT] += 1
-            return do_update
-    return False
-
-
 @kernel
-def run_block(r: np.ndarray, u: np.ndarray, y: np.ndarray, valid: np.ndarray, allow_update: bool,
+def run_block(  # noqa: C901 - one compiled per-sample loop (test/test_code_shape.py)
+              r: np.ndarray, u: np.ndarray, y: np.ndarray, valid: np.ndarray, allow_update: bool,
               kind: np.ndarray, lam: np.ndarray, muf: np.ndarray, cnum: np.ndarray, cden: np.ndarray,
               cfg_i: np.ndarray, cfg_f: np.ndarray, p0diag: np.ndarray,
               theta: np.ndarray, thf: np.ndarray, P: np.ndarray, S: np.ndarray, xs: np.ndarray, vin: np.ndarray,
@@ -614,54 +247,128 @@ def run_block(r: np.ndarray, u: np.ndarray, y: np.ndarray, valid: np.ndarray, al
     """Process a block of samples in place: [RA-SRIVC] Algorithm 2 lines 2-16 for each sample.
 
     ``allow_update=False`` only filters (priming, Algorithm 2 step 1). ``trace`` (n, K, 3) receives
-    theta after every sample when it has n rows (pass a (0, K, 3) array to skip). The stages are inlined by numba
-    (``@kernel(inline=True)``): one compiled loop, without a call or reference count per stage and sample.
+    theta after every sample when it has n rows (pass a (0, K, 3) array to skip).
     """
     n = r.shape[0]
     K = cfg_i[C_K]
+    d = cfg_i[C_DELAY]
     sweeps = cfg_i[C_SWEEPS]
     refine = cfg_i[C_REFINE]
+    projection = cfg_i[C_PROJ] != 0
+    subsample = cfg_i[C_SUBSAMPLE]
     closed = cfg_i[C_CLOSED] != 0
+    hold_len = cfg_i[C_HOLDLEN]
     h = cfg_f[C_H]
     lam_sig = cfg_f[C_LAMSIG]
-    nbuf = cfg_i[C_DELAY] + 1
+    max_step = cfg_f[C_MAXSTEP]
+    p_cap = cfg_f[C_PCAP]
+    nb = cnum.shape[0]
+    na = cden.shape[0]
+    nbuf = d + 1
     do_trace = trace.shape[0] == n
+
+    # workspace
     T = np.empty((K, N_BANKS, 2))
     # the latest iterate of every mode. One iterate per mode and sample (M_l = 1, M_s = 0, the default) starts from
     # theta_bar(t_{k-1}), P_bar(t_{k-1}) and only the later modes read it: it is written in place (no copies)
     in_place = sweeps * (refine + 1) == 1
     if in_place:
-        phi_it, gam_it, th_it, tf_it, P_it = phi, gam, theta, thf, P
+        phi_it = phi
+        gam_it = gam
+        th_it = theta
+        tf_it = thf
+        P_it = P
     else:
-        phi_it, gam_it = np.empty((K, 2, 2)), np.empty((K, 2))
-        th_it, tf_it, P_it = np.empty((K, NT)), np.empty((K, NT)), np.empty((K, NT, NT))
-    xu, xh, ytil = np.empty(K), np.empty(K), np.empty(K)
-    ph, phh, Pph, phP, gain, thn = np.zeros(NT), np.zeros(NT), np.zeros(NT), np.zeros(NT), np.zeros(NT), np.zeros(NT)
+        phi_it = np.empty((K, 2, 2))
+        gam_it = np.empty((K, 2))
+        th_it = np.empty((K, NT))
+        tf_it = np.empty((K, NT))
+        P_it = np.empty((K, NT, NT))
+    xu = np.empty(K)
+    xh = np.empty(K)
+    ytil = np.empty(K)
+    ph = np.zeros(NT)
+    phh = np.zeros(NT)
+    Pph = np.zeros(NT)
+    phP = np.zeros(NT)
+    gain = np.zeros(NT)
+    thn = np.zeros(NT)
     zoh_ok = np.empty(K, dtype=np.bool_)
     Pn = np.zeros((NT, NT))
     zl = np.zeros((K, NT))             # instrument of each mode's accepted iterate (IV sandwich accumulator S)
     lz = np.ones(K)                    # its forgetting factor (1 when capped); 0 = no accepted iterate
-    ib0 = np.empty(K, dtype=np.int64)  # b0's slot
-    ntk = np.empty(K, dtype=np.int64)  # parameters: a1, a2, b0, or b0 and the free response c0 (, c1)
+    ib0 = np.empty(K, dtype=np.int64)
+    ntk = np.empty(K, dtype=np.int64)
     for i in range(K):
-        ib0[i] = 2 if kind[i] == 0 else 0
-        ntk[i] = 3 if kind[i] == 0 else 1 + kind[i]
+        if kind[i] == 0:
+            ib0[i] = 2
+            ntk[i] = 3
+        else:
+            ib0[i] = 0
+            ntk[i] = 1 + kind[i]   # b0 and the free response c0 (, c1)
 
     for k in range(n):
+        rk = r[k]
+        uk = u[k]
         yk = y[k]
-        rk, uk, ok = _sample_signals(r[k], u[k], yk, valid[k], closed, fst)
+        u_ok = math.isfinite(uk)
+        r_ok = math.isfinite(rk) or not closed
+        ok = valid[k] != 0 and u_ok and r_ok and math.isfinite(yk)
+        # an invalid sample gives no update; only the non-finite signals are held (a known input keeps driving
+        # the filters, so a skipped output costs no filter transient)
+        if not r_ok:
+            rk = fst[F_RLAST]
+        if not u_ok:
+            uk = fst[F_ULAST]
         pos = ist[I_POS]
         ud_prev = ubuf[pos]
         zd_prev = zbuf[pos] if closed else ud_prev
         zb = BZ if closed else BU
-        finite = _propagate_banks(K, kind, theta, thf, h, phi, gam, xs, vin, ud_prev, zd_prev, T, zoh_ok, rejr)
+
+        # propagate every bank t_{k-1} -> t_k with theta_bar(t_{k-1}) (cached Phi, Gamma)
+        finite = True
+        for i in range(K):
+            zoh_ok[i] = True
+            mode_finite = True
+            for b in range(N_BANKS):   # _propagate_mode with scalars (no reference counting in this loop)
+                t0, t1 = _advance(phi[i, 0, 0], phi[i, 0, 1], phi[i, 1, 0], phi[i, 1, 1], gam[i, 0], gam[i, 1],
+                                  xs[i, b, 0], xs[i, b, 1], _bank_input(b, vin[i, 0], ud_prev, zd_prev, vin[i, 1]))
+                T[i, b, 0] = t0
+                T[i, b, 1] = t1
+                if not (math.isfinite(t0) and math.isfinite(t1)):
+                    mode_finite = False
+            if not mode_finite and not _finite_zoh(phi[i], gam[i]):
+                # the cached Phi, Gamma are the cause (the kernel only caches finite ones: a restored snapshot)
+                zoh_ok[i] = _ensure_finite_zoh(i, kind, theta, thf, h, phi, gam)
+                if zoh_ok[i]:
+                    _propagate_mode(i, phi, gam, xs, T, vin[i, 0], ud_prev, zd_prev, vin[i, 1])
+                    mode_finite = True
+                    for b in range(N_BANKS):
+                        if not (math.isfinite(T[i, b, 0]) and math.isfinite(T[i, b, 1])):
+                            mode_finite = False
+                else:
+                    # no valid discretization of this mode's filters: held at rest, counted; the others run on
+                    T[i, :, :] = 0.0
+                    rejr[i, R_DISC] += 1
+                    mode_finite = True
+            if not mode_finite:
+                finite = False
         if not finite:
             # re-prime: filters from rest, no updates for hold_len samples (counted)
             T[:, :, :] = 0.0
-            ist[I_HOLD] = max(ist[I_HOLD], cfg_i[C_HOLDLEN])
+            ist[I_HOLD] = max(ist[I_HOLD], hold_len)
             ist[I_REPRIMES] += 1
             restart_free_response(kind, theta, thf, P, S, p0diag)
-        yhat, ysim = _model_outputs(K, kind, ib0, thf, T, zb, xu, xh)
+        yhat = 0.0
+        for i in range(K):
+            xu[i] = thf[i, ib0[i]] * T[i, BU, 0]
+            if kind[i] != 0:
+                xu[i] += thf[i, 1]   # the rigid body's free response not yet folded (0 unless b0 = 0)
+            xh[i] = thf[i, ib0[i]] * T[i, zb, 0]
+            yhat += xh[i]
+        ysim = 0.0
+        for i in range(K):
+            ysim += xu[i]
         if not ok:
             yk = ysim  # no information: residual outputs become the model's own outputs
             ist[I_SKIPPED] += 1
@@ -669,7 +376,16 @@ def run_block(r: np.ndarray, u: np.ndarray, y: np.ndarray, valid: np.ndarray, al
             e = yk - ysim
             fst[F_SIGACC] = lam_sig * fst[F_SIGACC] + (1.0 - lam_sig) * e * e
             fst[F_SIGW] = lam_sig * fst[F_SIGW] + (1.0 - lam_sig)
-        do_update = _update_due(ok, allow_update, cfg_i[C_SUBSAMPLE], ist)
+
+        do_update = False
+        if ok and allow_update:
+            if ist[I_HOLD] > 0:
+                ist[I_HOLD] -= 1
+                ist[I_HELD] += 1
+            else:
+                do_update = ist[I_SUBCOUNT] % subsample == 0
+                ist[I_SUBCOUNT] += 1
+
         if do_update:
             for i in range(K):
                 lz[i] = 0.0
@@ -677,25 +393,201 @@ def run_block(r: np.ndarray, u: np.ndarray, y: np.ndarray, valid: np.ndarray, al
                     _copy_mode(i, theta, thf, P, phi, gam, th_it, tf_it, P_it, phi_it, gam_it)
             for _l in range(sweeps):
                 for i in range(K):
+                    nt = ntk[i]
+                    lam_i = lam[i]
+                    mu_f = muf[i]
                     for _s in range(refine + 1):
-                        good, lam_eff, capped = _iv_step(
-                            i, K, yk, zb, kind, ib0, ntk, lam, cfg_i, cfg_f, p0diag, theta, P, tf_it, T, xh, ytil,
-                            zoh_ok, ph, phh, Pph, phP, gain, thn, Pn, proj, rej, rejr)
+                        # residual output with the other modes' latest iterates ([RA-SRIVC] eq. 22)
+                        yt = yk
+                        for j in range(K):
+                            if j != i:
+                                yt -= tf_it[j, ib0[j]] * T[j, BU, 0]
+                                if kind[j] != 0:
+                                    yt -= tf_it[j, 1]
+                        ytil[i] = yt
+                        if not zoh_ok[i]:
+                            rej[i] += 1    # no filters for this mode (counted per sample in R_DISC above)
+                            continue
+                        if kind[i] == 0:
+                            a1 = tf_it[i, 0]                          # the filters' A (filter model)
+                            a2 = tf_it[i, 1]
+                            wy = T[i, BY, 0]
+                            dwy = T[i, BY, 1]
+                            wx = T[i, BX, 0]
+                            dwx = T[i, BX, 1]
+                            yf = wy                                   # eq. 26
+                            ph[0] = -dwy                              # eq. 27
+                            ph[1] = -(yt - wy - a1 * dwy) / a2
+                            ph[2] = T[i, BU, 0]
+                            phh[0] = -dwx                             # eq. 28 / 33
+                            phh[1] = -(xh[i] - wx - a1 * dwx) / a2
+                            phh[2] = T[i, zb, 0]
+                        else:
+                            yf = yt                                   # eqs. 34-35, A_1 = 1
+                            ph[0] = T[i, BU, 0]
+                            phh[0] = T[i, zb, 0]
+                            ph[1] = 1.0                               # free response c0 + c1 t (module docstring)
+                            phh[1] = 1.0
+                            ph[2] = 0.0
+                            phh[2] = 0.0
+                        # IV-RLS from theta_bar(t_{k-1}), P_bar(t_{k-1}) (Algorithm 2 lines 7-9). Loops over the
+                        # parameters run to the constant NT and stop at nt: the compiler unrolls them (same operations,
+                        # same order)
+                        capped = False
+                        for a in range(NT):
+                            if a >= nt:
+                                break
+                            if P[i, a, a] > p_cap * p0diag[i, a]:
+                                capped = True
+                        lam_eff = 1.0 if capped else lam_i
+                        den = lam_eff
+                        eps = yf
+                        for a in range(NT):
+                            if a >= nt:
+                                break
+                            acc = 0.0
+                            acc2 = 0.0
+                            for c in range(NT):
+                                if c >= nt:
+                                    break
+                                acc += P[i, a, c] * phh[c]
+                                acc2 += ph[c] * P[i, c, a]
+                            Pph[a] = acc
+                            phP[a] = acc2
+                            den += ph[a] * acc
+                            eps -= ph[a] * theta[i, a]
+                        den_abs = lam_eff
+                        if not den >= lam_eff:   # phi^T P phi^ < 0: terms cancel, compare with their magnitude
+                            for a in range(NT):
+                                if a >= nt:
+                                    break
+                                for c in range(NT):
+                                    if c >= nt:
+                                        break
+                                    den_abs += abs(ph[a] * P[i, a, c] * phh[c])
+                        if not iv_denominator_ok(den, den_abs, lam_eff):
+                            rej[i] += 1
+                            rejr[i, R_DEN] += 1
+                            continue
+                        good = math.isfinite(eps)
+                        inv_lam = 1.0 / lam_eff   # one division instead of nt^2 (the divider is the bottleneck)
                         if good:
-                            _take_candidate(i, ntk[i], kind[i], muf[i], h, capped, lam_eff, finite, ud_prev, zd_prev,
-                                            thf, thn, phh, Pn, xs, vin, th_it, tf_it, P_it, phi_it, gam_it, zl, lz, T,
-                                            ist, rej, rejr)
+                            for a in range(NT):
+                                if a >= nt:
+                                    break
+                                gain[a] = Pph[a] / den
+                                thn[a] = theta[i, a] + gain[a] * eps
+                                if not math.isfinite(thn[a]):
+                                    good = False
+                                if max_step > 0.0 and (kind[i] == 0 or a == 0) and \
+                                        abs(thn[a] - theta[i, a]) > max_step * abs(theta[i, a]):
+                                    good = False
+                                for c in range(NT):
+                                    if c >= nt:
+                                        break
+                                    Pn[a, c] = (P[i, a, c] - gain[a] * phP[c]) * inv_lam
+                                    if not math.isfinite(Pn[a, c]):
+                                        good = False
+                        if good and kind[i] == 0:
+                            if thn[1] == 0.0:
+                                good = False
+                            elif projection:
+                                na1, na2, flag = project_second_order(thn[0], thn[1])
+                                if flag:
+                                    thn[0] = na1
+                                    thn[1] = na2
+                                    proj[i] += 1
+                        if not good:
+                            rej[i] += 1
+                            rejr[i, R_STEP] += 1
+                            continue
+                        # filter model of A_i: a_f = mu_f a_f_bar + (1 - mu_f) a (mu_f = 0: Algorithm 2)
+                        fa1 = 0.0
+                        fa2 = 0.0
+                        if kind[i] == 0:
+                            if mu_f == 0.0:
+                                fa1 = thn[0]
+                                fa2 = thn[1]
+                            else:
+                                fa1 = mu_f * thf[i, 0] + (1.0 - mu_f) * thn[0]
+                                fa2 = mu_f * thf[i, 1] + (1.0 - mu_f) * thn[1]
+                            n00, n01, n10, n11, ng0, ng1 = zoh_coefficients(fa1, fa2, h)
+                            if not _finite_coefficients(n00, n01, n10, n11, ng0, ng1):
+                                rej[i] += 1
+                                rejr[i, R_DISC] += 1
+                                continue
+                        if capped:
+                            ist[I_CAPPED] += 1
+                        lz[i] = lam_eff
+                        for a in range(nt):
+                            zl[i, a] = phh[a]
+                            th_it[i, a] = thn[a]
+                            if kind[i] != 0 or a == 2:
+                                tf_it[i, a] = thn[a]
+                            for c in range(nt):
+                                P_it[i, a, c] = Pn[a, c]
+                        # filters of this mode follow the new filter model (re-run from the t_{k-1} states)
+                        if kind[i] == 0:
+                            tf_it[i, 0] = fa1
+                            tf_it[i, 1] = fa2
+                            phi_it[i, 0, 0] = n00
+                            phi_it[i, 0, 1] = n01
+                            phi_it[i, 1, 0] = n10
+                            phi_it[i, 1, 1] = n11
+                            gam_it[i, 0] = ng0
+                            gam_it[i, 1] = ng1
+                            for b in range(N_BANKS):   # _propagate_mode with the new filter model (scalars)
+                                T[i, b, 0], T[i, b, 1] = _advance(
+                                    n00, n01, n10, n11, ng0, ng1, xs[i, b, 0], xs[i, b, 1],
+                                    _bank_input(b, vin[i, 0], ud_prev, zd_prev, vin[i, 1]))
+                            if not finite:
+                                T[i, :, :] = 0.0
             for i in range(K):
                 if not in_place:
                     _copy_mode(i, th_it, tf_it, P_it, phi_it, gam_it, theta, thf, P, phi, gam)
-                _sandwich_update(i, ntk[i], lz, zl, S)
+                if lz[i] > 0.0:   # S follows P: S = lam^2 S + zeta zeta^T, symmetric (IV sandwich, module docstring)
+                    l2 = lz[i] * lz[i]
+                    m = NT if ntk[i] > 1 else 1    # the rigid body's b0 alone when it has no free response
+                    for a in range(m):
+                        for c in range(a, m):
+                            s_ac = l2 * S[i, a, c] + zl[i, a] * zl[i, c]
+                            S[i, a, c] = s_ac
+                            S[i, c, a] = s_ac
             ist[I_UPDATES] += 1
         else:
             for i in range(K):
                 ytil[i] = yk - (ysim - xu[i])
-        _finish_sample(K, ok, do_update, yk, ysim, h, kind, lam, T, ytil, xh, xs, vin, theta, thf, P, S)
+
+        # the t_k states replace the t_{k-1} states only now (docs/DESIGN.md, "Conventions")
+        for i in range(K):
+            for b in range(N_BANKS):
+                xs[i, b, 0] = T[i, b, 0]
+                xs[i, b, 1] = T[i, b, 1]
+            vin[i, 0] = ytil[i]
+            vin[i, 1] = xh[i]
+            if kind[i] != 0:   # the rigid body's input filter follows the plant's state (module docstring)
+                if ok and not do_update:
+                    free_response_step(i, lam[i], yk - ysim, theta, P)
+                fold_free_response(i, h, theta, thf, xs, P, S)
+
+        # closed-loop instrument input z_k = C_d(q) (r_k - y^_k), [RA-SRIVC] eq. 33 (erratum 3 in docs/DESIGN.md)
         if closed:
-            zbuf[pos] = _instrument_input(rk, yhat, cnum, cden, ce, cz, ist)
+            ek = rk - yhat
+            zk = cnum[0] * ek
+            for j in range(1, nb):
+                zk += cnum[j] * ce[j - 1]
+            for j in range(1, na):
+                zk -= cden[j] * cz[j - 1]
+            if not math.isfinite(zk):
+                zk = 0.0
+                ist[I_NONFINITE_Z] += 1
+            for j in range(ce.shape[0] - 1, 0, -1):
+                ce[j] = ce[j - 1]
+            ce[0] = ek
+            for j in range(cz.shape[0] - 1, 0, -1):
+                cz[j] = cz[j - 1]
+            cz[0] = zk
+            zbuf[pos] = zk
         ubuf[pos] = uk
         ist[I_POS] = pos + 1 if pos + 1 < nbuf else 0
         fst[F_RLAST] = rk
