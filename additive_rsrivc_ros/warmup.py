@@ -41,8 +41,12 @@ def load_kernels() -> float:
     numba's target context (about 1-2 s, holding the GIL); each further kernel's first call then loads it from the
     cache in milliseconds. The node does this while configuring, before it subscribes: paid in the middle of a 4 kHz
     stream it stalls the executor and the input pauses. Without a warm cache this compiles (tens of seconds), once.
+    The scipy parts the offline start needs (``scipy.special``, ``scipy.linalg``: about 0.3 s) are imported here too,
+    so the first estimate after the init window does not wait for them.
     """
     import numpy as np
+    import scipy.linalg  # noqa: F401 - the offline start's expm (core/zoh.zoh_matrices)
+    import scipy.special  # noqa: F401 - the offline start's F quantile (core/offline/stable.initial_transient_test)
 
     from .core import zoh
 
