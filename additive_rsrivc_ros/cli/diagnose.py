@@ -279,11 +279,10 @@ def diagnose(args: argparse.Namespace, stdout: TextIO, stderr: TextIO, state: di
     n = sig.t.size
     duration = float(sig.t[-1]) + 1.0 / cfg.loop_rate_hz if n else 0.0
     show = args.progress if args.progress is not None else stderr.isatty()
-    total_s = float(sig.t[-1]) if n else 0.0
-    bar = progress_bar(total_s, stderr, bool(show))
+    bar = progress_bar(float(sig.t[-1]) if n else 0.0, stderr, bool(show))
     pipe = MonitorPipeline(cfg)   # no guesses: it finds the modes on the first max(init_duration_s, 2 s) itself
     reports, ev_objs = run_pipeline(sig, cfg, chunk_s=args.chunk_s, progress=bar, pipeline=pipe)
-    bar.close(total_s)
+    bar.close(bar.total)
     _print_notices(reports, stderr)
     cfg = pipe.cfg                # with the modes found by the automatic start
     t_est = time.monotonic()
