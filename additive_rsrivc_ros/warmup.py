@@ -13,7 +13,6 @@ rsrivc_warmup`` once (otherwise the first node start compiles, about 20-40 s).
 
 from __future__ import annotations
 
-import argparse
 import contextlib
 import io
 import sys
@@ -22,6 +21,7 @@ import time
 from pathlib import Path
 
 from . import numba_cache
+from .cli.parser import OneLineParser
 from .process_exit import console_entry
 
 #: (scenario, params file, seconds after the init window): every structural code path of the kernels
@@ -41,8 +41,12 @@ def load_kernels() -> float:
     numba's target context (about 1-2 s, holding the GIL); each further kernel's first call then loads it from the
     cache in milliseconds. The node does this while configuring, before it subscribes: paid in the middle of a 4 kHz
     stream it stalls the executor and the input pauses. Without a warm cache this compiles (tens of seconds), once.
+    The scipy parts the offline start needs (``scipy.special``, ``scipy.linalg``: about 0.3 s) are imported here too,
+    so the first estimate after the init window does not wait for them.
     """
     import numpy as np
+    import scipy.linalg  # noqa: F401 - the offline start's expm (core/zoh.zoh_matrices)
+    import scipy.special  # noqa: F401 - the offline start's F quantile (core/offline/stable.initial_transient_test)
 
     from .core import zoh
 
@@ -156,7 +160,7 @@ def is_warm() -> bool:
 
 @console_entry
 def main(argv: list[str] | None = None) -> int:
-    ap = argparse.ArgumentParser(prog="rsrivc_warmup", description=__doc__.split("\n\n")[0])
+    ap = OneLineParser(prog="rsrivc_warmup", description=__doc__.split("\n\n")[0])
     ap.add_argument("--if-needed", action="store_true", help="do nothing when this source's cache is warm")
     ap.add_argument("--check", action="store_true",
                     help="afterwards, list kernels never compiled and say if the ahead-of-time extension is missing")

@@ -60,4 +60,4 @@ echo "[oldest] rsrivc_monitor and rsrivc_replay without ROS: one line each, sayi
 cd "$out"   # the installed package, not the source tree, is imported by the tests
 "$VENV/bin/python" -m pytest -p no:cacheprovider --rootdir "$ROOT/test" -c "$ROOT/pytest.ini" \
   "$ROOT/test/test_zoh.py" "$ROOT/test/test_kernel.py" "$ROOT/test/test_filters.py" \
-  "$ROOT/test/test_report_numbers.py" "$ROOT/test/test_matrix_exponential.py" "$@"
+  "$ROOT/test/test_report_numbers.py" "$ROOT/test/test_modefind.py" "$@"

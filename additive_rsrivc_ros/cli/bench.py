@@ -20,7 +20,6 @@ import os
 for _v in ("OPENBLAS_NUM_THREADS", "OMP_NUM_THREADS", "MKL_NUM_THREADS"):
     os.environ.setdefault(_v, "1")
 
-import argparse  # noqa: E402
 import json  # noqa: E402
 import math  # noqa: E402
 import subprocess  # noqa: E402
@@ -32,6 +31,7 @@ import numpy as np  # noqa: E402
 from ..core.compiled import MODE_ENV, extension_loaded  # noqa: E402
 from ..core.model import SubmodelStructure  # noqa: E402
 from ..process_exit import console_entry  # noqa: E402
+from .parser import OneLineParser  # noqa: E402
 
 
 def _case_data(case: str, seconds: float) -> tuple:
@@ -261,7 +261,7 @@ CASES = {"k3_20hz_closed_1_0": ("k3", 1, 0), "k4_4096hz_closed_1_0": ("k4", 1, 0
 
 @console_entry
 def main(argv: list[str] | None = None) -> int:
-    ap = argparse.ArgumentParser(prog="rsrivc_bench", description="Speed figures of the recursive estimator.")
+    ap = OneLineParser(prog="rsrivc_bench", description="Speed figures of the recursive estimator.")
     ap.add_argument("--json", action="store_true", help="print one JSON object (docs/INTERFACE.md)")
     ap.add_argument("--seconds", type=float, default=None, help="simulated seconds per case (default 1000/20)")
     ap.add_argument("--diagnose-seconds", type=float, default=60.0,

@@ -36,6 +36,7 @@ from ..core.vocabulary import (
 )
 from ..process_exit import console_entry
 from .parser import OneLineParser
+from .progress import ProgressBar
 
 if TYPE_CHECKING:
     from ..bagio import Signals
@@ -65,38 +66,12 @@ def _parser() -> argparse.ArgumentParser:
 
 
 # ------------------------------------------------------------------------------------------------- progress
-class Progress:
-    """A one-line progress bar on a stream (refreshed at most 10 times per second)."""
-
-    def __init__(self, total_s: float, stream: TextIO, enabled: bool, width: int = 30) -> None:
-        self.total = max(total_s, 1e-12)
-        self.stream = stream
-        self.enabled = enabled
-        self.width = width
-        self.t_start = time.monotonic()
-        self._last = -1.0
-
-    def update(self, done_s: float, force: bool = False) -> None:
-        if not self.enabled:
-            return
-        now = time.monotonic()
-        if not force and now - self._last < 0.1:
-            return
-        self._last = now
-        frac = min(max(done_s / self.total, 0.0), 1.0)
-        fill = int(round(frac * self.width))
-        el = now - self.t_start
-        speed = done_s / el if el > 0 else 0.0
-        eta = (self.total - done_s) / speed if speed > 0 else float("nan")
-        self.stream.write(f"\r{PROG}: [{'#' * fill}{'.' * (self.width - fill)}] {frac * 100:5.1f} % "
-                          f"{done_s:8.1f}/{self.total:.1f} s  {speed:6.1f}x real time  ETA {eta:5.1f} s ")
-        self.stream.flush()
-
-    def close(self) -> None:
-        if self.enabled:
-            self.update(self.total, force=True)
-            self.stream.write("\n")
-            self.stream.flush()
+def progress_bar(total_s: float, stream: TextIO, enabled: bool) -> ProgressBar:
+    """The diagnosis's progress bar over the record's seconds (with the speed in multiples of real time)."""
+    def describe(done_s: float, total: float, elapsed: float) -> str:
+        speed = done_s / elapsed if elapsed > 0 else 0.0
+        return f"{min(max(done_s / total, 0.0), 1.0) * 100:5.1f} % {done_s:8.1f}/{total:.1f} s  {speed:6.1f}x real time"
+    return ProgressBar(PROG, total_s, stream, enabled, describe, min_interval_s=0.1)
 
 
 # ------------------------------------------------------------------------------------------------- running
@@ -113,7 +88,7 @@ def _print_notices(reports: Sequence[Report], stderr: TextIO) -> None:
               file=stderr)
 
 
-def run_pipeline(sig: Signals, cfg: MonitorSettings, *, chunk_s: float = 1.0, progress: Progress | None = None,
+def run_pipeline(sig: Signals, cfg: MonitorSettings, *, chunk_s: float = 1.0, progress: ProgressBar | None = None,
                  pipeline: MonitorPipeline | None = None) -> tuple[list[Report], list[FaultEvent]]:
     """Feed the bag's samples through a fresh :class:`MonitorPipeline` (or ``pipeline``); return
     ``(reports, events)``. Without mode guesses the pipeline finds the modes first (``core/autostart.py``);
@@ -313,10 +288,10 @@ def diagnose(args: argparse.Namespace, stdout: TextIO, stderr: TextIO, state: di
     n = sig.t.size
     duration = float(sig.t[-1]) + 1.0 / cfg.loop_rate_hz if n else 0.0
     show = args.progress if args.progress is not None else stderr.isatty()
-    bar = Progress(float(sig.t[-1]) if n else 0.0, stderr, bool(show))
+    bar = progress_bar(float(sig.t[-1]) if n else 0.0, stderr, bool(show))
     pipe = MonitorPipeline(cfg)   # no guesses: it finds the modes on the first max(init_duration_s, 2 s) itself
     reports, ev_objs = run_pipeline(sig, cfg, chunk_s=args.chunk_s, progress=bar, pipeline=pipe)
-    bar.close()
+    bar.close(bar.total)
     _print_notices(reports, stderr)
     cfg = pipe.cfg                # with the modes found by the automatic start
     t_est = time.monotonic()

@@ -14,7 +14,6 @@ Exit status 0 when every detection target holds, 1 otherwise; 2 on bad arguments
 
 from __future__ import annotations
 
-import argparse
 import json
 import math
 import sys
@@ -28,6 +27,7 @@ from ..core.faults import FaultEvent
 from ..core.pipeline import MonitorPipeline
 from ..core.vocabulary import quantity_of, sim_quantity_of
 from ..process_exit import console_entry
+from .parser import OneLineParser
 
 DRIFT_OFF = {"drift1_start_s": 1e9, "drift1_end_s": 1e9 + 1.0, "drift2_start_s": 1e9, "drift2_end_s": 1e9 + 1.0}
 
@@ -309,7 +309,7 @@ def format_table(res: dict[str, Any]) -> str:
 
 @console_entry
 def main(argv: list[str] | None = None) -> int:
-    ap = argparse.ArgumentParser(prog="rsrivc_evaluate", description=__doc__.splitlines()[0])
+    ap = OneLineParser(prog="rsrivc_evaluate", description=__doc__.splitlines()[0])
     ap.add_argument("--quick", action="store_true", help="a small run (about a minute)")
     ap.add_argument("--json", action="store_true", help="print one JSON object instead of the table")
     ap.add_argument("--case", action="append", default=[], help="run only the named case(s) (see --list)")

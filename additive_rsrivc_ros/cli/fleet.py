@@ -1,40 +1,16 @@
 """``rsrivc_fleet BAG_OR_DIR... --params-file YAML --out DIR [--scheduler ADDR] [--workers N]``: many bags at once.
 
-Each bag is an independent task on ``dask.distributed`` (a ``LocalCluster`` of ``--workers`` single-threaded
-worker processes, default: the CPUs this process may use; or the scheduler at ``--scheduler ADDR``, whose workers
-must have this package installed and see the bag and output paths). A task is ``rsrivc_diagnose`` on that bag
-(:func:`.diagnose.diagnose_bag`: the same code and the same files, in ``DIR/<bag name>/``). A bag that fails is
-reported on stderr and in ``DIR/fleet_failures.json`` and skipped, never the whole run.
-
-``BAG_OR_DIR``: a rosbag2 directory, or a directory searched for bags (every folder holding a
-``metadata.yaml``, the output folder excluded). ``--params-file``: the node's params file for every bag, or a
-mapping file from bag glob to params file (YAML ``{"<glob>": "<params file>", ...}``, first match wins; globs are
-matched against the bag path as given, its absolute path and its name; relative params paths are relative to the
-mapping file). The bags of one params file, or of one glob of a mapping file, are one machine's recordings; with
-``--group-by folder`` the bags of one folder are (``fleet/<machine>/<recording>/``).
-
-Incremental (:mod:`.fleet_cache`): a bag whose content, params file and package are unchanged since an earlier run
-into the same ``--out`` (and whose ``DIR/<bag name>/`` is intact) is not diagnosed again, its stored result is
-reused; ``--recompute`` diagnoses every bag. A worker that dies mid-task (killed, out of memory) loses no result:
-the scheduler gives its task to another worker (up to ``distributed.scheduler.allowed-failures`` times, default 3).
-Workers of an external cluster diagnose about 20 % faster without dask's default ``MALLOC_TRIM_THRESHOLD_`` (see
-:data:`WORKER_CONFIG`): a dask config file (e.g. ``~/.config/dask/rsrivc_fleet.yaml``, or in ``$DASK_CONFIG``) with
-``distributed: {nanny: {pre-spawn-environ: {MALLOC_TRIM_THRESHOLD_: null}}}`` where the workers start.
-
-Fleet summary (docs/INTERFACE.md "Fleet"), recordings ordered by their first sample's time:
-
-* ``fleet.csv``: one row per bag and mode: the mode's level in that bag (median of its estimates over the
-  recording's settled part: after the estimator's start-up and settling, outside health holds and gaps, whether or
-  not the fault tests had learned a baseline; the final estimate when it never settled;
-  :func:`..core.trend.bag_level`), the learned baseline, the number of structural events and the bag's verdict;
-* ``fleet.json``: the drift findings across recordings (:mod:`..core.trend`), a list of
-  ``{"machine", "mode", "quantity", "direction", "first_bag", "change_percent"}``;
-* ``fleet.html``: each mode's trend across recordings, the drift tests, excluded and failed bags;
-  ``fleet_trend.json``: the same as data; ``fleet_failures.json``: the failed bags and why.
-
-Exit status: 0 when at least one bag was diagnosed (failed bags are reported, not fatal); 1 when every bag
-failed; 2 on bad arguments (one line on stderr; also when dask.distributed is not installed); 130/143 on
-SIGINT/SIGTERM (one line; the bags finished so far keep their folders, no fleet summary is written).
+Each bag is an independent task on ``dask.distributed`` (a ``LocalCluster`` of ``--workers`` single-threaded worker
+processes, default the CPUs this process may use, or the scheduler at ``--scheduler ADDR``): ``rsrivc_diagnose`` on
+that bag (:func:`.diagnose.diagnose_bag`, the same files in ``DIR/<bag name>/``). A bag that fails is reported on
+stderr and in ``DIR/fleet_failures.json`` and skipped; a worker that dies mid-task gives its task to another.
+``BAG_OR_DIR`` is a rosbag2 directory or a directory searched for them (the output folder excluded);
+``--params-file`` is one params file or a mapping from bag glob to params file (first match wins). Unchanged bags are
+not diagnosed again (:mod:`.fleet_cache`; ``--recompute``). Then each machine's recordings are compared
+(:mod:`..core.trend`): ``fleet.csv``, ``fleet.json`` (drift findings), ``fleet.html``, ``fleet_trend.json``.
+docs/fleet_drift.md says which bags are one machine, how a level and its drift are tested, and how to run an
+external cluster; the files and exit status (0, 1 every bag failed, 2 bad arguments, 130/143) are in
+docs/INTERFACE.md.
 """
 
 from __future__ import annotations
@@ -50,11 +26,13 @@ import time
 from collections.abc import Callable, Sequence
 from dataclasses import dataclass
 from pathlib import Path
-from typing import Any, NoReturn, TextIO
+from typing import Any, TextIO
 
 from ..core.vocabulary import BASELINE_KEYS, FINDING_KEYS, FLEET_HEADER, QUANTITIES, json_clean, num, one_line
 from ..process_exit import console_entry
 from .fleet_cache import CACHE_DIRNAME, ResultCache
+from .parser import OneLineParser
+from .progress import ProgressBar
 
 PROG = "rsrivc_fleet"
 DASK_HINT = ("dask.distributed is not installed; rsrivc_fleet needs the optional extra: "
@@ -65,14 +43,8 @@ class ArgError(ValueError):
     """Bad command-line arguments (exit status 2)."""
 
 
-class _Parser(argparse.ArgumentParser):
-    def error(self, message: str) -> NoReturn:  # one line instead of a usage dump
-        print(f"{PROG}: error: {message}", file=sys.stderr)
-        raise SystemExit(2)
-
-
 def _parser() -> argparse.ArgumentParser:
-    p = _Parser(prog=PROG, description="Diagnose many bags as independent tasks on dask.distributed and look for "
+    p = OneLineParser(prog=PROG, description="Diagnose many bags as independent tasks on dask.distributed and look for "
                 "drift across recordings.")
     p.add_argument("bags", nargs="+", metavar="BAG_OR_DIR", help="rosbag2 directories, or directories holding bags")
     p.add_argument("--params-file", required=True, help="the node's params YAML, or a mapping file bag glob -> params")
@@ -325,35 +297,6 @@ def _num(v: Any) -> float:
 
 
 # ------------------------------------------------------------------------------------------------- cluster
-class BagProgress:
-    """A one-line progress bar of finished bags on a stream (refreshed per finished bag)."""
-
-    def __init__(self, total: int, stream: TextIO, enabled: bool, width: int = 30) -> None:
-        self.total, self.stream, self.enabled, self.width = max(total, 1), stream, enabled, width
-        self.t_start = time.monotonic()
-
-    def update(self, done: int, failed: int) -> None:
-        if not self.enabled:
-            return
-        fill = int(round(done / self.total * self.width))
-        el = time.monotonic() - self.t_start
-        eta = el / done * (self.total - done) if done else math.nan
-        self.stream.write(f"\r{PROG}: [{'#' * fill}{'.' * (self.width - fill)}] {done}/{self.total} bags"
-                          f"{f' ({failed} failed)' if failed else ''}  {el:6.1f} s  ETA {eta:5.1f} s ")
-        self.stream.flush()
-
-    def clear(self) -> None:
-        """Erase the bar (before a message line)."""
-        if self.enabled:
-            self.stream.write("\r\033[K")
-            self.stream.flush()
-
-    def close(self) -> None:
-        if self.enabled:
-            self.stream.write("\n")
-            self.stream.flush()
-
-
 def default_workers() -> int:
     """Worker processes of the LocalCluster: the CPUs this process may use (affinity and cgroup quota)."""
     try:
@@ -435,9 +378,13 @@ def run_tasks(client: Any, tasks: Sequence[BagTask], stderr: TextIO, show: bool,
 
     futures = {client.submit(run_bag, t, key=f"rsrivc_fleet-{i}-{t.name}", pure=False, retries=0): t
                for i, t in enumerate(tasks)}
-    bar = BagProgress(len(tasks), stderr, show)
-    bar.update(0, 0)
-    results, failed = [], 0
+    results: list[dict[str, Any]] = []
+    failed = [0]
+
+    def describe(done: float, total: float, elapsed: float) -> str:
+        return f"{int(done)}/{len(tasks)} bags{f' ({failed[0]} failed)' if failed[0] else ''}  {elapsed:6.1f} s"
+    bar = ProgressBar(PROG, len(tasks), stderr, show, describe)
+    bar.update(0)
     try:
         for fut in as_completed(list(futures)):
             t = futures[fut]
@@ -446,12 +393,12 @@ def run_tasks(client: Any, tasks: Sequence[BagTask], stderr: TextIO, show: bool,
             except Exception as exc:  # noqa: BLE001 - the worker died (killed, out of memory): this bag failed
                 res = {"name": t.name, "bag": t.bag, "params_file": t.params_file, "ok": False, "warnings": [],
                        "error": f"task lost ({type(exc).__name__}: {one_line(exc)})"}
-            failed += not res["ok"]
+            failed[0] += not res["ok"]
             bar.clear()
             if on_done is not None:
                 on_done(res)
             results.append(res)
-            bar.update(len(results), failed)
+            bar.update(len(results))
     finally:
         bar.close()
         pending = [f for f in futures if not f.done()]

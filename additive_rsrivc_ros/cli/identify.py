@@ -23,6 +23,7 @@ from typing import TYPE_CHECKING, Any
 from ..core.vocabulary import BASELINE_KEYS, json_clean
 from ..process_exit import console_entry
 from .atomic import Interrupted, atomic_write_text, exit_code, interrupts, raise_if_interrupted, received
+from .parser import OneLineParser
 
 if TYPE_CHECKING:   # the numerical modules are imported inside the functions: SIGINT/SIGTERM handling comes first
     import numpy as np
@@ -40,7 +41,7 @@ def _cli_methods() -> tuple[str, ...]:
 
 
 def _parser() -> argparse.ArgumentParser:
-    ap = argparse.ArgumentParser(prog="rsrivc_identify", description=__doc__.split("\n\n")[0])
+    ap = OneLineParser(prog="rsrivc_identify", description=__doc__.split("\n\n")[0])
     ap.add_argument("bag", help="rosbag2 directory (mcap or sqlite3)")
     ap.add_argument("--params-file", required=True, help="params YAML of the monitor node")
     ap.add_argument("--out", required=True, help="output JSON file")

@@ -27,6 +27,7 @@ import numpy as np
 
 from ..process_exit import console_entry
 from ..signal_stop import SignalStop, StopFlag
+from .parser import OneLineParser
 
 if TYPE_CHECKING:
     from ..config import SignalConfig
@@ -333,7 +334,7 @@ def _msg_class(msgtype: str) -> Any:
 
 
 def _parser() -> argparse.ArgumentParser:
-    ap = argparse.ArgumentParser(prog=PROG, description="Publish a rosbag2 (mcap/sqlite3) over DDS at its "
+    ap = OneLineParser(prog=PROG, description="Publish a rosbag2 (mcap/sqlite3) over DDS at its "
                                  "recorded timing (raw CDR); a stand-in for 'ros2 bag play'.")
     ap.add_argument("bag", help="bag directory (with metadata.yaml) or a single .mcap/.db3 file")
     ap.add_argument("--rate", type=float, default=1.0, help="playback speed factor (default 1.0)")

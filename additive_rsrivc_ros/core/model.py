@@ -16,6 +16,7 @@ from __future__ import annotations
 
 from collections.abc import Sequence
 from dataclasses import dataclass
+from typing import Any
 
 import numpy as np
 
@@ -83,6 +84,20 @@ def guess_theta(natural_frequency_hz: float, damping_ratio: float, gain: float) 
     return theta_from_modal(natural_frequency_hz, damping_ratio, gain)
 
 
+def second_order_modal(a1: Any, a2: Any) -> tuple[Any, Any]:
+    """``(f_hz, zeta)`` of the denominator ``a2 p^2 + a1 p + 1`` (``a2 > 0``): ``omega = 1/sqrt(a2)`` rad/s, ``zeta =
+    a1 / (2 sqrt(a2))`` ([RA-SRIVC] eqs. 16-17). The one home of this arithmetic: scalars or arrays, and numba
+    compiles it into the report kernel (core/report_numbers.py)."""
+    sq = np.sqrt(a2)
+    return 1.0 / (TWO_PI * sq), a1 / (2.0 * sq)
+
+
+def second_order_modal_derivatives(a1: Any, a2: Any) -> tuple[Any, Any, Any]:
+    """``(df/da2, dzeta/da1, dzeta/da2)`` of :func:`second_order_modal` (``df/da1 = 0``; the delta method's Jacobian,
+    :func:`modal_jacobian`)."""
+    return -0.5 / TWO_PI * a2**-1.5, 0.5 / np.sqrt(a2), -0.25 * a1 * a2**-1.5
+
+
 def modal_from_theta(theta: np.ndarray, s: SubmodelStructure = SubmodelStructure()) -> np.ndarray:
     """``[natural_frequency_hz, damping_ratio, gain]`` of a submodel (NaN where a2 <= 0).
 
@@ -99,8 +114,8 @@ def modal_from_theta(theta: np.ndarray, s: SubmodelStructure = SubmodelStructure
     a1, a2, b0 = theta[0], theta[1], theta[s.n]
     if not a2 > 0.0:
         return np.array([np.nan, np.nan, b0])
-    sq = np.sqrt(a2)
-    return np.array([1.0 / (TWO_PI * sq), a1 / (2.0 * sq), b0])
+    f_hz, zeta = second_order_modal(a1, a2)
+    return np.array([f_hz, zeta, b0])
 
 
 def modal_jacobian(theta: np.ndarray, s: SubmodelStructure = SubmodelStructure()) -> np.ndarray:
@@ -114,9 +129,7 @@ def modal_jacobian(theta: np.ndarray, s: SubmodelStructure = SubmodelStructure()
     elif s.n >= 2:
         a1, a2 = theta[0], theta[1]
         if a2 > 0.0:
-            jac[0, 1] = -0.5 / TWO_PI * a2**-1.5
-            jac[1, 0] = 0.5 / np.sqrt(a2)
-            jac[1, 1] = -0.25 * a1 * a2**-1.5
+            jac[0, 1], jac[1, 0], jac[1, 1] = second_order_modal_derivatives(a1, a2)
         else:
             jac[:2, :2] = np.nan
     return jac

@@ -23,7 +23,7 @@ from . import kernel as kn
 from .estimator import EstimatorHealth, MonitorSettings
 from .model import SubmodelStructure, modal_from_theta, theta_from_modal
 from .params import EstimatorOptions, core_param
-from .report_numbers import PROBLEM_NAMES, closed_loop_state_matrix, report_numbers
+from .report_numbers import PROBLEM_NAMES, block_problems, closed_loop_state_matrix, report_numbers
 
 STATE_KEYS = ("kind", "lam", "muf", "cnum", "cden", "cfg_i", "cfg_f", "p0diag", "theta", "thf", "P", "S", "xs", "vin",
               "phi",
@@ -93,14 +93,9 @@ COVARIANCE_REL_TOL = 1e-9   # an eigenvalue below -this x the largest magnitude 
 def covariance_problem(cov: np.ndarray, rel_tol: float = COVARIANCE_REL_TOL) -> str:
     """``""`` for a usable covariance block, else ``"non-finite"`` or ``"indefinite"`` (an eigenvalue below
     ``-rel_tol`` times the largest magnitude; ``sqrt(max(var, 0))`` would turn it into a silent std of 0). The
-    per-report blocks are judged by the same rule in :func:`.report_numbers.report_numbers`."""
+    rule is :func:`.report_numbers.block_problems`, which judges the per-report blocks."""
     cov = np.asarray(cov, dtype=float)
-    if not np.isfinite(cov).all():
-        return "non-finite"
-    if cov.size == 0:
-        return ""
-    e = np.linalg.eigvalsh(0.5 * (cov + cov.T))       # ascending
-    return "indefinite" if e[0] < -rel_tol * max(abs(float(e[0])), abs(float(e[-1])), 1e-300) else ""
+    return PROBLEM_NAMES[int(block_problems(cov.reshape(1, *cov.shape), rel_tol)[0])]
 
 
 def stationary_sandwich(p: np.ndarray, lam: float) -> np.ndarray:
@@ -409,7 +404,7 @@ class RecursiveAdditiveSRIVC:
     def _blocks(self) -> _ReportBlocks:
         """:attr:`covariances`, :attr:`information_covariances`, their problems and the numbers a report publishes
         (:meth:`modal`, :meth:`information_relative_std`, :meth:`iv_condition`) for the current state, computed once
-        per state in one compiled pass (:func:`.report_numbers.report_numbers`): a report asks for them through
+        per state (:func:`.report_numbers.report_numbers`): a report asks for them through
         :meth:`modal` and :attr:`health`. The cache is keyed on the bytes of every array they are computed from
         (``theta, P, S`` and the residual variance accumulator), so no change of state, by whatever path, can serve
         stale numbers."""

@@ -1,13 +1,14 @@
-"""The recursive estimator's per-report numbers in one compiled pass, and its closed-loop state matrix.
+"""The recursive estimator's per-report numbers: one compiled pass and two batched LAPACK calls, and its closed-loop
+state matrix.
 
 Every report publishes, per mode, the modal values and their delta-method stds from the IV sandwich covariance
 ([RA-SRIVC] §4.2, ``RecursiveAdditiveSRIVC.covariances``), the covariance blocks' problems (a non-finite or indefinite
 block reports NaN std, never 0), the loss-of-excitation relative std from ``sigma^2 P_bar`` and the IV condition
-numbers. Done with numpy, these are some forty small-array calls per report (0.3 ms for K = 2, a tenth of a 60 s
-diagnosis); here they are one call. The arithmetic is that of :func:`.model.modal_from_theta`,
-:func:`.model.modal_std`, :func:`.recursive.covariance_problem` and ``np.linalg.cond``; eigenvalues and singular
-values of the (at most 3 x 3) blocks come from Jacobi rotations instead of LAPACK, so results agree with those
-to rounding (test/test_report_numbers.py), not bit for bit.
+numbers. Done per mode with numpy, these are some forty small-array calls per report (0.3 ms for K = 2, a tenth of a
+60 s diagnosis); here the arithmetic is one compiled call (the modal arithmetic :func:`.model.second_order_modal`
+inlined, :func:`.model.modal_std`), and the eigenvalues (:func:`block_problems`, the rule of
+:func:`.recursive.covariance_problem`) and singular values (the condition numbers) of the at most 3 x 3 blocks come
+from numpy's LAPACK, one call per block size for all modes.
 """
 
 from __future__ import annotations
@@ -18,127 +19,44 @@ import numpy as np
 
 from .compiled import kernel
 from .kernel import discretize_mode
+from .model import second_order_modal, second_order_modal_derivatives
 
 #: ``problem`` codes of :func:`report_numbers`, and their names (as :func:`.recursive.covariance_problem` gives)
 PROBLEM_NAMES = ("", "non-finite", "indefinite")
-_TWO_PI = 2.0 * math.pi
-_SWEEPS = 60     # Jacobi sweeps at most (a 3 x 3 block converges in about five)
+# the modal arithmetic's one home (core/model.py), inlined into the kernels
+_second_order_modal = kernel(inline=True)(second_order_modal)
+_second_order_modal_derivatives = kernel(inline=True)(second_order_modal_derivatives)
 
 
-@kernel
-def _rotation(app: float, aqq: float, apq: float) -> tuple[float, float]:
-    """``(c, s)`` of the Jacobi rotation that zeroes ``apq`` of the symmetric pair (Golub and Van Loan 8.5.2)."""
-    tau = (aqq - app) / (2.0 * apq)
-    if abs(tau) > 1e150:                 # tau^2 would overflow: t ~ 1/(2 tau)
-        t = 0.5 / tau
-    else:
-        t = (1.0 if tau >= 0.0 else -1.0) / (abs(tau) + math.sqrt(1.0 + tau * tau))
-    c = 1.0 / math.sqrt(1.0 + t * t)
-    return c, t * c
+def block_problems(blocks: np.ndarray, rel_tol: float) -> np.ndarray:
+    """Per square block of ``blocks`` (m, n, n): 0, 1 (non-finite) or 2 (indefinite: the smallest eigenvalue of the
+    symmetrized block below ``-rel_tol`` times the largest magnitude, :func:`.recursive.covariance_problem`)."""
+    out = np.zeros(blocks.shape[0], dtype=np.int64)
+    finite = np.isfinite(blocks).all(axis=(1, 2))
+    out[~finite] = 1
+    if finite.any() and blocks.shape[1]:
+        b = blocks[finite]
+        e = np.linalg.eigvalsh(0.5 * (b + b.transpose(0, 2, 1)))        # ascending
+        scale = np.maximum(np.maximum(np.abs(e[:, 0]), np.abs(e[:, -1])), 1e-300)
+        out[np.flatnonzero(finite)[e[:, 0] < -rel_tol * scale]] = 2
+    return out
 
 
-@kernel
-def _load_scaled(a: np.ndarray, n: int, m: np.ndarray) -> float:
-    """``m = a / max|a|`` on the leading ``n x n`` block; returns ``max|a|`` (1 for a zero block)."""
-    amax = 0.0
-    for p in range(n):
-        for q in range(n):
-            amax = max(amax, abs(a[p, q]))
-    if amax == 0.0:
-        amax = 1.0
-    for p in range(n):
-        for q in range(n):
-            m[p, q] = a[p, q] / amax
-    return amax
-
-
-@kernel
-def sym_eig_extremes(a: np.ndarray, n: int) -> tuple[float, float]:
-    """Smallest and largest eigenvalue of the symmetric leading ``n x n`` block of ``a`` (finite, n <= 3), by cyclic
-    Jacobi rotations (each zeroes one off-diagonal pair; the diagonal converges to the eigenvalues), on the block
-    scaled to a largest magnitude of 1 (its squares neither overflow nor underflow)."""
-    m = np.empty((3, 3))
-    amax = _load_scaled(a, n, m)
-    for _ in range(_SWEEPS):
-        off = 0.0
-        total = 0.0
-        for p in range(n):
-            for q in range(n):
-                total += m[p, q] * m[p, q]
-                if p != q:
-                    off += m[p, q] * m[p, q]
-        if off <= 1e-36 * total:
-            break
-        for p in range(n - 1):
-            for q in range(p + 1, n):
-                if m[p, q] == 0.0:
-                    continue
-                c, s = _rotation(m[p, p], m[q, q], m[p, q])
-                for k in range(n):
-                    mkp, mkq = m[k, p], m[k, q]
-                    m[k, p] = c * mkp - s * mkq
-                    m[k, q] = s * mkp + c * mkq
-                for k in range(n):
-                    mpk, mqk = m[p, k], m[q, k]
-                    m[p, k] = c * mpk - s * mqk
-                    m[q, k] = s * mpk + c * mqk
-    lo = m[0, 0]
-    hi = m[0, 0]
-    for p in range(1, n):
-        lo = min(lo, m[p, p])
-        hi = max(hi, m[p, p])
-    return lo * amax, hi * amax
-
-
-@kernel
-def singular_extremes(a: np.ndarray, n: int) -> tuple[float, float]:
-    """Largest and smallest singular value of the leading ``n x n`` block of ``a`` (finite, n <= 3), by one-sided
-    Jacobi (Hestenes): column pairs are rotated until orthogonal; the singular values are the column norms. The
-    block is scaled to a largest magnitude of 1 first."""
-    m = np.empty((3, 3))
-    amax = _load_scaled(a, n, m)
-    for _ in range(_SWEEPS):
-        rotated = False
-        for p in range(n - 1):
-            for q in range(p + 1, n):
-                alpha = 0.0
-                beta = 0.0
-                gamma = 0.0
-                for k in range(n):
-                    alpha += m[k, p] * m[k, p]
-                    beta += m[k, q] * m[k, q]
-                    gamma += m[k, p] * m[k, q]
-                if gamma == 0.0 or abs(gamma) <= 1e-17 * math.sqrt(alpha) * math.sqrt(beta):
-                    continue
-                rotated = True
-                c, s = _rotation(alpha, beta, gamma)
-                for k in range(n):
-                    mkp, mkq = m[k, p], m[k, q]
-                    m[k, p] = c * mkp - s * mkq
-                    m[k, q] = s * mkp + c * mkq
-        if not rotated:
-            break
-    hi = 0.0
-    lo = math.inf
-    for q in range(n):
-        norm = 0.0
-        for k in range(n):
-            norm += m[k, q] * m[k, q]
-        norm = math.sqrt(norm)
-        hi = max(hi, norm)
-        lo = min(lo, norm)
-    return hi * amax, lo * amax
-
-
-@kernel
-def _problem(c: np.ndarray, n: int, rel_tol: float) -> int:
-    """0, 1 (non-finite) or 2 (indefinite: the smallest eigenvalue below ``-rel_tol`` times the largest magnitude)."""
-    for p in range(n):
-        for q in range(n):
-            if not math.isfinite(c[p, q]):
-                return 1
-    lo, hi = sym_eig_extremes(c, n)
-    return 2 if lo < -rel_tol * max(abs(lo), abs(hi), 1e-300) else 0
+def condition_numbers(theta: np.ndarray, p: np.ndarray) -> np.ndarray:
+    """Condition numbers of the equilibrated IV matrices ``D R D`` (``D = |theta|``, ``R^-1 = P``) of modes with
+    ``theta`` (m, n) and ``p`` (m, n, n): NaN when not finite, infinite when singular (0/0 as well, as
+    ``np.linalg.cond`` says)."""
+    d = 1.0 / np.maximum(np.abs(theta), 1e-300)
+    with np.errstate(all="ignore"):
+        m = d[:, :, None] * p * d[:, None, :]
+    out = np.full(theta.shape[0], np.nan)
+    finite = np.isfinite(m).all(axis=(1, 2))
+    if finite.any():
+        sv = np.linalg.svd(m[finite], compute_uv=False)
+        with np.errstate(all="ignore"):
+            c = sv[:, 0] / sv[:, -1]
+        out[finite] = np.where(np.isnan(c), np.inf, c)
+    return out
 
 
 @kernel
@@ -147,8 +65,8 @@ def _modal_values(kind: int, th: np.ndarray, out: np.ndarray) -> None:
     if kind != 0:
         out[0], out[1], out[2] = 0.0, 0.0, th[0]
     elif th[1] > 0.0:
-        sq = math.sqrt(th[1])
-        out[0], out[1], out[2] = 1.0 / (_TWO_PI * sq), th[0] / (2.0 * sq), th[2]
+        f_hz, zeta = _second_order_modal(th[0], th[1])
+        out[0], out[1], out[2] = f_hz, zeta, th[2]
     else:
         out[0], out[1], out[2] = math.nan, math.nan, th[2]
 
@@ -159,9 +77,7 @@ def _modal_stds(kind: int, th: np.ndarray, c: np.ndarray, out: np.ndarray) -> No
     if kind != 0:
         var_f, var_z, var_g = 0.0, 0.0, c[0, 0]
     elif th[1] > 0.0:
-        a1, a2 = th[0], th[1]
-        jf = -0.5 / _TWO_PI * a2 ** -1.5          # df/da2
-        jz1, jz2 = 0.5 / math.sqrt(a2), -0.25 * a1 * a2 ** -1.5    # dzeta/da1, dzeta/da2
+        jf, jz1, jz2 = _second_order_modal_derivatives(th[0], th[1])   # df/da2, dzeta/da1, dzeta/da2
         var_f = jf * c[1, 1] * jf
         var_z = jz1 * (c[0, 0] * jz1 + c[0, 1] * jz2) + jz2 * (c[1, 0] * jz1 + c[1, 1] * jz2)
         var_g = c[2, 2]
@@ -215,22 +131,26 @@ def _relative_std(kind: int, values: np.ndarray, stds: np.ndarray) -> float:
 
 
 @kernel
-def _condition(th: np.ndarray, p: np.ndarray, nt: int) -> float:
-    """Condition number of the equilibrated IV matrix ``D R D`` (``D = |theta|``, ``R^-1 = P``): NaN when it is not
-    finite, infinite when singular (0/0 as well, as ``np.linalg.cond`` says)."""
-    m = np.empty((3, 3))
-    for a in range(nt):
-        for b in range(nt):
-            m[a, b] = p[a, b] / max(abs(th[a]), 1e-300) / max(abs(th[b]), 1e-300)
-            if not math.isfinite(m[a, b]):
-                return math.nan
-    hi, lo = singular_extremes(m, nt)
-    if lo > 0.0:
-        return hi / lo
-    return math.inf
+def _report_kernel(kind: np.ndarray, theta: np.ndarray, P: np.ndarray, S: np.ndarray, sig2: float, cov: np.ndarray,
+                   info: np.ndarray, modal: np.ndarray, info_rel: np.ndarray) -> None:
+    """The compiled part of :func:`report_numbers`: ``cov``, ``info``, ``modal`` (values and stds) and ``info_rel``
+    of every mode, whatever the blocks' problems."""
+    scale = sig2 * 0.5
+    stds = np.empty(3)
+    for i in range(kind.shape[0]):
+        k = kind[i]
+        nt = 3 if k == 0 else 1
+        nk = 3 if k == 0 else 1 + k
+        _sandwich(P[i], S[i], nk, nt, scale, cov[i])
+        for a in range(nt):
+            for b in range(nt):
+                info[i, a, b] = scale * (P[i, a, b] + P[i, b, a])
+        _modal_values(k, theta[i], modal[i, :3])
+        _modal_stds(k, theta[i], cov[i], modal[i, 3:])
+        _modal_stds(k, theta[i], info[i], stds)
+        info_rel[i] = _relative_std(k, modal[i, :3], stds)
 
 
-@kernel
 def report_numbers(kind: np.ndarray, theta: np.ndarray, P: np.ndarray, S: np.ndarray, sig2: float, rel_tol: float,
                    cov: np.ndarray, info: np.ndarray, problem: np.ndarray, info_problem: np.ndarray,
                    modal: np.ndarray, info_rel: np.ndarray, cond: np.ndarray) -> None:
@@ -244,27 +164,16 @@ def report_numbers(kind: np.ndarray, theta: np.ndarray, P: np.ndarray, S: np.nda
     - ``info_rel[i]``: the larger relative std of frequency and gain from ``info[i]`` (NaN when unusable);
     - ``cond[i]``: the IV condition number of the mode (NaN when its equilibrated matrix is not finite).
     """
-    scale = sig2 * 0.5
-    stds = np.empty(3)
-    for i in range(kind.shape[0]):
-        k = kind[i]
-        nt = 3 if k == 0 else 1
-        nk = 3 if k == 0 else 1 + k
-        _sandwich(P[i], S[i], nk, nt, scale, cov[i])
-        for a in range(nt):
-            for b in range(nt):
-                info[i, a, b] = scale * (P[i, a, b] + P[i, b, a])
-        problem[i] = _problem(cov[i], nt, rel_tol)
-        info_problem[i] = _problem(info[i], nt, rel_tol)
-        _modal_values(k, theta[i], modal[i, :3])
-        modal[i, 3:] = math.nan
-        if problem[i] == 0:
-            _modal_stds(k, theta[i], cov[i], modal[i, 3:])
-        info_rel[i] = math.nan
-        if info_problem[i] == 0:
-            _modal_stds(k, theta[i], info[i], stds)
-            info_rel[i] = _relative_std(k, modal[i, :3], stds)
-        cond[i] = _condition(theta[i], P[i], nt)
+    _report_kernel(kind, theta, P, S, sig2, cov, info, modal, info_rel)
+    second = np.asarray(kind) == 0
+    for n, sel in ((3, second), (1, ~second)):
+        idx = np.flatnonzero(sel)
+        if idx.size:
+            both = block_problems(np.concatenate((cov[idx, :n, :n], info[idx, :n, :n])), rel_tol)
+            problem[idx], info_problem[idx] = both[:idx.size], both[idx.size:]
+            cond[idx] = condition_numbers(theta[idx, :n], P[idx, :n, :n])
+    modal[problem != 0, 3:] = math.nan
+    info_rel[info_problem != 0] = math.nan
 
 
 @kernel

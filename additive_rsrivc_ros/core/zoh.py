@@ -238,8 +238,8 @@ def _scaled_companion_zoh(a: np.ndarray, b: np.ndarray, h: float) -> tuple[np.nd
 def zoh_matrices(a: np.ndarray, b: np.ndarray, h: float) -> tuple[np.ndarray, np.ndarray]:
     """Exact ZOH of ``x' = a x + b v``: second-order (scaled) companion forms with an admissible ``1/A`` by
     :func:`second_order_zoh` (finite and accurate however stiff), any other system by the augmented matrix
-    exponential (:func:`.matrix_exponential.expm`)."""
-    from .matrix_exponential import expm
+    exponential (``scipy.linalg.expm``, imported on the first such system)."""
+    from scipy.linalg import expm
 
     a = np.atleast_2d(np.asarray(a, dtype=float))
     b = np.asarray(b, dtype=float).reshape(a.shape[0], -1)

@@ -9,7 +9,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from ..core.model import SubmodelStructure, theta_from_modal
+from ..core.model import SubmodelStructure, second_order_modal, theta_from_modal
 from ..core.recursive import RecursiveAdditiveSRIVC
 from .plants import BEAM_MODES, PAPER_MODES, PAPER_PID, beam_controller
 from .simulate import ModalChange, simulate_modes
@@ -59,8 +59,8 @@ def run_paper(seed: int, *, closed: bool = True, duration: float = 1000.0, sprea
     th_hat = np.concatenate((np.repeat(tr[:1], n0, axis=0), tr), axis=0)  # (n, K, 3)
     a1, a2, b0 = th_hat[..., 0], th_hat[..., 1], th_hat[..., 2]
     with np.errstate(invalid="ignore", divide="ignore"):
-        w_hat = 1.0 / np.sqrt(a2)
-        z_hat = a1 / (2.0 * np.sqrt(a2))
+        f_hat, z_hat = second_order_modal(a1, a2)
+        w_hat = 2 * np.pi * f_hat
     truth = sim.modal  # (K, n, 3): f_hz, zeta, gain
     sel = (t >= window[0]) & (t <= window[1])
     err = np.empty((3, 3))

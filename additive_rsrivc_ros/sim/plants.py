@@ -12,7 +12,7 @@ import math
 import numpy as np
 
 from ..core.controller import DiscreteController
-from ..core.model import SubmodelStructure
+from ..core.model import SubmodelStructure, second_order_modal
 from .simulate import PlantMode
 
 #: [RA-SRIVC] §5 / [A-SRIVC] §5.2 discrete PID ``(0.02329 q^2 - 0.02058 q + 0.00454)/(q^2 - q)`` (DESIGN.md erratum 1)
@@ -40,7 +40,8 @@ BEAM_THETAS = [np.array([a1, a2, b0]) for a2, a1, b0 in _BEAM_A2_A1_B0]
 
 def _beam_mode(a2: float, a1: float, b0: float) -> PlantMode:
     """A mode from the [A-SRIVC] §6 estimates ``[a2, a1, b0]`` (a2 = 0.0024 is 3.25 Hz)."""
-    return PlantMode(1.0 / (2 * math.pi * math.sqrt(a2)), a1 / (2 * math.sqrt(a2)), b0)
+    f_hz, zeta = second_order_modal(a1, a2)
+    return PlantMode(float(f_hz), float(zeta), b0)
 
 
 #: the beam's four modes (modes 3-4 are not estimated with K = 2)

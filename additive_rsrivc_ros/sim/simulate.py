@@ -18,7 +18,7 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from ..core.controller import DiscreteController
-from ..core.model import TWO_PI, SubmodelStructure
+from ..core.model import TWO_PI, SubmodelStructure, second_order_modal
 from ..core.plant import check_drive, pack_thetas, simulate_kernel
 from ..core.vocabulary import SIM_QUANTITIES
 
@@ -190,7 +190,7 @@ def modal_from_thetas(thetas: Sequence[np.ndarray], structures: Sequence[Submode
             out.append(np.column_stack((np.zeros(len(th)), np.zeros(len(th)), th[:, 0])))
         else:
             a1, a2, b0 = th[:, 0], th[:, 1], th[:, 2]
-            out.append(np.column_stack((1.0 / (TWO_PI * np.sqrt(a2)), a1 / (2.0 * np.sqrt(a2)), b0)))
+            out.append(np.column_stack((*second_order_modal(a1, a2), b0)))
     return np.stack(out)
 
 

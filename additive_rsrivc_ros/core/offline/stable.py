@@ -21,7 +21,6 @@ from typing import Any
 import numpy as np
 
 from ..controller import DiscreteController
-from ..distributions import f_quantile
 from ..filters import (
     ClosedLoopUnstableError,
     closed_loop_radius,
@@ -749,7 +748,9 @@ def initial_transient_test(eps: np.ndarray, thetas, structures, h: float, window
     n_indep = (n - window) // window
     starts = np.linspace(window, n - window, min(16, max(n_indep, 1) * 4)).astype(int)
     null = np.mean([energy(eps[s0: s0 + window]) for s0 in starts])
-    threshold = f_quantile(float(d), float(d * n_indep), 1.0 - false_alarm)   # F(d, d n_indep)
+    from scipy.special import fdtri  # lazy: the node and the tools start without scipy.special
+
+    threshold = float(fdtri(float(d), float(d * n_indep), 1.0 - false_alarm))   # quantile of F(d, d n_indep)
     stat = energy(eps[:window]) / null if null > 0 else np.inf
     return TransientTest(float(stat), threshold, window, bool(stat > threshold))
 
