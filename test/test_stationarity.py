@@ -47,8 +47,8 @@ def test_stationary_records_are_called_stationary_at_most_alpha_of_the_time():
     rng = np.random.default_rng(5)
     runs, false = 2000, 0
     for _ in range(runs):
-        st, part, _ = identify_segments(_fake_fit(rng, 1e-3), 120_000, FAKE_RATE, [theta_from_modal(*m) for m in TRUE],
-                                        STRUCT, NO_RELEVANCE)
+        st, part, _ = identify_segments(_fake_fit(rng, 1e-3), 120_000, FAKE_RATE,
+                                        [theta_from_modal(*m) for m in TRUE], STRUCT, NO_RELEVANCE)
         false += st.stationary is False
     bound = ALPHA * runs + 3.1 * np.sqrt(ALPHA * runs)
     assert ALPHA / 4 * runs <= false <= bound, false
@@ -62,8 +62,8 @@ def test_a_change_is_found_with_its_size_where_it_happened():
     def shift(a, b):
         return step if a >= 60_000 else 0.0
 
-    st, part, _ = identify_segments(_fake_fit(rng, 1e-4, shift), 120_000, FAKE_RATE, [theta_from_modal(*m) for m in TRUE],
-                                    STRUCT, (0.02, 0.2, 0.1))
+    st, part, _ = identify_segments(_fake_fit(rng, 1e-4, shift), 120_000, FAKE_RATE,
+                                    [theta_from_modal(*m) for m in TRUE], STRUCT, (0.02, 0.2, 0.1))
     assert st.stationary is False and [(c.mode, c.quantity) for c in st.changes] == [(3, "natural_frequency")]
     c = st.changes[0]
     assert c.at_s == 60.0 and abs(c.relative_change + 0.03) < 5 * 1.5e-4
