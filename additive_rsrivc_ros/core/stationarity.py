@@ -105,10 +105,12 @@ class Stationarity:
     z_crit: float = float("nan")
     comparisons: int = 0
     chosen: int = -1              # index into runs of the part reported as the result
+    segment_s: float = float("nan")   # a change lies within one segment length of its at_s
 
     def to_dict(self) -> dict[str, Any]:
         return {"stationary": self.stationary, "tested": self.stationary is not None, "message": self.message,
                 "alpha": ALPHA, "z_crit": self.z_crit if self.comparisons else None, "comparisons": self.comparisons,
+                "segment_s": self.segment_s if self.segments else None,
                 "changes": [c.to_dict() for c in self.changes], "segments": [s.to_dict() for s in self.segments],
                 "parts": [p.to_dict() for p in self.runs], "result_part": self.chosen if self.runs else None}
 
@@ -206,7 +208,8 @@ def identify_segments(fit: SegmentFit, n: int, rate_hz: float, thetas0: Sequence
         return Stationarity(None, f"stationarity not tested: only {len(usable)} of {len(segments)} segment fit(s) "
                             "usable", segments), None, list(thetas0)
     groups, changes = _runs(segments, z_crit, min_change)
-    st = Stationarity(len(groups) == 1, "", segments, [], changes, z_crit, comparisons)
+    st = Stationarity(len(groups) == 1, "", segments, [], changes, z_crit, comparisons,
+                      segment_s=(bounds[0][1] - bounds[0][0]) / rate_hz)
     if st.stationary:
         st.message = (f"stationary: {len(usable)} segments of {(bounds[0][1] - bounds[0][0]) / rate_hz:.4g} s agree "
                       f"(no modal quantity differs by more than {z_crit:.2f} sigma and the relevant change)")
