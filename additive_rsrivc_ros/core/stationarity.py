@@ -212,7 +212,7 @@ def identify_segments(fit: SegmentFit, n: int, rate_hz: float, thetas0: Sequence
                       segment_s=(bounds[0][1] - bounds[0][0]) / rate_hz)
     if st.stationary:
         st.message = (f"stationary: {len(usable)} segments of {(bounds[0][1] - bounds[0][0]) / rate_hz:.4g} s agree "
-                      f"(no modal quantity differs by more than {z_crit:.2f} sigma and the relevant change)")
+                      f"(no modal quantity differs both by more than {z_crit:.2f} sigma and by its relevant change)")
         return st, None, _mean_thetas(usable)
     for g in groups:
         a, b = g[0].a, g[-1].b
