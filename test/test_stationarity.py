@@ -96,7 +96,11 @@ def test_split_pairs_are_opposite_gains_within_the_bandwidth():
 
 
 # ------------------------------------------------------------------------------------- real records, rsrivc_identify
-def _bag(tmp_path, seed, duration, changes=(), glitch=None):
+GUESSES = ("    modes:\n      natural_frequency_hz: [8.2, 61.0, 72.0]\n      damping_ratio: [0.06, 0.025, 0.025]\n"
+           "      gain: [0.9, 0.11, 0.07]\n      memory_s: [5.0, 5.0, 5.0]\n")
+
+
+def _bag(tmp_path, seed, duration, changes=(), glitch=None, guesses=False):
     sim = close_pair_record(seed, duration, tuple(changes), rate_hz=RATE)
     y = sim.y.copy()
     if glitch is not None:      # (start_s, length_s, size): an output step the controller also sees no more of
@@ -104,12 +108,15 @@ def _bag(tmp_path, seed, duration, changes=(), glitch=None):
         y[a:a + n] += glitch[2]
     bag = write_bag(tmp_path / f"bag{seed}", RATE, sim.u, y, sim.r, truth_modal=sim.modal)
     params = tmp_path / "params.yaml"
-    params.write_text(close_pair_params_yaml(rate_hz=RATE))
+    text = close_pair_params_yaml(rate_hz=RATE)
+    params.write_text(text.replace("    modes:\n      memory_s: [5.0]\n", GUESSES) if guesses else text)
     return str(bag), str(params)
 
 
 def _identify(bag, params, out, *extra, modes="auto"):
-    assert identify.main([bag, "--params-file", params, "--out", str(out), "--modes", modes, *extra]) == 0
+    """``modes`` None: from the params file's guesses (no mode finding)."""
+    argv = [bag, "--params-file", params, "--out", str(out), *extra] + ([] if modes is None else ["--modes", modes])
+    assert identify.main(argv) == 0
     return json.loads(out.read_text())
 
 
@@ -152,14 +159,16 @@ def test_the_range_picks_either_part_in_the_records_time(changed, tmp_path):
 
 @pytest.mark.parametrize("seed", [11, 12])
 def test_a_stationary_record_is_called_stationary(tmp_path, seed):
-    doc = _identify(*_bag(tmp_path, seed, 120.0), tmp_path / "id.json")
+    """From the params file's guesses (a few % off); the changed record above found its modes."""
+    doc = _identify(*_bag(tmp_path, seed, 120.0, guesses=True), tmp_path / "id.json", modes=None)
     assert doc["stationary"] is True, doc["stationarity"]["message"]
     assert doc["fitted_s"] == pytest.approx([0.0, 120.0]) and doc["converged"]
     assert all(_within(doc, i + 1, m.natural_frequency_hz) for i, m in enumerate(CLOSE_PAIR_MODES))
 
 
 def test_a_gain_only_change_is_found_as_a_gain_change(tmp_path):
-    doc = _identify(*_bag(tmp_path, 21, 120.0, [ModalChange(1, "gain", -0.25, 60.0)]), tmp_path / "id.json")
+    doc = _identify(*_bag(tmp_path, 21, 120.0, [ModalChange(1, "gain", -0.25, 60.0)], guesses=True),
+                    tmp_path / "id.json", modes=None)
     assert doc["stationary"] is False
     ch = doc["stationarity"]["changes"]
     assert (2, "gain") in [(c["mode"], c["quantity"]) for c in ch]
@@ -171,5 +180,6 @@ def test_a_gain_only_change_is_found_as_a_gain_change(tmp_path):
 def test_a_short_glitch_is_no_change_of_the_plant(tmp_path):
     """Half a second of output offset (a sensor glitch the loop reacts to) inside one segment: the segment's estimate
     moves, but not by a relevant change: the record is still stationary."""
-    doc = _identify(*_bag(tmp_path, 31, 120.0, glitch=(70.0, 0.5, 0.05)), tmp_path / "id.json")
+    doc = _identify(*_bag(tmp_path, 31, 120.0, glitch=(70.0, 0.5, 0.05), guesses=True), tmp_path / "id.json",
+                    modes=None)
     assert doc["stationary"] is True, doc["stationarity"]["message"]
