@@ -14,6 +14,8 @@ should be stationary in every seed (Bonferroni: at most 1 % of records otherwise
 from __future__ import annotations
 
 import argparse
+import contextlib
+import io
 import json
 import tempfile
 from pathlib import Path
@@ -67,7 +69,8 @@ def main() -> None:
         for seed in range(a.seeds):
             bag, params, extra = _record(case, seed, a.duration, work)
             out = work / f"{case}_{seed}.json"
-            code = identify.main([str(bag), "--params-file", str(params), "--out", str(out), *extra])
+            with contextlib.redirect_stdout(io.StringIO()):      # the table only
+                code = identify.main([str(bag), "--params-file", str(params), "--out", str(out), *extra])
             if code != 0:
                 print(f"{case:22s} {seed:4d}  exit {code}")
                 continue
