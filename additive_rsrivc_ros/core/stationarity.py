@@ -1,15 +1,16 @@
 """Is an offline record stationary? Fit its consecutive segments, compare them, fit the stationary parts separately.
 
-A record whose plant changed part-way (a structural change, a retuned machine) has no single model: one fit over all
-of it compromises between the parts, and with a close pair of modes it can split a mode in two with opposite gains.
-:func:`identify_segments` cuts the record into ``M`` equal segments of at least :data:`MIN_SEGMENT_S` (``M`` at most
-:data:`MAX_SEGMENTS`), fits each (its filters warmed up on the samples before it, so the segments' estimates are
-independent: their normal equations share no sample), and grows stationary runs from the first segment: a segment
-joins the current run unless one of its modal quantities (natural frequency, damping, gain) differs from the run's
-inverse-variance mean by more than ``z_crit`` standard deviations of the difference AND by more than the relevant
-change ``faults.min_change.*``. ``z_crit`` is the two-sided normal quantile at ``alpha / (2 T)`` with ``T`` the number
-of comparisons (Bonferroni: a stationary record is called non-stationary with probability at most ``alpha``). Each run
-is then fitted on its own samples, started from its segments' mean. A record shorter than two segments is not tested.
+A record whose plant changed part-way has no single model: one fit over all of it compromises between the parts, and
+with a close pair of modes it can split a mode in two with opposite gains. :func:`identify_segments` cuts the record
+into at most :data:`MAX_SEGMENTS` equal segments of at least :data:`MIN_SEGMENT_S`, fits each (filters warmed up on
+the samples before it: the segments' estimates are independent) and grows stationary runs from the first segment: a
+segment joins the run unless a modal quantity (frequency, damping, gain) differs from the run's inverse-variance
+mean by more than ``z_crit`` stds of the difference AND by the relevant change ``faults.min_change.*`` (the stds alone
+are too small where coloured noise or a fit's bias dominates: healthy open-loop multisine and rigid-body records
+reach 8 and 16 sigma between segments, far below a relevant change; scripts/study_stationarity.py). ``z_crit``: the
+two-sided normal quantile at ``alpha / (2 T)``, ``T`` comparisons (Bonferroni: a stationary record is called
+non-stationary with probability at most ``alpha``). Each run is then fitted on its own samples from its segments'
+mean. A record shorter than two segments is not tested.
 """
 
 from __future__ import annotations
@@ -141,8 +142,11 @@ def _pooled(parts: Sequence[Part]) -> tuple[np.ndarray, np.ndarray]:
     """Inverse-variance mean of the parts' modal values and its std, ``(K, 3)`` each."""
     vals = np.array([p.result.modal for p in parts if p.result is not None])
     std = np.array([p.result.modal_std for p in parts if p.result is not None])
-    w = 1.0 / np.maximum(std, 1e-300) ** 2
-    return (w * vals).sum(axis=0) / w.sum(axis=0), 1.0 / np.sqrt(w.sum(axis=0))
+    with np.errstate(divide="ignore", invalid="ignore"):   # a quantity without a std (rigid body's 0 Hz): untested
+        w = np.where(np.isfinite(std) & (std > 0), 1.0 / std**2, 0.0)
+        tot = w.sum(axis=0)
+        mean = np.where(tot > 0, (w * np.nan_to_num(vals)).sum(axis=0) / tot, vals.mean(axis=0))
+        return mean, np.where(tot > 0, 1.0 / np.sqrt(tot), np.nan)
 
 
 def _differences(run: Sequence[Part], seg: Part, z_crit: float, min_change: Sequence[float]) -> list[Change]:
