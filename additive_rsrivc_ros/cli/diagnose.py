@@ -141,7 +141,7 @@ def run_pipeline(sig: Signals, cfg: MonitorConfig, *, chunk_s: float = 1.0, prog
                 events[(e.mode, e.quantity, e.alarm_time_s)] = e
         raise_if_interrupted()       # an interrupt that landed in a C callback (numba compilation) stops here
         if progress is not None:
-            progress.update(float(sig.t[b - 1]))
+            progress.update(float(sig.t[b - 1] - sig.t[0]))     # a range: from its start
     for rep in pipe.flush():       # the end of the record: samples the stream aligner held back
         reports.append(rep)
         for e in (*rep.events_opened, *rep.events_closed):
@@ -307,7 +307,7 @@ def diagnose(args: argparse.Namespace, stdout: TextIO, stderr: TextIO, state: di
     duration = float(sig.t[-1]) + 1.0 / cfg.loop_rate_hz if n else 0.0   # a range: its end, in the record's time
     t_first = float(sig.t[0]) if sig.time_range and n else 0.0
     show = args.progress if args.progress is not None else stderr.isatty()
-    bar = Progress(float(sig.t[-1]) if n else 0.0, stderr, bool(show))
+    bar = Progress(float(sig.t[-1] - sig.t[0]) if n else 0.0, stderr, bool(show))
     pipe = MonitorPipeline(cfg)   # no guesses: it finds the modes on the first max(init_duration_s, 2 s) itself
     anchor_pipeline(pipe, sig)    # a range: report times stay the record's
     reports, ev_objs = run_pipeline(sig, cfg, chunk_s=args.chunk_s, progress=bar, pipeline=pipe)
