@@ -71,6 +71,22 @@ def test_a_change_is_found_with_its_size_where_it_happened():
     assert part is st.runs[1]       # equally long parts: the later one, the plant as it is now
 
 
+def test_parts_that_cannot_be_fitted_are_never_reported_as_the_result():
+    """The segments differ, but the parts' own fits fail (e.g. a start the loop of a part does not stabilize)."""
+    rng = np.random.default_rng(8)
+    step = np.zeros((3, 3))
+    step[2, 0] = -0.03
+    good = _fake_fit(rng, 1e-4, lambda a, b: step if a >= 60_000 else 0.0)
+
+    def fit(a, b, warm, start):
+        return good(a, b, warm, start) if b - a <= 20_000 else None     # segments only
+
+    st, part, _ = identify_segments(fit, 120_000, FAKE_RATE, [theta_from_modal(*m) for m in TRUE], STRUCT,
+                                    (0.02, 0.2, 0.1))
+    assert st.stationary is False and part is None and st.chosen == -1
+    assert "no stationary part could be fitted" in st.message and st.to_dict()["result_part"] is None
+
+
 def test_an_irrelevant_but_significant_difference_is_no_change():
     """1 % of frequency is hundreds of sigma here, but below faults.min_change.natural_frequency (2 %)."""
     rng = np.random.default_rng(7)

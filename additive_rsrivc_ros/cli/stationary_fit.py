@@ -71,15 +71,14 @@ def fit_record(sig: Signals, k: np.ndarray, cfg: MonitorConfig, modes: int | Non
     found = None
     if cfg.auto_modes or modes is not None:
         cfg, found = _find_modes(sig, k, cfg, modes)
-    kw = dict(r=None, controller=cfg.controller if closed else None, input_delay=cfg.input_delay_samples,
-              method=method, max_iterations=iters, tol=tol, projection=cfg.estimator.stability_projection)
+    kw = dict(controller=cfg.controller if closed else None, input_delay=cfg.input_delay_samples, method=method,
+              max_iterations=iters, tol=tol, projection=cfg.estimator.stability_projection)
 
     def fit(a: int, b: int, warm: int | None, start: Any) -> IdentificationResult | None:
         sl = k[(a - (warm or 0)) if a else 0:b]
         try:
-            return identify(sig.u[sl], sig.y[sl], rate, cfg.structures, start, **{**kw, "r": None if r is None
-                                                                               else r[sl]},
-                            warmup_s=None if warm is None else warm / rate)
+            return identify(sig.u[sl], sig.y[sl], rate, cfg.structures, start, r=None if r is None else r[sl],
+                            warmup_s=None if warm is None else warm / rate, **kw)
         except ValueError:       # e.g. the start does not stabilize this part's loop: the part is not usable
             return None
         finally:
@@ -92,7 +91,7 @@ def fit_record(sig: Signals, k: np.ndarray, cfg: MonitorConfig, modes: int | Non
     if part is not None and part.result is not None:
         res, index = part.result, k[part.a:part.b]
     else:
-        res = identify(sig.u[k], sig.y[k], rate, cfg.structures, start, **{**kw, "r": None if r is None else r[k]})
+        res = identify(sig.u[k], sig.y[k], rate, cfg.structures, start, r=None if r is None else r[k], **kw)
         index = k
     span = [float(sig.t[index[0]]), float(sig.t[index[-1]]) + 1.0 / rate]
     return RecordFit(cfg, res, index, found, st, split_pairs(res), span)
@@ -104,7 +103,7 @@ def add_stationarity(doc: dict[str, Any], fitted: RecordFit) -> None:
     st = fitted.stationarity
     doc["stationary"] = st.stationary
     doc["stationarity"] = st.to_dict()
-    part = st.runs[st.chosen] if st.runs else None
+    part = st.runs[st.chosen] if st.runs and st.chosen >= 0 else None
     doc["fitted_s"] = [part.start_s, part.end_s] if part is not None else fitted.span_s
     if fitted.split:
         m = fitted.result.modal

@@ -113,7 +113,7 @@ class Stationarity:
                 "alpha": ALPHA, "z_crit": self.z_crit if self.comparisons else None, "comparisons": self.comparisons,
                 "segment_s": self.segment_s if self.segments else None,
                 "changes": [c.to_dict() for c in self.changes], "segments": [s.to_dict() for s in self.segments],
-                "parts": [p.to_dict() for p in self.runs], "result_part": self.chosen if self.runs else None}
+                "parts": [p.to_dict() for p in self.runs], "result_part": self.chosen if self.chosen >= 0 else None}
 
 
 def warmup_s(thetas: Sequence[np.ndarray], structures: Sequence[SubmodelStructure]) -> float:
@@ -222,13 +222,16 @@ def identify_segments(fit: SegmentFit, n: int, rate_hz: float, thetas0: Sequence
         a, b = g[0].a, g[-1].b
         res = fit(a, b, None if a == 0 else min(w, a), _mean_thetas(g))
         st.runs.append(Part(a, b, g[0].start_s, g[-1].end_s, res))
-    lengths = [p.b - p.a for p in st.runs]
-    st.chosen = max(range(len(st.runs)), key=lambda j: (lengths[j], j))
+    fitted = [j for j, p in enumerate(st.runs) if p.result is not None]
+    what = f"NOT stationary: {'; '.join(c.text() for c in changes[:4])}" + (
+        f" and {len(changes) - 4} more" if len(changes) > 4 else "")
+    if not fitted:
+        st.message = f"{what}; no stationary part could be fitted: the whole record is (a compromise)"
+        return st, None, list(thetas0)
+    st.chosen = max(fitted, key=lambda j: (st.runs[j].b - st.runs[j].a, j))
     part = st.runs[st.chosen]
-    st.message = (f"NOT stationary: {'; '.join(c.text() for c in changes[:4])}"
-                  + (f" and {len(changes) - 4} more" if len(changes) > 4 else "")
-                  + f"; its {len(st.runs)} stationary parts fitted separately, the result is the part "
-                    f"[{part.start_s:.4g}, {part.end_s:.4g}) s (--start/--end choose another)")
+    st.message = (f"{what}; its {len(st.runs)} stationary parts fitted separately, the result is the part "
+                  f"[{part.start_s:.4g}, {part.end_s:.4g}) s (--start/--end choose another)")
     return st, part, list(thetas0)
 
 
