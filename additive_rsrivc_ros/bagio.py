@@ -12,6 +12,7 @@ use and raises :class:`BagError` with a one-line reason.
 from __future__ import annotations
 
 import functools
+import itertools
 import json
 import math
 import os
@@ -37,6 +38,7 @@ from rosbags.rosbag2.enums import CompressionFormat, CompressionMode, StoragePlu
 from .config import MonitorConfig
 from .core.estimator import SignalSettings
 from .core.vocabulary import one_line
+from .timerange import ResolvedRange, TimeRange
 
 FLOAT64 = "std_msgs/msg/Float64"
 MULTIARRAY = "std_msgs/msg/Float64MultiArray"
@@ -96,6 +98,7 @@ class Signals:
     block: dict[str, int] = field(default_factory=dict)   # block-topic bags: the block counters (ros/blocks.py)
     storage: str = ""
     metadata: dict[str, str] = field(default_factory=dict)
+    time_range: dict[str, Any] | None = None   # the range read (timerange.ResolvedRange.to_dict()); None: all
 
     @property
     def n(self) -> int:
@@ -346,7 +349,8 @@ def _decode_joint(raw: list[bytes], sig: Any, topic: str, bag: Path) -> tuple[np
     return vals, stamps
 
 
-def _read_fast(path: Path, sigcfg: dict, topic_to_sig: dict, extra: list, by_topic: dict) -> dict | None:
+def _read_fast(path: Path, sigcfg: dict, topic_to_sig: dict, extra: list, by_topic: dict,
+               window: tuple[ResolvedRange, int, int] | None = None) -> dict | None:
     """Bulk read (:mod:`mcap_fast`) of a single-file MCAP bag with Float64 signals; ``None``: use rosbags."""
     if not all(s.type == FLOAT64 for s in sigcfg.values()):
         return None
@@ -361,7 +365,12 @@ def _read_fast(path: Path, sigcfg: dict, topic_to_sig: dict, extra: list, by_top
     except ImportError:
         return None
     try:
-        return read_topics(files[0], set(topic_to_sig) | extra_topics)
+        if window is None:
+            return read_topics(files[0], set(topic_to_sig) | extra_topics)
+        out = read_topics(files[0], set(topic_to_sig) | (extra_topics - {TRUTH_FAULT_TOPIC}), window[1], window[2])
+        if TRUTH_FAULT_TOPIC in extra_topics:   # the fault schedule is a handful of messages: all of it
+            out.update(read_topics(files[0], {TRUTH_FAULT_TOPIC}))
+        return out
     except FastPathUnsupported:
         return None
 
@@ -394,8 +403,63 @@ def _connections_by_topic(reader: Any, path: Path) -> dict[str, list]:
     return by_topic
 
 
-def read_signals(bag: str | Path, config: SignalSource) -> Signals:
+RANGE_MARGIN_NS = 10**9   # a time range reads this much more on each side (JointState stamps lag log times), then trims
+
+
+def _read_window(reader: Any, path: Path, sigcfg: dict, by_topic: dict, config: SignalSource,
+                 time_range: TimeRange) -> tuple[ResolvedRange, int, int]:
+    """The range against the record (its first output sample and its last message) and the log-time window to
+    read (the range with :data:`RANGE_MARGIN_NS` on each side). Reads the first output message only."""
+    out = sigcfg["output"]
+    first = reader.messages(connections=by_topic[out.topic])
+    try:
+        _, log_t, data = next(first)
+    except StopIteration:
+        raise BagError(f"{path}: topic '{out.topic}' (output) has no messages") from None
+    finally:
+        first.close()
+    origin = int(log_t) if out.type == FLOAT64 else int(_decode_joint([bytes(data)], out, out.topic, path)[1][0])
+    try:
+        rng = time_range.resolve(origin, int(reader.end_time) - 1, 1.0 / config.loop_rate_hz)
+    except ValueError as exc:
+        raise BagError(f"{path}: {exc}") from None
+    return rng, rng.start_ns - RANGE_MARGIN_NS, rng.end_ns + RANGE_MARGIN_NS
+
+
+def _messages(reader: Any, conns: list, window: tuple[ResolvedRange, int, int] | None) -> Any:
+    """rosbags' messages of ``conns``; with a window, the signals only in it (the fault schedule whole)."""
+    if window is None:
+        return reader.messages(connections=conns)
+    faults = [c for c in conns if c.topic == TRUTH_FAULT_TOPIC]
+    inside = reader.messages(connections=[c for c in conns if c.topic != TRUTH_FAULT_TOPIC], start=window[1],
+                             stop=window[2])
+    return itertools.chain(inside, reader.messages(connections=faults) if faults else ())
+
+
+def trimmed(sig: Signals, rng: ResolvedRange, path: Path | str = "") -> Signals:
+    """The samples (and the truth of ``/truth/modes``) of ``sig`` in ``[rng.start_s, rng.end_s)``; ``BagError``
+    when fewer than two samples are left."""
+    eps = 1e-10
+    keep = (sig.t >= rng.start_s - eps) & (sig.t < rng.end_s - eps)
+    if np.count_nonzero(keep) < 2:
+        raise BagError(f"{path}: no samples in the range {rng.start_s:.6g} to {rng.end_s:.6g} s of the record")
+    pick = {name: None if x is None else x[keep] for name, x in (("r", sig.r), ("u", sig.u), ("y", sig.y))}
+    nonfinite = {name: int(np.count_nonzero(~np.isfinite(x))) for name, x in
+                 (("reference", pick["r"]), ("input", pick["u"]), ("output", pick["y"])) if x is not None}
+    truth_t, truth_modes = sig.truth_t, sig.truth_modes
+    if truth_t is not None and truth_modes is not None:
+        tk = (truth_t >= rng.start_s - eps) & (truth_t < rng.end_s - eps)
+        truth_t, truth_modes = (truth_t[tk], truth_modes[tk]) if tk.any() else (None, None)
+    return replace(sig, t=sig.t[keep], **pick, truth_t=truth_t, truth_modes=truth_modes,
+                   nonfinite=sum(nonfinite.values()), nonfinite_by_signal=nonfinite, time_range=rng.to_dict())
+
+
+def read_signals(bag: str | Path, config: SignalSource, time_range: TimeRange | None = None) -> Signals:
     """Read and check ``r``, ``u``, ``y`` (and the truth topics, if any) of a bag for ``config``.
+
+    ``time_range`` (:mod:`.timerange`): only the samples in ``[start, end)`` are read (the reader skips the other
+    messages; ``Signals.t`` stays in seconds from the record's first sample, ``Signals.time_range`` says which);
+    a range outside the record raises :class:`BagError`.
 
     Raises :class:`BagError` (one line) when the bag is missing, has no metadata, is unreadable, truncated or
     corrupt (also: a topic yields fewer messages than its metadata records), is empty, lacks a configured topic, has
@@ -405,7 +469,15 @@ def read_signals(bag: str | Path, config: SignalSource) -> Signals:
     """
     path = _resolve(bag)
     if isinstance(config, MonitorConfig) and config.block_input:
-        return _read_block_bag(path, config)
+        sig = _read_block_bag(path, config)
+        if time_range is None:
+            return sig
+        try:
+            rng = time_range.resolve(sig.t0_ns, sig.t0_ns + int(round(float(sig.t[-1]) * 1e9)),
+                                     1.0 / config.loop_rate_hz)
+        except ValueError as exc:
+            raise BagError(f"{path}: {exc}") from None
+        return trimmed(sig, rng, path)
     wanted = ["input", "output"] + (["reference"] if config.closed_loop else [])
     sigcfg = {name: bag_topic(config.signals[name]) for name in wanted}
     raw: dict[str, list[bytes]] = {name: [] for name in wanted}
@@ -433,7 +505,8 @@ def read_signals(bag: str | Path, config: SignalSource) -> Signals:
                 for c in by_topic.get(topic, []):
                     if c.msgtype == typ:
                         extra.append(c)
-            fast = _read_fast(path, sigcfg, topic_to_sig, extra, by_topic)
+            window = None if time_range is None else _read_window(reader, path, sigcfg, by_topic, config, time_range)
+            fast = _read_fast(path, sigcfg, topic_to_sig, extra, by_topic, window)
             if fast is not None:
                 for topic, names in topic_to_sig.items():
                     times, payload = fast[topic]
@@ -442,7 +515,7 @@ def read_signals(bag: str | Path, config: SignalSource) -> Signals:
                 for topic, sink in ((TRUTH_MODES_TOPIC, truth_raw), (TRUTH_FAULT_TOPIC, fault_raw)):
                     if topic in fast:
                         sink.extend((int(t), bytes(d)) for t, d in zip(*fast[topic], strict=True))
-            for conn, timestamp, data in ([] if fast is not None else reader.messages(connections=conns + extra)):
+            for conn, timestamp, data in ([] if fast is not None else _messages(reader, conns + extra, window)):
                 if conn.topic == TRUTH_MODES_TOPIC and conn in extra:
                     truth_raw.append((timestamp, bytes(data)))
                 elif conn.topic == TRUTH_FAULT_TOPIC and conn in extra:
@@ -452,7 +525,7 @@ def read_signals(bag: str | Path, config: SignalSource) -> Signals:
                         raw[name].append(bytes(data))
                         log_ns[name].append(timestamp)
             for topic, names in topic_to_sig.items():   # a damaged chunk can drop records without an exception
-                declared = sum(int(getattr(c, "msgcount", 0) or 0) for c in by_topic[topic])
+                declared = 0 if window else sum(int(getattr(c, "msgcount", 0) or 0) for c in by_topic[topic])
                 got = len(raw[names[0]])
                 if declared and got != declared:
                     raise BagError(f"{path}: corrupt or truncated bag: topic '{topic}' yields {got} of the {declared} "
@@ -462,11 +535,13 @@ def read_signals(bag: str | Path, config: SignalSource) -> Signals:
     except Exception as exc:  # noqa: BLE001 - rosbags raises many types for damaged files
         raise BagError(f"{path}: unreadable, truncated or corrupt bag "
                        f"({type(exc).__name__}: {one_line(exc, ERROR_CHARS)})") from None
-    return _assemble(path, config, sigcfg, raw, log_ns, truth_raw, fault_raw)
+    if window is None:
+        return _assemble(path, config, sigcfg, raw, log_ns, truth_raw, fault_raw)
+    return trimmed(_assemble(path, config, sigcfg, raw, log_ns, truth_raw, fault_raw, window[0]), window[0], path)
 
 
 def _assemble(path: Path, config: SignalSource, sigcfg: dict, raw: dict, log_ns: dict, truth_raw: list,
-              fault_raw: list) -> Signals:
+              fault_raw: list, rng: ResolvedRange | None = None) -> Signals:
     values: dict[str, np.ndarray] = {}
     stamps: dict[str, np.ndarray] = {}
     for name, s in sigcfg.items():
@@ -493,7 +568,7 @@ def _assemble(path: Path, config: SignalSource, sigcfg: dict, raw: dict, log_ns:
                                                   {k: v.topic for k, v in sigcfg.items()})
     n = values["output"].size
     t_ns = stamps["output"]
-    t0 = int(t_ns[0])
+    t0 = int(t_ns[0]) if rng is None else rng.origin_ns    # a range: times stay the record's
     if n >= 2:
         dt = mean_sample_spacing(t_ns)
         h = 1.0 / config.loop_rate_hz
@@ -504,7 +579,8 @@ def _assemble(path: Path, config: SignalSource, sigcfg: dict, raw: dict, log_ns:
     return Signals(
         t=(t_ns - t0) * 1e-9, t0_ns=t0, r=values.get("reference"), u=values["input"], y=values["output"],
         truth_t=truth_t, truth_modes=truth_modes, truth_fault=truth_fault, nonfinite=sum(nonfinite.values()),
-        nonfinite_by_signal=nonfinite, unmatched_by_signal=unmatched, **_metadata_info(path))
+        nonfinite_by_signal=nonfinite, unmatched_by_signal=unmatched, **_metadata_info(path),
+        time_range=None if rng is None else rng.to_dict())
 
 
 def _truth(path: Path, truth_raw: list, fault_raw: list, t0: int) -> tuple[Any, Any, Any]:

@@ -96,9 +96,10 @@ def _channel_from_content(buf: bytes, p: int) -> tuple[int, str]:
     return cid, buf[p + 8:p + 8 + tlen].decode("utf-8")
 
 
-def _indexed_chunks(fh) -> tuple[dict[int, str], list] | None:
+def _indexed_chunks(fh, start_ns: int | None = None, stop_ns: int | None = None) -> tuple[dict[int, str], list] | None:
     """Channels and chunks located through the summary section's ChunkIndex records (seek straight to each
-    chunk; the per-chunk MessageIndex records, 16 bytes per message, are never parsed). ``None`` without one."""
+    chunk; the per-chunk MessageIndex records, 16 bytes per message, are never parsed). ``None`` without one.
+    Chunks whose messages all lie outside ``[start_ns, stop_ns)`` are never read."""
     from mcap.reader import make_reader
     from mcap.records import Chunk
 
@@ -107,7 +108,11 @@ def _indexed_chunks(fh) -> tuple[dict[int, str], list] | None:
         return None
     channels = {cid: ch.topic for cid, ch in summary.channels.items()}
     chunks = []
+    lo = -1 if start_ns is None else start_ns
+    hi = 2**63 if stop_ns is None else stop_ns
     for ci in sorted(summary.chunk_indexes, key=lambda c: c.chunk_start_offset):
+        if ci.message_end_time < lo or ci.message_start_time >= hi:
+            continue
         fh.seek(ci.chunk_start_offset)
         rec = fh.read(ci.chunk_length)
         if len(rec) != ci.chunk_length or rec[0] != 0x06:  # 0x06: Chunk
@@ -124,8 +129,10 @@ def _indexed_chunks(fh) -> tuple[dict[int, str], list] | None:
     return channels, chunks
 
 
-def read_topics(path: str | Path, topics: set[str]) -> dict[str, tuple[np.ndarray, list[bytes] | np.ndarray]]:
-    """Log times (int64 ns) and payloads of every message on ``topics``, sorted by log time (stable).
+def read_topics(path: str | Path, topics: set[str], start_ns: int | None = None,
+                stop_ns: int | None = None) -> dict[str, tuple[np.ndarray, list[bytes] | np.ndarray]]:
+    """Log times (int64 ns) and payloads of every message on ``topics``, sorted by log time (stable); with
+    ``start_ns``/``stop_ns`` only those logged in ``[start_ns, stop_ns)`` (chunks outside are skipped unread).
 
     Payloads of a topic whose messages all have the same size come as one ``(n, size)`` uint8 array,
     otherwise as a list of ``bytes``.
@@ -134,11 +141,13 @@ def read_topics(path: str | Path, topics: set[str]) -> dict[str, tuple[np.ndarra
     from mcap.stream_reader import StreamReader, get_chunk_data_stream
 
     channel_topic: dict[int, str] = {}
+    lo = -(2**63) if start_ns is None else int(start_ns)
+    hi = 2**63 - 1 if stop_ns is None else int(stop_ns)
     parts: dict[str, list[tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]]] = {t: [] for t in topics}
     loose: dict[str, list[tuple[int, bytes]]] = {t: [] for t in topics}
     try:
         with open(path, "rb") as fh:
-            indexed = _indexed_chunks(fh)
+            indexed = _indexed_chunks(fh, start_ns, stop_ns)
             records: Iterable[Any]
             if indexed is not None:
                 channel_topic.update(indexed[0])
@@ -153,7 +162,7 @@ def read_topics(path: str | Path, topics: set[str]) -> dict[str, tuple[np.ndarra
                     topic = channel_topic.get(record.channel_id)
                     if topic is None:
                         raise FastPathUnsupported("message before its channel")
-                    if topic in topics:
+                    if topic in topics and lo <= record.log_time < hi:
                         loose[topic].append((record.log_time, bytes(record.data)))
                 elif isinstance(record, Chunk):
                     stream, n = get_chunk_data_stream(record)
@@ -173,7 +182,7 @@ def read_topics(path: str | Path, topics: set[str]) -> dict[str, tuple[np.ndarra
                         if topic is None:
                             raise FastPathUnsupported("message before its channel")
                         if topic in topics:
-                            sel = chan == chan_id
+                            sel = (chan == chan_id) & (logt >= lo) & (logt < hi)
                             parts[topic].append((logt[sel], off[sel], size[sel], buf))
     except FastPathUnsupported:
         raise

@@ -37,7 +37,7 @@ def test_stream_walk_without_chunk_index_reads_identically(repo, monkeypatch):
     cfg = load_config(repo / "config" / "beam.yaml")
     bag = repo / "bags" / "beam"
     calls = []
-    monkeypatch.setattr(mcap_fast, "_indexed_chunks", lambda fh: calls.append(1))  # returns None
+    monkeypatch.setattr(mcap_fast, "_indexed_chunks", lambda fh, *window: calls.append(1))  # returns None
     fast, slow = _read_both(bag, cfg, monkeypatch)
     assert calls, "the bulk reader was not used"
     _assert_same(fast, slow)

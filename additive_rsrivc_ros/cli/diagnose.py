@@ -37,6 +37,7 @@ from ..core.vocabulary import (
 from ..process_exit import console_entry
 from .parser import OneLineParser
 from .progress import ProgressBar
+from .timerange import add_range_arguments, anchor_pipeline, range_of, range_text, verdict_in_range
 
 if TYPE_CHECKING:
     from ..bagio import Signals
@@ -62,6 +63,7 @@ def _parser() -> argparse.ArgumentParser:
     p.add_argument("--chunk-s", type=float, default=1.0, help="seconds of data per pipeline call (default 1)")
     p.add_argument("--fail-on-fault", action="store_true", help="exit with status 3 when a fault event was found")
     p.add_argument("--quiet", action="store_true", help="print only the verdict line")
+    add_range_arguments(p)
     return p
 
 
@@ -114,7 +116,7 @@ def run_pipeline(sig: Signals, cfg: MonitorSettings, *, chunk_s: float = 1.0, pr
                 events[(e.mode, e.quantity, e.alarm_time_s)] = e
         raise_if_interrupted()       # an interrupt that landed in a C callback (numba compilation) stops here
         if progress is not None:
-            progress.update(float(sig.t[b - 1]))
+            progress.update(float(sig.t[b - 1] - sig.t[0]))     # a range: from its start
     for rep in pipe.flush():       # the end of the record: samples the stream aligner held back
         reports.append(rep)
         for e in (*rep.events_opened, *rep.events_closed):
@@ -281,22 +283,24 @@ def diagnose(args: argparse.Namespace, stdout: TextIO, stderr: TextIO, state: di
     bag = Path(args.bag)
     out = _out_dir(bag, args.out)
     check_replaceable(out, OWNED_FILES)            # fail before the long work, not after it
-    sig = read_signals(bag, cfg)
+    sig = read_signals(bag, cfg, range_of(getattr(args, "start", None), getattr(args, "end", None)))
     state["t0_ns"] = int(sig.t0_ns)                 # the first sample's absolute time (rsrivc_fleet orders by it)
     t_read = time.monotonic()
     _warn_bad_samples(sig, stderr)
     n = sig.t.size
-    duration = float(sig.t[-1]) + 1.0 / cfg.loop_rate_hz if n else 0.0
+    duration = float(sig.t[-1]) + 1.0 / cfg.loop_rate_hz if n else 0.0   # a range: its end, in the record's time
+    t_first = float(sig.t[0]) if sig.time_range and n else 0.0
     show = args.progress if args.progress is not None else stderr.isatty()
-    bar = progress_bar(float(sig.t[-1]) if n else 0.0, stderr, bool(show))
+    bar = progress_bar(float(sig.t[-1] - sig.t[0]) if n else 0.0, stderr, bool(show))
     pipe = MonitorPipeline(cfg)   # no guesses: it finds the modes on the first max(init_duration_s, 2 s) itself
+    anchor_pipeline(pipe, sig)    # a range: report times stay the record's
     reports, ev_objs = run_pipeline(sig, cfg, chunk_s=args.chunk_s, progress=bar, pipeline=pipe)
     bar.close(bar.total)
     _print_notices(reports, stderr)
     cfg = pipe.cfg                # with the modes found by the automatic start
     t_est = time.monotonic()
     events = [event_dict(e) for e in ev_objs]
-    verdict = assess(reports, duration, events)
+    verdict = verdict_in_range(assess(reports, duration, events), sig.time_range)
     tmp = state["out"] = AtomicDir(out, OWNED_FILES)
     tmp.open()
     n_rows = write_estimates_csv(tmp.tmp / "estimates.csv", reports)
@@ -306,11 +310,13 @@ def diagnose(args: argparse.Namespace, stdout: TextIO, stderr: TextIO, state: di
     truth = rp.TruthData(sig.truth_t, sig.truth_modes, sig.truth_fault)
     table = param_table()
     info = {"bag": str(bag), "storage": sig.storage or "?", "params file": str(args.params_file),
-            "samples": n, "duration [s]": f"{duration:.6g}", "loop rate [Hz]": f"{cfg.loop_rate_hz:g}",
+            "samples": n, "duration [s]": f"{duration - t_first:.6g}", "loop rate [Hz]": f"{cfg.loop_rate_hz:g}",
             "loop": "closed" if cfg.closed_loop else "open", "modes (K)": cfg.K, "reports": len(reports),
             "non-finite samples": sig.nonfinite, "unmatched messages left out": sum(sig.unmatched_by_signal.values()),
             **{k.replace("additive_rsrivc.", "bag "): v for k, v in sig.metadata.items()
                if k != "additive_rsrivc.parameters"}}
+    if sig.time_range:
+        info["time range [s]"] = range_text(sig.time_range).strip(" ()")
     if pipe.search is not None and pipe.search.found is not None:   # the evidence of the automatic start
         info["modes found from the data"] = pipe.search.found.describe()
     if pipe.counters.data_starts:
@@ -335,7 +341,8 @@ def diagnose(args: argparse.Namespace, stdout: TextIO, stderr: TextIO, state: di
     last = reports[-1] if reports else None
     summary = {
         "bag": str(bag), "params_file": str(args.params_file), "storage": sig.storage, **verdict.to_dict(),
-        "samples": n, "duration_s": duration, "loop_rate_hz": cfg.loop_rate_hz,
+        "samples": n, "duration_s": duration - t_first, "time_range": sig.time_range,
+        "loop_rate_hz": cfg.loop_rate_hz,
         "closed_loop": cfg.closed_loop, "K": cfg.K, "reports": len(reports), "estimate_rows": n_rows,
         "first_estimate_time_s": float(series.time_s[series.first_estimate()]) if series.first_estimate() is not None
         else None,
@@ -345,7 +352,7 @@ def diagnose(args: argparse.Namespace, stdout: TextIO, stderr: TextIO, state: di
                    "level_counts": {LEVEL_NAMES[k]: int(np.sum(series.health_level == k)) for k in range(4)}},
         "phase_final": last.phase if last is not None else None,
         "timings_s": timings,
-        "realtime_factor": duration / timings["estimate_s"] if timings["estimate_s"] > 0 else None,
+        "realtime_factor": (duration - t_first) / timings["estimate_s"] if timings["estimate_s"] > 0 else None,
         "truth_fault": sig.truth_fault, "bag_metadata": sig.metadata, "parameters": dict(cfg.params),
         "files": {k: str(out / k) for k in OUTPUT_FILES
                   if k in ("estimates.csv", "events.csv", "summary.json") or not args.no_report},
@@ -363,19 +370,20 @@ def diagnose(args: argparse.Namespace, stdout: TextIO, stderr: TextIO, state: di
               f"{al['surplus']} surplus dropped, {al['set_aside']} set aside", file=stderr)
     print(verdict.line, file=stdout)
     if not args.quiet:
-        print(f"\n{bag}: {duration:.4g} s, {n} samples at {cfg.loop_rate_hz:g} Hz, "
-              f"{'closed' if cfg.closed_loop else 'open'} loop, K = {cfg.K}\n", file=stdout)
+        print(f"\n{bag}: {duration - t_first:.4g} s{range_text(sig.time_range)}, {n} samples at "
+              f"{cfg.loop_rate_hz:g} Hz, {'closed' if cfg.closed_loop else 'open'} loop, K = {cfg.K}\n", file=stdout)
         print(format_table(rows), file=stdout)
         print(f"\ntime: read {timings['read_s']:.2f} s, estimate+diagnose {timings['estimate_s']:.2f} s "
-              f"({duration / max(timings['estimate_s'], 1e-9):.0f}x real time), report {timings['report_s']:.2f} s, "
-              f"total {timings['total_s']:.2f} s", file=stdout)
+              f"({(duration - t_first) / max(timings['estimate_s'], 1e-9):.0f}x real time), "
+              f"report {timings['report_s']:.2f} s, total {timings['total_s']:.2f} s", file=stdout)
         print(f"wrote {out}/: estimates.csv ({n_rows} rows), events.csv ({len(events)} events), summary.json"
               f"{'' if args.no_report else ', report.html, modes.svg'}", file=stdout)
     return 3 if (args.fail_on_fault and events) else 0
 
 
 def diagnose_bag(bag: str | Path, params_file: str | Path, out_dir: str | Path, *, node_name: str | None = None,
-                 report: bool = True, stdout: TextIO | None = None, stderr: TextIO | None = None) -> dict[str, Any]:
+                 report: bool = True, stdout: TextIO | None = None, stderr: TextIO | None = None,
+                 start: str | float | None = None, end: str | float | None = None) -> dict[str, Any]:
     """``rsrivc_diagnose BAG --params-file P --out DIR --no-progress`` as a function (``rsrivc_fleet``'s task):
     the same code and the same files; returns summary.json's content plus ``start_time_ns`` (the first sample,
     Unix ns). Raises the tool's one-line errors (BagError, ParamError, PipelineError, OSError, ValueError)."""
@@ -384,6 +392,8 @@ def diagnose_bag(bag: str | Path, params_file: str | Path, out_dir: str | Path, 
     argv = ["--params-file", str(params_file), "--out", str(out_dir), "--no-progress", "--quiet"]
     argv += ["--node-name", node_name] if node_name else []
     argv += [] if report else ["--no-report"]
+    argv += [] if start is None else ["--start", str(start)]
+    argv += [] if end is None else ["--end", str(end)]
     args = _parser().parse_args([*argv, "--", str(bag)])
     state: dict[str, Any] = {}
     try:

@@ -33,6 +33,7 @@ from ..process_exit import console_entry
 from .fleet_cache import CACHE_DIRNAME, ResultCache
 from .parser import OneLineParser
 from .progress import ProgressBar
+from .timerange import add_range_arguments, range_of
 
 PROG = "rsrivc_fleet"
 DASK_HINT = ("dask.distributed is not installed; rsrivc_fleet needs the optional extra: "
@@ -64,6 +65,7 @@ def _parser() -> argparse.ArgumentParser:
     prog.add_argument("--progress", dest="progress", action="store_true", default=None,
                       help="show a progress bar on stderr (default: only when stderr is a terminal)")
     prog.add_argument("--no-progress", dest="progress", action="store_false", help="never show a progress bar")
+    add_range_arguments(p)
     return p
 
 
@@ -79,6 +81,8 @@ class BagTask:
     node_name: str | None = None
     report: bool = True
     machine: str = ""            # the mapping file's glob that matched, or the params file: recordings of one machine
+    start: str | None = None     # --start / --end of every bag (cli/timerange.py)
+    end: str | None = None
 
 
 def _is_bag(p: Path) -> bool:
@@ -179,7 +183,8 @@ def make_tasks(args: argparse.Namespace) -> tuple[list[BagTask], list[dict[str, 
             continue
         machine = str(b.resolve().parent) if getattr(args, "group_by", "params") == "folder" else hit[1]
         tasks.append(BagTask(name, str(b.resolve()), str(Path(hit[0]).resolve()), str((out / name).resolve()),
-                             args.node_name, not args.no_report, machine))
+                             args.node_name, not args.no_report, machine, getattr(args, "start", None),
+                             getattr(args, "end", None)))
     _check_params({t.params_file for t in tasks}, args.node_name)
     return tasks, unmatched
 
@@ -199,7 +204,7 @@ def run_bag(task: BagTask) -> dict[str, Any]:
         from .diagnose import diagnose_bag
 
         summary = diagnose_bag(task.bag, task.params_file, task.out_dir, node_name=task.node_name,
-                               report=task.report, stderr=err)
+                               report=task.report, stderr=err, start=task.start, end=task.end)
         res.update(_bag_result(summary, Path(task.out_dir)), ok=True)
     except Exception as exc:  # noqa: BLE001 - a failed bag is reported and skipped, never the whole run
         res["error"] = f"{type(exc).__name__}: {one_line(exc)}" if not isinstance(exc, ValueError | OSError) \
@@ -523,7 +528,7 @@ def split_cached(tasks: Sequence[BagTask], cache: ResultCache
     reused, todo, keys = [], [], {}
     for t in tasks:
         try:
-            keys[t.name] = cache.key(t.bag, t.params_file, t.node_name, t.report, t.out_dir)
+            keys[t.name] = cache.key(t.bag, t.params_file, t.node_name, t.report, t.out_dir, (t.start, t.end))
         except OSError:
             todo.append(t)
             continue
@@ -574,6 +579,10 @@ def fleet(args: argparse.Namespace, stdout: TextIO, stderr: TextIO, state: dict[
         raise ArgError(f"--alpha must be in (0, 1), got {args.alpha}")
     if args.workers is not None and args.workers < 1:
         raise ArgError(f"--workers must be >= 1, got {args.workers}")
+    try:
+        range_of(args.start, args.end)
+    except ValueError as exc:
+        raise ArgError(str(exc)) from None
     try:
         import dask.distributed  # noqa: F401
     except ImportError:

@@ -88,11 +88,15 @@ class ResultCache:
             h.update(self.file_digest(p).encode())
         return h.hexdigest()
 
-    def key(self, bag: str, params_file: str, node_name: str | None, report: bool, out_dir: str = "") -> str:
-        """The cache key of one task (module docstring; two copies of one bag have their own output folders)."""
+    def key(self, bag: str, params_file: str, node_name: str | None, report: bool, out_dir: str = "",
+            time_range: tuple[str | None, str | None] = (None, None)) -> str:
+        """The cache key of one task (module docstring; two copies of one bag have their own output folders;
+        ``time_range``: ``--start``/``--end`` as given)."""
         parts = {"schema": SCHEMA, "bag": self.bag_digest(Path(bag)), "params": _file_sha256(Path(params_file)),
                  "node_name": node_name or "", "report": bool(report), "out_dir": str(out_dir),
                  "package": self.package}
+        if time_range != (None, None):      # (absent otherwise: the keys of earlier runs stay valid)
+            parts["time_range"] = list(time_range)
         return hashlib.sha256(json.dumps(parts, sort_keys=True).encode()).hexdigest()
 
     def lookup(self, key: str, out_dir: str, task_fields: Mapping[str, Any]) -> dict[str, Any] | None:

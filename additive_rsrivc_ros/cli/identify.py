@@ -24,6 +24,7 @@ from ..core.vocabulary import BASELINE_KEYS, json_clean
 from ..process_exit import console_entry
 from .atomic import Interrupted, atomic_write_text, exit_code, interrupts, raise_if_interrupted, received
 from .parser import OneLineParser
+from .timerange import add_range_arguments, range_of
 
 if TYPE_CHECKING:   # the numerical modules are imported inside the functions: SIGINT/SIGTERM handling comes first
     import numpy as np
@@ -58,6 +59,7 @@ def _parser() -> argparse.ArgumentParser:
                     help="write a complete params file for the node with the identified modes.*")
     ap.add_argument("--baseline", action="store_true",
                     help="with --out-params: also write the identified values as faults.baseline.*")
+    add_range_arguments(ap)
     return ap
 
 
@@ -163,14 +165,15 @@ def write_params_file(cfg: MonitorConfig, doc: dict, path: str, node_name: str |
 
 def run(bag: str, params_file: str, out: str, method: str = "auto", max_iterations: int | None = None,
         tol: float = 1e-7, node_name: str | None = None, warn: Callable[[str], None] | None = None,
-        modes: int | None = None, out_params: str | None = None, baseline: bool = False) -> dict:
+        modes: int | None = None, out_params: str | None = None, baseline: bool = False,
+        start: str | float | None = None, end: str | float | None = None) -> dict:
     """Identify the bag and write the JSON (strict: non-finite numbers as null, written all-or-nothing); returns
     the JSON object. Raises ``ValueError`` on bad input. Bad samples are excluded, each category with one
     warning line (``warn``, default stderr), never fitted over."""
     from ..bagio import read_signals
     from ..config import load_config
     from ..core.faults import FaultSettings
-    from ..core.offline import identify
+    from .stationary_fit import add_stationarity, fit_record
 
     warn = warn or (lambda m: print(f"rsrivc_identify: warning: {m}", file=sys.stderr))
     cfg = load_config(params_file) if node_name is None else load_config(params_file, node_name)
@@ -185,27 +188,22 @@ def run(bag: str, params_file: str, out: str, method: str = "auto", max_iteratio
     iters = max_iterations if max_iterations is not None else max(50, cfg.estimator.init_max_iterations)
     if iters < 1:
         raise ValueError("--max-iterations must be >= 1")
-    sig = align_record_signals(read_signals(bag, cfg), cfg, warn)
+    sig = align_record_signals(read_signals(bag, cfg, range_of(start, end)), cfg, warn)
     sc = screen_record(sig, cfg, FaultSettings.from_params(cfg.params), warn)
-    k = sc.index
+    fitted = fit_record(sig, sc.index, cfg, modes, method, iters, tol)
+    cfg, res, found, k = fitted.cfg, fitted.result, fitted.found, fitted.index
     r = sig.r if closed else None
-    found = None
-    if cfg.auto_modes or modes is not None:
-        from ..core.modefind import autostart_config
-
-        cfg, found = autostart_config(cfg, None if r is None else r[k], sig.u[k], sig.y[k], modes)
-    res = identify(sig.u[k], sig.y[k], cfg.loop_rate_hz, cfg.structures, [m.theta0() for m in cfg.modes],
-                   r=None if r is None else r[k], controller=cfg.controller if closed else None,
-                   input_delay=cfg.input_delay_samples, method=method, max_iterations=iters, tol=tol,
-                   projection=cfg.estimator.stability_projection)
     raise_if_interrupted()
     doc = json_clean(res.to_dict())
+    add_stationarity(doc, fitted)
     doc["data_gaps"] = sc.gaps
-    doc["screening"] = {**sc.to_dict(), "segment_s": [float(sig.t[k[0]]), float(sig.t[k[-1]])]}
+    doc["screening"] = {**sc.to_dict(), "segment_s": [float(sig.t[sc.index[0]]), float(sig.t[sc.index[-1]])]}
+    doc["time_range"] = sig.time_range or {"start_s": 0.0, "end_s": float(sig.t[-1]) + 1.0 / cfg.loop_rate_hz,
+                                           "whole_record": True}
     if sc.used < sc.n:
         doc["message"] = (f"{doc.get('message') or ''}; identified on its longest gap-free segment without bad "
-                          f"samples [{float(sig.t[k[0]]):.6g}, {float(sig.t[k[-1]]):.6g}] s ({sc.used} of {sig.n} "
-                          "samples)").lstrip("; ")
+                          f"samples [{float(sig.t[sc.index[0]]):.6g}, {float(sig.t[sc.index[-1]]):.6g}] s ({sc.used} "
+                          f"of {sig.n} samples)").lstrip("; ")
     _add_mode_finding(doc, found, cfg, None if r is None else r[k], sig.u[k], sig.y[k])
     figure = _order_figure(doc, found, cfg, out_path)
     doc["model_order"] = _model_order(res, cfg, None if r is None else r[k], sig.u[k], sig.y[k])
@@ -213,6 +211,8 @@ def run(bag: str, params_file: str, out: str, method: str = "auto", max_iteratio
     atomic_write_text(out_path, json.dumps(doc, indent=2, allow_nan=False) + "\n")
     if figure is not None:
         atomic_write_text(*figure)
+    if out_params and doc.get("split_modes"):
+        raise ValueError(f"no params file written: {doc['message']}")
     if out_params:
         write_params_file(cfg, doc, out_params, node_name, baseline, f"{bag} with {params_file}")
     return doc
@@ -322,7 +322,8 @@ def main(argv: list[str] | None = None) -> int:
         try:
             args = _parser().parse_args(argv)
             doc = run(args.bag, args.params_file, args.out, args.method, args.max_iterations, args.tol,
-                      args.node_name, modes=args.modes, out_params=args.out_params, baseline=args.baseline)
+                      args.node_name, modes=args.modes, out_params=args.out_params, baseline=args.baseline,
+                      start=args.start, end=args.end)
         except Exception as exc:
             signum = received()
             if signum is None:
@@ -338,6 +339,7 @@ def main(argv: list[str] | None = None) -> int:
     status = "converged" if doc["converged"] else f"NOT converged ({doc.get('message')})"
     print(f"rsrivc_identify: {doc['method']} {status} after {doc['iterations']} iterations; "
           f"residual variance {_num(doc.get('residual_variance'))}; wrote {args.out}")
+    print(f"  {doc['stationarity']['message']}")
     for i, m in enumerate(doc["modes"], 1):
         f, z, g = m["natural_frequency_hz"], m["damping_ratio"], m["gain"]
         print(f"  mode {i}: f = {f} Hz, zeta = {z}, gain = {g}")

@@ -9,10 +9,11 @@ from __future__ import annotations
 
 import numpy as np
 
+from ..core.controller import DiscreteController
 from ..core.model import SubmodelStructure, second_order_modal, theta_from_modal
 from ..core.recursive import RecursiveAdditiveSRIVC
 from .plants import BEAM_MODES, PAPER_MODES, PAPER_PID, beam_controller
-from .simulate import ModalChange, simulate_modes
+from .simulate import ModalChange, PlantMode, SimulationResult, simulate_modes, square_wave, time_vector, white_noise
 
 #: [RA-SRIVC] §5 drifts (raised-cosine ramps): omega1 -20 % and zeta2 -50 % over [100, 300] s, omega3 -15 % and zeta3
 #: -30 % over [500, 800] s
@@ -113,3 +114,37 @@ def run_beam(seed: int, *, duration: float = 130.0, change_start: float = 40.0, 
     before = (tt >= 10.0) & (tt <= change_start)
     return {"mode2_after": float(rel[after, 1].max()), "mode2_before": float(rel[before, 1].max()),
             "mode1": float(rel[tt >= 10.0, 0].max()), "health": est.health.to_dict(), "init": est.init_message}
+
+
+#: A 4 kHz closed loop with a close pair of modes (62 / 71 Hz): the non-stationary record of ``rsrivc_identify``'s
+#: stationarity test (``core/stationarity.py``). PI controller (kp 0.5, ki 2), input delay 2, 0.5 Hz square-wave
+#: setpoint with white dither.
+CLOSE_PAIR_RATE_HZ = 4000.0
+CLOSE_PAIR_MODES = (PlantMode(8.0, 0.05, 1.0), PlantMode(62.0, 0.02, 0.1), PlantMode(71.0, 0.02, 0.08))
+CLOSE_PAIR_DELAY = 2
+
+
+def close_pair_controller(rate_hz: float = CLOSE_PAIR_RATE_HZ) -> DiscreteController:
+    """The PI controller of :func:`close_pair_record` (kp 0.5, ki 2, backward Euler)."""
+    return DiscreteController((0.5 + 2.0 / rate_hz, -0.5), (1.0, -1.0))
+
+
+def close_pair_params_yaml(extra: str = "", rate_hz: float = CLOSE_PAIR_RATE_HZ) -> str:
+    """The node's params file of :func:`close_pair_record` without mode guesses (``extra``: more lines)."""
+    c = close_pair_controller(rate_hz)
+    return (f"additive_rsrivc_monitor:\n  ros__parameters:\n    loop_rate_hz: {rate_hz}\n"
+            f"    closed_loop: true\n    controller:\n      numerator: {list(c.numerator)}\n"
+            f"      denominator: {list(c.denominator)}\n    input_delay_samples: {CLOSE_PAIR_DELAY}\n"
+            f"    modes:\n      memory_s: [5.0]\n    init_duration_s: 5.0\n{extra}")
+
+
+def close_pair_record(seed: int, duration_s: float = 240.0, changes: tuple[ModalChange, ...] = (),
+                      noise_std: float = 0.01, rate_hz: float = CLOSE_PAIR_RATE_HZ,
+                      modes: tuple[PlantMode, ...] = CLOSE_PAIR_MODES) -> SimulationResult:
+    """``duration_s`` of ``modes`` (default :data:`CLOSE_PAIR_MODES`) in closed loop (seeded); ``changes`` e.g. mode
+    3's frequency -3 % at 120 s: ``(ModalChange(2, "frequency", -0.03, 120.0),)``."""
+    rng = np.random.default_rng(seed)
+    t = time_vector(rate_hz, duration_s)
+    r = square_wave(t, 0.5, 1.0) + white_noise(t.size, 0.05, rng)
+    return simulate_modes(modes, rate_hz, changes=list(changes), r=r, controller=close_pair_controller(rate_hz),
+                          input_delay=CLOSE_PAIR_DELAY, noise=white_noise(t.size, noise_std, rng), rng=rng)
