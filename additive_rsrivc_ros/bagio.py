@@ -443,14 +443,15 @@ def trimmed(sig: Signals, rng: ResolvedRange, path: Path | str = "") -> Signals:
     keep = (sig.t >= rng.start_s - eps) & (sig.t < rng.end_s - eps)
     if np.count_nonzero(keep) < 2:
         raise BagError(f"{path}: no samples in the range {rng.start_s:.6g} to {rng.end_s:.6g} s of the record")
-    pick = {name: None if x is None else x[keep] for name, x in (("r", sig.r), ("u", sig.u), ("y", sig.y))}
+    r_in = None if sig.r is None else sig.r[keep]
+    u_in, y_in = sig.u[keep], sig.y[keep]
     nonfinite = {name: int(np.count_nonzero(~np.isfinite(x))) for name, x in
-                 (("reference", pick["r"]), ("input", pick["u"]), ("output", pick["y"])) if x is not None}
+                 (("reference", r_in), ("input", u_in), ("output", y_in)) if x is not None}
     truth_t, truth_modes = sig.truth_t, sig.truth_modes
     if truth_t is not None and truth_modes is not None:
         tk = (truth_t >= rng.start_s - eps) & (truth_t < rng.end_s - eps)
         truth_t, truth_modes = (truth_t[tk], truth_modes[tk]) if tk.any() else (None, None)
-    return replace(sig, t=sig.t[keep], **pick, truth_t=truth_t, truth_modes=truth_modes,
+    return replace(sig, t=sig.t[keep], r=r_in, u=u_in, y=y_in, truth_t=truth_t, truth_modes=truth_modes,
                    nonfinite=sum(nonfinite.values()), nonfinite_by_signal=nonfinite, time_range=rng.to_dict())
 
 

@@ -26,7 +26,7 @@ import yaml
 
 from .core.controller import DiscreteController
 from .core.model import SubmodelStructure, guess_structure, guess_theta
-from .core.params import ESTIMATOR_PARAMS, FAULT_PARAMS, EstimatorOptions, Param
+from .core.params import DEFAULT_MEMORY_S, ESTIMATOR_PARAMS, FAULT_PARAMS, EstimatorOptions, Param
 
 if TYPE_CHECKING:   # annotations only: imported where used (the fault monitor and aligner are heavier)
     from .core.alignment import AlignmentSettings
@@ -63,7 +63,8 @@ CORE_PARAMS: list[Param] = [
     Param("modes.integrators", "int[]", [], "Poles at the origin per mode (rigid body: 2); default 0. Ignored "
           "when the modes are found from the data (a rigid body is detected there).", 0, 2, True),
     Param("modes.memory_s", "double[]", [], "Forgetting memory per mode in s: "
-          "lambda = 1 - 1/(memory_s * loop_rate_hz). One value applies to every mode; empty: 10 s.", 1e-3, 1e7),
+          "lambda = 1 - 1/(memory_s * loop_rate_hz). One value applies to every mode; empty: "
+          f"{DEFAULT_MEMORY_S:g} s.", 1e-3, 1e7),
     Param("modes.count", "int", 0, "Number of modes to find from the data when no guesses are given (a detected "
           "rigid body counts as one); 0: choose it by held-out output error (at most modes.max_count). With "
           "guesses it must be 0 or their number.", 0, 32, True),
@@ -289,7 +290,7 @@ class ModeConfig:
     damping_ratio: float
     gain: float
     integrators: int = 0
-    memory_s: float = 10.0
+    memory_s: float = DEFAULT_MEMORY_S
 
     @property
     def structure(self) -> SubmodelStructure:
@@ -357,11 +358,6 @@ class MonitorConfig:
 
         return FaultSettings.from_params(self.params)
 
-    @property
-    def forgetting_factors(self) -> np.ndarray:
-        """``lambda_i = 1 - 1/(memory_s_i * loop_rate_hz)``."""
-        return np.array([1.0 - 1.0 / (m.memory_s * self.loop_rate_hz) for m in self.modes])
-
     @classmethod
     def from_params(cls, p: Mapping[str, Any]) -> MonitorConfig:
         """Cross-check validated parameters and build the typed configuration."""
@@ -426,7 +422,7 @@ class MonitorConfig:
         k = modal.shape[0]
         ints = [int(v) for v in (integrators if integrators is not None else [0] * k)]
         mem = list(self.params["modes.memory_s"])
-        mem = mem if len(mem) == k else [mem[0] if mem else 10.0] * k
+        mem = mem if len(mem) == k else [mem[0] if mem else DEFAULT_MEMORY_S] * k
         p = dict(self.params)
         p.update({"modes.natural_frequency_hz": [float(v) for v in modal[:, 0]],
                   "modes.damping_ratio": [float(v) for v in modal[:, 1]],
@@ -462,7 +458,7 @@ def _modes_from_params(p: Mapping[str, Any], rate: float) -> list[ModeConfig]:
         if len(vals) != k:
             raise ParamError(f"parameter '{name}' has {len(vals)} entries, 'modes.natural_frequency_hz' has {k}")
     ints = _per_mode(p, "modes.integrators", k, 0)
-    mems = _per_mode(p, "modes.memory_s", k, 10.0)
+    mems = _per_mode(p, "modes.memory_s", k, DEFAULT_MEMORY_S)
     modes = []
     for i in range(k):
         fi, zi, gi = f[i], lists["modes.damping_ratio"][i], lists["modes.gain"][i]

@@ -71,14 +71,18 @@ def fit_record(sig: Signals, k: np.ndarray, cfg: MonitorConfig, modes: int | Non
     found = None
     if cfg.auto_modes or modes is not None:
         cfg, found = _find_modes(sig, k, cfg, modes)
-    kw = dict(controller=cfg.controller if closed else None, input_delay=cfg.input_delay_samples, method=method,
-              max_iterations=iters, tol=tol, projection=cfg.estimator.stability_projection)
+    controller = cfg.controller if closed else None
+
+    def run_fit(sl: Any, start: Any, warmup_s: float | None = None) -> IdentificationResult:
+        return identify(sig.u[sl], sig.y[sl], rate, cfg.structures, start, r=None if r is None else r[sl],
+                        controller=controller, input_delay=cfg.input_delay_samples, method=method,
+                        max_iterations=iters, tol=tol, projection=cfg.estimator.stability_projection,
+                        warmup_s=warmup_s)
 
     def fit(a: int, b: int, warm: int | None, start: Any) -> IdentificationResult | None:
         sl = k[(a - (warm or 0)) if a else 0:b]
         try:
-            return identify(sig.u[sl], sig.y[sl], rate, cfg.structures, start, r=None if r is None else r[sl],
-                            warmup_s=None if warm is None else warm / rate, **kw)
+            return run_fit(sl, start, None if warm is None else warm / rate)
         except ValueError:       # e.g. the start does not stabilize this part's loop: the part is not usable
             return None
         finally:
@@ -91,7 +95,7 @@ def fit_record(sig: Signals, k: np.ndarray, cfg: MonitorConfig, modes: int | Non
     if part is not None and part.result is not None:
         res, index = part.result, k[part.a:part.b]
     else:
-        res = identify(sig.u[k], sig.y[k], rate, cfg.structures, start, r=None if r is None else r[k], **kw)
+        res = run_fit(k, start)
         index = k
     span = [float(sig.t[index[0]]), float(sig.t[index[-1]]) + 1.0 / rate]
     return RecordFit(cfg, res, index, found, st, split_pairs(res), span)

@@ -18,6 +18,8 @@ from dataclasses import Field, dataclass, field, fields
 from typing import Any, TypeVar
 
 PARAM_TYPES = ("bool", "int", "double", "string", "bool[]", "int[]", "double[]", "string[]")
+DEFAULT_MEMORY_S = 10.0
+"""A mode's forgetting memory when ``modes.memory_s`` is empty (the row's documented default)."""
 
 
 @dataclass(frozen=True)

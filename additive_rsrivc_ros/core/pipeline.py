@@ -31,6 +31,7 @@ from .decision import Hold, ModeDecision, decide
 from .estimator import EstimatorHealth, MonitorSettings, RecursiveEstimator
 from .faults import FaultEvent, FaultMonitor, FaultSettings, HealthMonitor, HealthStatus, Level
 from .joint_check import JointChecker, applicable_mask
+from .params import DEFAULT_MEMORY_S
 from .time_scale import StampSpacing
 from .vocabulary import (
     ALIGN_APPROXIMATE_RELATIVE,
@@ -288,7 +289,7 @@ class MonitorPipeline:
         self.K = cfg.K
         self.memory_s = np.array([m.memory_s for m in cfg.modes], dtype=float)
         if self.K == 0:                       # automatic start pending: a health monitor for the notes only
-            mem = [float(v) for v in cfg.params.get("modes.memory_s", [])] or [10.0]
+            mem = [float(v) for v in cfg.params.get("modes.memory_s", [])] or [DEFAULT_MEMORY_S]
             self.est, self.faults, self.joint = None, None, None
             self.health = HealthMonitor([max(mem)], self.settings, rate_hz=self.rate)
             return

@@ -203,7 +203,7 @@ def identify_segments(fit: SegmentFit, n: int, rate_hz: float, thetas0: Sequence
         res = fit(a, b, min(w, a) if a else min(w, (b - a) // 4), start)
         seg = Part(a, b, t0_s + a / rate_hz, t0_s + b / rate_hz, res)
         segments.append(seg)
-        if seg.usable:
+        if seg.usable and res is not None:
             start = res.thetas        # the next segment starts where this one ended: a few iterations
     usable = [s for s in segments if s.usable]
     comparisons = (len(usable) - 1) * 3 * len(thetas0)
