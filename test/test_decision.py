@@ -7,6 +7,7 @@ from __future__ import annotations
 import csv
 import json
 import math
+from dataclasses import replace
 
 import numpy as np
 import pytest
@@ -257,9 +258,19 @@ def test_a_baseline_the_joint_fit_cannot_identify_arms_every_mode():
     assert mon.joint_armed_modes.tolist() == [True, True] and mon.joint_reference_pending
     assert events == []
     assert [(i, q) for i, q, _ in mon.awaiting_joint()] == [(0, 2)]
-    # the joint check is judged against the baseline while the reference is unconverged
+    # a later joint fit that converges on the changed data and "supports" the deviation confirms nothing: there is
+    # no identified reference to compare it with (the deviation stays awaiting, i.e. blind)
     value, std = mon.joint_basis()
     np.testing.assert_array_equal(value, mon.baseline.value)
+    moved = mon.baseline.value.copy()
+    moved[0, 2] *= 0.7
+    sup = np.zeros((2, 3), int)
+    sup[0, 2] = -1
+    later = JointVerdict(80.0, (70.0, 80.0), True, moved, np.full((2, 3), 1e-4), np.ones((2, 3), bool), sup,
+                         np.full(2, np.nan), np.full(2, np.nan), np.zeros(2, int), np.full(2, np.nan), "converged")
+    for t_check in (80.0, 81.0, 82.0):
+        assert mon.apply_joint(t_check, replace(later, t=t_check)).opened == []
+    assert not mon.joint_streak.any() and [(i, q) for i, q, _ in mon.awaiting_joint()] == [(0, 2)]
 
 
 def test_fast_tracking_shortens_only_the_changed_mode_within_its_decay_floor():

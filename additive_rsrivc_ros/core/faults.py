@@ -1041,7 +1041,8 @@ class FaultMonitor:
         return self.joint_reference is not None and not self.joint_reference.converged
 
     def joint_basis(self) -> tuple[np.ndarray, np.ndarray]:
-        """(value, std) the joint checks are judged against: the converged reference fit, else the baseline."""
+        """(value, std) a joint fit is compared with: the converged reference fit, else the baseline (the fit of a
+        pending reference is still made, for the health report, but confirms nothing)."""
         ref = self.joint_reference
         if ref is not None and ref.converged:
             return ref.value, ref.std
@@ -1055,6 +1056,11 @@ class FaultMonitor:
         self.joint = verdict
         needed = self.joint_armed or self.anomaly_since is not None
         if not (needed and verdict.converged) or self.baseline is None or self.held:
+            return out
+        if self.joint_reference_pending:
+            # the baseline window did not identify the joint model: a later fit that converges on the changed
+            # plant has nothing trustworthy to be compared with, so it confirms nothing (the deviation stays blind)
+            self.joint_streak[:] = 0
             return out
         sup = verdict.supported
         if self.anomaly_since is not None:
