@@ -267,6 +267,8 @@ class JointChecker:
             if ref is None or verdict.converged:
                 faults.arm_joint(verdict)
             return None
+        if not ref.converged:
+            return None     # a deviation while the reference is pending: no fit of it could confirm anything
         if not faults.joint_due(t, self.last_t):
             return None
         since = [tst.since for row in faults.tests for tst in row if tst.state == "suspect"]
