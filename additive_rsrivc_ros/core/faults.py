@@ -703,7 +703,7 @@ class FaultMonitor:
                 for test in self.tests[i]:
                     test.reset(t)       # evidence gathered under the hold is not evidence; an open event stays
                 continue
-            self._track_change(i, t, stress_since)
+            self._track_change(i, t)
             for q in range(3):
                 if not self.applicable(i, q):
                     continue
@@ -728,13 +728,13 @@ class FaultMonitor:
                     out.closed.append(closed)
         return out
 
-    def _track_change(self, i: int, t: float, stress_since: float | None) -> None:
+    def _track_change(self, i: int, t: float) -> None:
         """S7, variable forgetting: when a CUSUM of mode ``i`` has crossed its threshold (a statistically sure
         change, about half the relevant size) and the mode has no open event, shorten the mode's memory to
         ``faults.fast.memory_fraction`` for ``faults.fast.memory_lengths`` memory lengths (a known remedy of
         recursive identification, [RA-SRIVC] §4's forgetting made time-varying): the estimate reaches the changed
-        plant in a fraction of a memory instead of several. Not under stress (an output anomaly's swings are no
-        change to chase). The evidence of the tests is judged with the shortened memory meanwhile."""
+        plant in a fraction of a memory instead of several. The evidence of the tests is judged with the shortened
+        memory meanwhile."""
         tests = self.tests[i]
         if self.fast_spent[i]:
             if t >= self.fast_until[i] and all(tst.g_up == 0.0 and tst.g_down == 0.0 for tst in tests):
@@ -1029,7 +1029,7 @@ class FaultMonitor:
         if not verdict.converged:
             # the baseline window does not identify the joint model (narrow excitation: fewer lines than
             # parameters): the recursion's split between the modes is not evidence, every mode needs the joint
-            # check's support (judged against the baseline) until a quiet window identifies it (JointChecker.step)
+            # check's support, which no fit gives until a quiet window identifies the model (JointChecker.step)
             self.joint_armed_modes = np.ones(self.K, dtype=bool)
             return
         app = applicable_mask(self.structures)
@@ -1041,8 +1041,8 @@ class FaultMonitor:
         return self.joint_reference is not None and not self.joint_reference.converged
 
     def joint_basis(self) -> tuple[np.ndarray, np.ndarray]:
-        """(value, std) a joint fit is compared with: the converged reference fit, else the baseline (the fit of a
-        pending reference is still made, for the health report, but confirms nothing)."""
+        """(value, std) a joint fit is compared with: the converged reference fit, else the baseline (while the
+        reference is pending no fit confirms anything: :meth:`apply_joint`)."""
         ref = self.joint_reference
         if ref is not None and ref.converged:
             return ref.value, ref.std
