@@ -140,7 +140,7 @@ class MonitorPipeline:
         self.K = cfg.K
         self.memory_s = np.array([m.memory_s for m in cfg.modes], dtype=float)
         if self.K == 0:                       # automatic start pending: a health monitor for the notes only
-            mem = [float(v) for v in cfg.params.get("modes.memory_s", [])] or [DEFAULT_MEMORY_S]
+            mem = list(cfg.mode_memories_s) or [DEFAULT_MEMORY_S]
             self.est, self.faults, self.joint = None, None, None
             self.health = HealthMonitor([max(mem)], self.settings, rate_hz=self.rate)
             return
@@ -589,12 +589,9 @@ class MonitorPipeline:
 
 def _make_aligner(cfg: MonitorSettings) -> InvariantAligner | None:
     """The controller-invariant aligner when it applies (closed loop, Float64 signals, ``alignment.mode: auto``)."""
-    p = cfg.params
-    if p.get("alignment.mode", "auto") == "off" or not cfg.closed_loop or cfg.controller is None:
+    opts = cfg.alignment
+    if opts.mode == "off" or not cfg.closed_loop or cfg.controller is None:
         return None
     if any(sc.type != FLOAT64_TYPE for sc in cfg.signals.values()):
         return None   # stamped inputs (JointState) are paired exactly by their header stamps
-    rate = float(cfg.loop_rate_hz)
-    lag = int(math.ceil(float(p.get("alignment.lag_s", 0.008)) * rate))
-    return InvariantAligner(cfg.controller, rate, max_shift=int(p.get("alignment.max_shift", 3)), lag=lag,
-                            switch_nats=float(p.get("alignment.switch_nats", 40.0)))
+    return InvariantAligner(cfg.controller, float(cfg.loop_rate_hz), **opts.aligner_options(float(cfg.loop_rate_hz)))
