@@ -15,7 +15,8 @@ from additive_rsrivc_ros.bagio import read_signals
 from additive_rsrivc_ros.config import MonitorConfig, load_params_file
 from additive_rsrivc_ros.core.alignment import InvariantAligner
 from additive_rsrivc_ros.core.controller import DiscreteController
-from additive_rsrivc_ros.core.pipeline import ALIGN_APPROXIMATE_RELATIVE, MonitorPipeline
+from additive_rsrivc_ros.core.pipeline import MonitorPipeline
+from additive_rsrivc_ros.core.vocabulary import ALIGN_APPROXIMATE_RELATIVE
 
 
 @pytest.fixture(scope="module")
