@@ -93,7 +93,8 @@ def _through_pipeline(cfg, t, r, u, y, path: int = 0) -> dict:
 
 
 def _baseline_state(pipe) -> str:
-    """``-`` no baseline yet, ``T`` trusted, ``U`` untrusted (cut short, or its thirds differ: ``core/faults.py``)."""
+    """``-`` no baseline yet, ``T`` trusted, ``U`` untrusted (cut short, or its thirds differ:
+    ``core/baseline_phases.py``)."""
     base = None if pipe.faults is None else pipe.faults.baseline
     return "-" if base is None else ("T" if base.trusted else "U")
 

@@ -2,7 +2,7 @@
 
 Every parameter is declared once, as a :class:`Param` row: dotted name, ROS type, default, description, range,
 choices and whether a change needs a restart. The rows the core reads (``estimator.*``: :class:`EstimatorOptions`,
-``faults.*``: ``core.faults.FaultSettings``) live here because ``core/`` must not import the ROS-side
+``faults.*``: ``core.fault_settings.FaultSettings``) live here because ``core/`` must not import the ROS-side
 ``config.py``; ``config.py`` adds the plant, signal, alignment and node rows, loads params YAML and renders
 config/template.yaml and the README table from all rows.
 
@@ -86,7 +86,7 @@ ESTIMATOR_PARAMS: list[Param] = [
           "faults.min_change.* (and by more than 3 standard deviations).", 0.0, 100.0, True),
 ]
 
-# Fault diagnosis and estimator health (core/faults.py): fill core.faults.FaultSettings.
+# Fault diagnosis and estimator health (core/faults.py, core/health.py): fill core.fault_settings.FaultSettings.
 FAULT_PARAMS: list[Param] = [
     Param("faults.enabled", "bool", True, "Run the structural fault tests (estimation and health run regardless)."),
     Param("faults.settle_memory_lengths", "double", 3.0, "Wait this many (longest) memory lengths after the "
