@@ -188,7 +188,11 @@ class FaultMonitor:
         sigma, rho, relevant, score = self._deviations(modal, base)
         stress_since = self.stress.follow(t, suspect_since, self.phases.t_phase)
         held_mode = np.zeros(self.K, dtype=bool) if mode_hold is None else np.asarray(mode_hold, dtype=bool)
-        self.stress.judge_modes(np.any(relevant & (score >= 0), axis=1) & ~held_mode, self.open_events)
+        deviating = np.any(relevant & (score >= 0), axis=1) & ~held_mode
+        self.stress.judge_modes(deviating, self.open_events)
+        open_modes = np.zeros(self.K, dtype=bool)
+        open_modes[[e.mode - 1 for e in self.open_events]] = True
+        self.joint_confirmation.judge_coupled(deviating | (open_modes & ~held_mode))
         lead = self._leads(score)
         memory_now = [self.effective_memory_s(i) for i in range(self.K)]
         moving = self.recent.moving(t, modal, rho, memory_now)

@@ -2,7 +2,9 @@
 deviation needs the support of the joint fit (:mod:`.joint_check`).
 
 The baseline window's joint fit (the reference) arms the modes with a quantity the excitation does not identify
-jointly; under advisory stress damping and gain need the joint support too. Two consecutive joint checks that
+jointly; under advisory stress damping and gain need the joint support too; and so do the deviations of modes the
+reference shows coupled (correlated quantities) while they deviate together: the recursion's split between them
+re-converges after a change of either, so a change of one moves the other for a while. Two consecutive joint checks that
 support a change confirm it (the event carries the joint fit's value), two that no longer support it clear it.
 """
 
@@ -17,7 +19,7 @@ import numpy as np
 
 from .baseline_phases import BaselinePhases
 from .fault_settings import FaultSetup
-from .joint_check import JointVerdict, applicable_mask
+from .joint_check import COUPLING, JointVerdict, applicable_mask
 from .sequential_test import FaultUpdate, SequentialTest, SequentialTests
 from .stress_episode import StressEpisode
 
@@ -40,12 +42,15 @@ class JointConfirmation:
         self.reference: JointVerdict | None = None   # the joint fit of the end of the baseline window
         self.streak = np.zeros((setup.K, 3), dtype=int)   # signed run of consecutive supporting checks
         self.several_modes_t = math.nan   # last stressed joint check that moved several modes at once
+        # per mode: it deviates together with a mode the reference shows coupled to it (recomputed every update)
+        self.coupled_pending = np.zeros(setup.K, dtype=bool)
 
     def reset(self) -> None:
         """Unarmed, no reference, no streak (a new baseline)."""
         self.armed_modes[:] = False
         self.latest, self.reference = None, None
         self.streak[:] = 0
+        self.coupled_pending[:] = False
 
     @property
     def armed(self) -> bool:
@@ -65,7 +70,7 @@ class JointConfirmation:
         not. A natural frequency under stress keeps the recursion's faster confirmation, unless another mode's fault
         was confirmed in the same stress episode: the recursion's split between the modes is then re-converging
         too, and a second mode's deviation needs the joint fit's support."""
-        if self.armed_modes[i] or self.reference_pending:
+        if self.armed_modes[i] or self.reference_pending or self.coupled_pending[i]:
             return True
         since = self.stress.anomaly_since
         if since is None or self.reference is None or not self.reference.converged:
@@ -79,6 +84,25 @@ class JointConfirmation:
         return [(i, q, tst.since) for i, row in enumerate(self.tests) for q, tst in enumerate(row)
                 if tst.state == "suspect" and (self.stress.several_modes or self.needed(i, q))
                 and self.streak[i, q] == 0]
+
+    def judge_coupled(self, deviating: np.ndarray) -> np.ndarray:
+        """Mark the modes whose deviation coexists with one of a coupled mode (``deviating``, (K,) bool: a relevant
+        deviation or an open event). Coupling is the reference fit's (|correlation| of two modes' quantities at
+        least :data:`.joint_check.COUPLING`): overlapping resonances share the data, and after a change of one the
+        recursion moves the other until its split re-converges (a damping change of one mode read as a frequency
+        change of its neighbour), where a joint fit of the window after the change does not. Returns the marks."""
+        ref = self.reference
+        self.coupled_pending[:] = False
+        if ref is None or not ref.converged or ref.coupling is None:
+            return self.coupled_pending
+        coupled = np.asarray(ref.coupling, float) >= COUPLING
+        np.fill_diagonal(coupled, False)
+        dev = np.asarray(deviating, bool)
+        self.coupled_pending[:] = dev & np.any(coupled[:, dev], axis=1)
+        return self.coupled_pending
+
+    def _joint_events_open(self) -> bool:
+        return any(tst.state == "fault" and tst.by_joint for row in self.tests for tst in row)
 
     def arm(self, verdict: JointVerdict) -> None:
         """The baseline window's joint fit: arm the modes with some applicable quantity not identifiable jointly."""
@@ -111,7 +135,8 @@ class JointConfirmation:
     def due(self, t: float, last_check: float) -> bool:
         """Whether a joint check is due: every half memory while a test deviates or a joint event is open, else every
         two memory lengths."""
-        needed = self.armed or (self.stress.anomaly_since is not None and self.reference is not None)
+        needed = self.armed or (self.stress.anomaly_since is not None and self.reference is not None) or \
+            bool(self.coupled_pending.any()) or self._joint_events_open()
         if not needed or self.phases.phase != "monitoring":
             return False
         busy = any(tst.state != "ok" for row in self.tests for tst in row) or bool(np.any(self.streak))
@@ -123,7 +148,8 @@ class JointConfirmation:
         two no longer support. An unconverged fit judges nothing (streaks and events are kept)."""
         out = FaultUpdate()
         self.latest = verdict
-        needed = self.armed or self.stress.anomaly_since is not None
+        needed = self.armed or self.stress.anomaly_since is not None or bool(self.coupled_pending.any()) or \
+            self._joint_events_open()
         if not (needed and verdict.converged) or self.phases.baseline is None or held:
             return out
         if self.reference_pending:
@@ -156,7 +182,8 @@ class JointConfirmation:
             self._follow_event(t, test, int(sup[i, q]), float(verdict.value[i, q]), out)
             return
         if test.state == "fault" or abs(self.streak[i, q]) < 2 or not self.setup.applicable(i, q) \
-                or not (self.armed_modes[i] or self.stress.anomaly_since is not None):   # recursion alone
+                or not (self.armed_modes[i] or self.stress.anomaly_since is not None
+                        or self.coupled_pending[i]):   # the recursion alone decides
             return
         ref_value, ref_std = self.basis()
         sigma = math.hypot(float(verdict.std[i, q]), float(ref_std[i, q]))
