@@ -23,7 +23,7 @@ from .report_record import Counters, modes_text
 from .vocabulary import one_line
 
 
-class StartHost(Protocol):
+class PipelineHost(Protocol):
     """What the start reads and sets on the pipeline it serves (:class:`.pipeline.MonitorPipeline`)."""
 
     cfg: MonitorSettings
@@ -62,9 +62,9 @@ class StartHost(Protocol):
 
 class ModelStart:
     """The pipeline's start: the initialization buffer and the once-per-run starts from the data; see the module
-    docstring. It acts on its host's estimator, monitors and health (:class:`StartHost`)."""
+    docstring. It acts on its host's estimator, monitors and health (:class:`PipelineHost`)."""
 
-    def __init__(self, host: StartHost, init_samples: int) -> None:
+    def __init__(self, host: PipelineHost, init_samples: int) -> None:
         self.host = host
         self.init_samples = init_samples
         self.buffer: list[tuple[np.ndarray, ...]] = []
