@@ -14,7 +14,6 @@ released rows as a consistency check, never to re-pair them. Every queue and mem
 from __future__ import annotations
 
 import threading
-from collections import deque
 from collections.abc import Callable
 from typing import Any
 
@@ -22,7 +21,8 @@ import numpy as np
 
 from .block_index import DUPLICATE_MEMORY_S, RESTART_GAP_S, BlockIndex, Released
 from .block_invariant import INVARIANT_WARN, ControllerInvariant
-from .sync import Aligned, InputSync
+from .input_stage import InputStage
+from .sync_state import Aligned, SyncSettings
 
 __all__ = ["BLOCK_COLUMNS", "DUPLICATE_MEMORY_S", "INVARIANT_WARN", "RESTART_GAP_S", "BlockSync", "block_rows",
            "index_problem"]
@@ -32,11 +32,11 @@ MAX_INDEX = float(2 ** 53)   # integers are exact in float64 below this
 BLOCK_COLUMNS = ("index", "reference", "input", "output")
 
 
-class BlockSync(InputSync):
+class BlockSync(InputStage):
     """Block rows -> :class:`Aligned` samples by the controller's index; see the module docstring.
 
-    The node's callback calls :meth:`enqueue` (cheap, bounded); the worker's :meth:`collect` converts the queued
-    messages with ``convert`` (``msg -> (rows (N, 4) | None, error)``), validates them and hands the rows to its
+    The node's callback calls :meth:`enqueue` (cheap, bounded by rows); the worker's :meth:`collect` converts the
+    queued messages with ``convert`` (``msg -> (rows (N, 4) | None, error)``), validates them and hands the rows to its
     :class:`.block_index.BlockIndex` (pairing by index) and :class:`.block_invariant.ControllerInvariant`. Counters of
     the per-sample path keep their meaning (``received``/``aligned`` in samples, ``dropped``: rows never given to the
     pipeline); the block-specific ones are in :meth:`extra_values`.
@@ -48,11 +48,9 @@ class BlockSync(InputSync):
                  convert: Callable[[Any], tuple[np.ndarray | None, str]], reorder_s: float = 0.05,
                  controller: Any = None, gap_s: float = 0.1, silent_s: float = 1.0, max_queue: int = 1 << 20,
                  rate_window_s: float = 2.0, rate_tolerance: float = 0.02) -> None:
-        super().__init__(("output",), rate_hz, stamped=True, max_backlog=max(1, max_queue // 2), quiet_s=1.0,
-                         gap_s=gap_s, hold_s=0.0, silent_s=silent_s, stall_s=0.0, max_queue=max_queue,
-                         labels=(label,), rate_window_s=rate_window_s, rate_tolerance=rate_tolerance)
-        self.signals = ("block",)
-        self.update(silent_s=silent_s)
+        super().__init__(("block",), rate_hz, (label,), max_queue, settings=SyncSettings(),
+                         rate_window_s=rate_window_s, rate_tolerance=rate_tolerance, bounded=False)
+        self.update(gap_s=gap_s, silent_s=silent_s)
         self.closed_loop = bool(closed_loop)
         self.convert = convert
         self.wake = threading.Event()              # set by every enqueued message: the worker sleeps until then
@@ -63,13 +61,16 @@ class BlockSync(InputSync):
         self.invariant = ControllerInvariant(self.rate, controller if self.closed_loop else None)
         self.index = BlockIndex(self.rate, label, max_queue=self.max_queue, reorder_s=reorder_s, counts=self.block,
                                 counters=self.counters, events=self.event_log, invariant=self.invariant)
-        self.inputs.queues = [deque()]             # (msg, arrival_ns, rows) from the callback; bounded by rows
-        self.inputs.pending = [self.index.held]
         self.last_malformed = ""
         self._malformed_logged_ns = 0
         self._malformed_since_log = 0
         self.last_block_rows = 0                   # rows of the latest valid block (its span vs stale_timeout_s)
         self._span_warned = False
+
+    @property
+    def pending(self) -> list[list[Any]]:
+        """The blocks held behind a hole (one list: rows are paired by index, not per topic)."""
+        return [self.index.held]
 
     @property
     def pairing(self) -> str:

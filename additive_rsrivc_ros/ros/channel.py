@@ -26,7 +26,7 @@ if TYPE_CHECKING:   # annotations only: the host's (rclpy's) and the pipeline's 
 
     from ..config import MonitorConfig
     from ..core.pipeline import MonitorPipeline, Report
-    from .sync import InputSync
+    from .input_stage import InputStage
 
 MODES_QUEUE = 10_000        # ~/modes messages the publisher may fall behind before the oldest are coalesced (counted)
 
@@ -94,7 +94,7 @@ class ChannelCore:
         self.lock = threading.RLock()
         self.pipeline: MonitorPipeline | None = None
         self.cfg: MonitorConfig | None = None
-        self.sync: InputSync | None = None
+        self.sync: InputStage | None = None
         self.signals: tuple[str, ...] = ()
         self.topics: dict[str, str] = {}    # signal -> label in every message (the resolved topic for a node)
 
@@ -104,7 +104,7 @@ class ChannelCore:
             raise NotConfiguredError("the monitor is not configured (no pipeline)")
         return self.pipeline
 
-    def configured_sync(self) -> InputSync:
+    def configured_sync(self) -> InputStage:
         """The input stage of a configured channel (:class:`NotConfiguredError` before)."""
         if self.sync is None:
             raise NotConfiguredError("the monitor is not configured (no input stage)")

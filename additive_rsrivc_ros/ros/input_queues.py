@@ -25,7 +25,7 @@ class InputQueues:
     """The callback deques and pending lists of the topics ``labels``; see the module docstring."""
 
     def __init__(self, labels: tuple[str, ...], rate_hz: float, max_queue: int, *, counters: SyncCounters,
-                 events: SyncEvents, rates: ArrivalRates) -> None:
+                 events: SyncEvents, rates: ArrivalRates, bounded: bool = True) -> None:
         self.labels = labels
         self.rate = float(rate_hz)
         self.max_queue = int(max_queue)
@@ -33,8 +33,9 @@ class InputQueues:
         self.events = events
         self.rates = rates
         n = len(labels)
-        # callbacks append here; a full deque drops its oldest item, the callback counts it in `overflow`
-        self.queues: list[deque[Any]] = [deque(maxlen=self.max_queue) for _ in range(n)]
+        # callbacks append here; a full deque drops its oldest item, the callback counts it in `overflow` (not
+        # `bounded`: the callback bounds the queue itself, e.g. block messages by their rows)
+        self.queues: list[deque[Any]] = [deque(maxlen=self.max_queue if bounded else None) for _ in range(n)]
         self.overflow = [0] * n
         self._overflow_seen = [0] * n
         self.overflowing = [0] * n          # messages dropped in the current episode (0: none open)

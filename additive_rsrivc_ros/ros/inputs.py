@@ -27,6 +27,7 @@ from . import convert as cv
 from . import sync as input_sync
 from .blocks import BlockSync
 from .channel import ChannelContext, ChannelCore, ChannelStats
+from .input_stage import InputStage
 from .sync import InputSync
 
 JOINT_STATE = "sensor_msgs/msg/JointState"
@@ -78,7 +79,7 @@ class Inputs:
                                  f"({first_line(exc)})") from None
         return out
 
-    def make_sync(self, cfg: MonitorConfig, v: Mapping[str, Any]) -> InputSync:
+    def make_sync(self, cfg: MonitorConfig, v: Mapping[str, Any]) -> InputStage:
         """The input stage: :class:`BlockSync` for block input, else :class:`InputSync` (stamped when every signal
         is a JointState)."""
         rate = cfg.loop_rate_hz

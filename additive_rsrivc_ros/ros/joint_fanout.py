@@ -26,7 +26,7 @@ from .joint_cdr import Layout, decode_run, parse_layout
 
 if TYPE_CHECKING:
     from .channel import ChannelStats
-    from .sync import InputSync
+    from .input_stage import InputStage
 
 
 @dataclass
@@ -34,7 +34,7 @@ class Reader:
     """One joint's signal read from the topic: the joint's input stage and statistics (``malformed``, ``errors``),
     the index of the signal in its input stage, the signal's name, the joint's name in the messages and the field."""
 
-    sync: InputSync
+    sync: InputStage
     stats: ChannelStats
     index: int
     signal: str
@@ -181,7 +181,7 @@ class SharedJointTopic:
         """Messages with one name list, converted: each reader's column to its joint's queue."""
         n = len(stamps)
         width = len(names)
-        missed: dict[str, tuple[InputSync, int, str]] = {}
+        missed: dict[str, tuple[InputStage, int, str]] = {}
         for r, col in zip(self.readers, self.columns(names), strict=True):
             if col < 0:
                 self._malformed(r, n)
@@ -216,7 +216,7 @@ class SharedJointTopic:
         mal = r.stats.malformed
         mal[r.signal] = mal.get(r.signal, 0) + n
 
-    def _episodes(self, missed: dict[str, tuple[InputSync, int, str]], now_ns: int) -> None:
+    def _episodes(self, missed: dict[str, tuple[InputStage, int, str]], now_ns: int) -> None:
         """One event per joint when messages without it begin on this topic, one when it is back."""
         for joint, (sync, n, text) in missed.items():
             if not self._open.get(joint):

@@ -28,7 +28,7 @@ from ..core.pipeline import Report
 from ..status import Finding, StatusRecord, estimator_summary, mode_summary
 from . import convert as cv
 from .channel import MODES_QUEUE, ChannelContext, ChannelCore, ChannelSettings, ChannelStats, Outbox, RingStats
-from .sync import InputSync
+from .input_stage import InputStage
 
 __all__ = ["DUPLICATE_NAME_CHECK_S", "MODES_QUEUE", "QUANTITIES", "Outputs", "Publisher", "RingStats",
            "alignment_values", "mode_message"]
@@ -220,7 +220,7 @@ class Publisher:
             self._delay_cache_ns = now
         return self._delay_cache
 
-    def _sync_values(self, sync: InputSync) -> dict[str, Any]:
+    def _sync_values(self, sync: InputStage) -> dict[str, Any]:
         """Key/values of the input stage (counters, queues, arrival rates)."""
         sc = sync.counters
         return {
@@ -287,7 +287,7 @@ class Publisher:
             **(self.extra_values() if self.extra_values is not None else {}),
         }
 
-    def _input_reasons(self, sync: InputSync) -> list[str]:
+    def _input_reasons(self, sync: InputStage) -> list[str]:
         """Open input problems that last (rate mismatch, queue overflow, a busy estimator): WARN reasons."""
         out = [sync.rate_reason(lb, r, sync.expected_rate) for lb, r in list(sync.rate_mismatch.items())]
         out += sync.lasting_reasons()

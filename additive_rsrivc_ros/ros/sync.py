@@ -15,18 +15,14 @@ Callbacks only append to :attr:`InputSync.queues`; :meth:`InputSync.collect` run
 from __future__ import annotations
 
 import math
-import threading
-from collections import deque
 from collections.abc import Callable, Mapping
 from typing import Any
 
-import numpy as np
-
-from .arrival_rates import ArrivalRates
-from .input_queues import BYTES_PER_SAMPLE, InputQueues
+from .input_queues import BYTES_PER_SAMPLE
+from .input_stage import InputStage
 from .order_pairing import OrderPairing
 from .stamped_pairing import StampedPairing
-from .sync_state import Aligned, NodeStalls, SyncCounters, SyncEvents, SyncSettings
+from .sync_state import Aligned, SyncCounters, SyncSettings
 
 __all__ = ["BYTES_PER_SAMPLE", "Aligned", "InputSync", "SyncCounters", "backlog_samples", "pause_gap_s", "settings"]
 
@@ -51,17 +47,14 @@ def settings(values: Mapping[str, Any], rate_hz: float) -> dict[str, Any]:
     return {arg: f(values[name]) for name, (arg, f) in convert.items() if name in values}
 
 
-class InputSync:
+class InputSync(InputStage):
     """Turns per-topic message queues into aligned samples; see the module docstring.
 
     ``signals`` are the names in the order the pipeline wants them, e.g. ``("reference", "input", "output")``
-    or ``("input", "output")`` in open loop. Its parts: :class:`.input_queues.InputQueues` (the bounded queues),
-    :class:`.order_pairing.OrderPairing` or :class:`.stamped_pairing.StampedPairing` (the pairing),
-    :class:`.arrival_rates.ArrivalRates` (the rate check); this class bounds the backlog between the topics and
-    resynchronizes them.
+    or ``("input", "output")`` in open loop. Its parts (besides those of :class:`.input_stage.InputStage`):
+    :class:`.order_pairing.OrderPairing` or :class:`.stamped_pairing.StampedPairing` (the pairing); this class bounds
+    the backlog between the topics and resynchronizes them.
     """
-
-    wake: threading.Event | None = None   # block input sets it per message; None: the worker polls every period
 
     def __init__(self, signals: tuple[str, ...], rate_hz: float, *, stamped: bool, max_backlog: int,
                  quiet_s: float, gap_s: float, hold_s: float, skew_s: float | None = None,
@@ -76,75 +69,18 @@ class InputSync:
             raise ValueError("max_backlog >= 1, quiet_s > 0, gap_s > 0, hold_s >= 0 and stall_s >= 0 are required")
         if max_queue < 2 * max_backlog or not rate_window_s > 0.0 or not rate_tolerance > 0.0:
             raise ValueError("max_queue >= 2 max_backlog, rate_window_s > 0 and rate_tolerance > 0 are required")
-        self.signals = tuple(signals)
-        self.n = len(signals)
-        self.rate = float(rate_hz)
+        signals = tuple(signals)
+        settings = SyncSettings(stall_ns=int(stall_s * 1e9),
+                                skew_ns=int((0.5 / rate_hz if skew_s is None else skew_s) * 1e9))
+        super().__init__(signals, rate_hz, tuple(labels) if labels is not None else signals, max_queue,
+                         settings=settings, rate_window_s=rate_window_s, rate_tolerance=rate_tolerance)
         self.stamped = stamped
-        self.settings = SyncSettings(stall_ns=int(stall_s * 1e9),
-                                     skew_ns=int((0.5 / self.rate if skew_s is None else skew_s) * 1e9))
         InputSync.update(self, max_backlog=max_backlog, quiet_s=quiet_s, gap_s=gap_s, hold_s=hold_s,
                          silent_s=quiet_s if silent_s is None else silent_s)
-        self.labels = tuple(labels) if labels is not None else self.signals
-        self.max_queue = int(max_queue)
-        self.counters = SyncCounters(received=[0] * self.n, queue_dropped=[0] * self.n)
-        self.event_log = SyncEvents()
-        self.stalls = NodeStalls()
-        self.rates = ArrivalRates(self.rate, self.labels, window_s=rate_window_s, tolerance=rate_tolerance,
-                                  counters=self.counters, events=self.event_log, stalls=self.stalls,
-                                  gap_ns=self._arrival_gap_ns)
-        self.inputs = InputQueues(self.labels, self.rate, self.max_queue, counters=self.counters,
-                                  events=self.event_log, rates=self.rates)
         self.order = OrderPairing(self.signals, self.rate, settings=self.settings, queues=self.inputs,
                                   counters=self.counters, events=self.event_log, stalls=self.stalls)
         self.stamps = StampedPairing(self.signals, counters=self.counters, events=self.event_log)
-        self.time_floor: float | None = None
         self._imbalance_since: int | None = None
-
-    # ----------------------------------------------------------------------------------------- the parts' state
-    @property
-    def queues(self) -> list[deque[Any]]:
-        """The callback queues, one per signal (the callbacks append here)."""
-        return self.inputs.queues
-
-    @property
-    def overflow(self) -> list[int]:
-        """Per signal: items the callback's full deque dropped (counted by the callback)."""
-        return self.inputs.overflow
-
-    @property
-    def pending(self) -> list[list[Any]]:
-        """Per signal: drained samples waiting for their partners."""
-        return self.inputs.pending
-
-    @property
-    def events(self) -> deque[str]:
-        """The last event lines (one per input episode)."""
-        return self.event_log.lines
-
-    @property
-    def n_events(self) -> int:
-        return self.event_log.count
-
-    @property
-    def last_event_ns(self) -> int:
-        return self.event_log.last_ns
-
-    @property
-    def rate_mismatch(self) -> dict[str, float]:
-        """Label -> measured arrival rate (Hz) while mismatched."""
-        return self.rates.mismatch
-
-    @property
-    def measured_rate(self) -> list[float]:
-        return self.rates.measured
-
-    @property
-    def expected_rate(self) -> float:
-        return self.rates.expected
-
-    @property
-    def rate_window_ns(self) -> int:
-        return self.rates.window_ns
 
     # ----------------------------------------------------------------------------------------- control
     def update(self, *, silent_s: float | None = None, max_backlog: int | None = None, gap_s: float | None = None,
@@ -173,9 +109,6 @@ class InputSync:
         """How samples are paired (the node's start-up line)."""
         return "stamped" if self.stamped else "arrival order"
 
-    def _event(self, now_ns: int, msg: str) -> None:
-        self.event_log.add(now_ns, msg)
-
     def set_time_floor(self, t_floor: float | None) -> None:
         """Emit times above ``t_floor + 1 s`` from now on (after restoring a saved estimator state)."""
         self.time_floor = self.order.time_floor = t_floor
@@ -196,72 +129,11 @@ class InputSync:
         self._event(now_ns, f"{reason}; {n_drop} pending messages discarded, streams resynchronized")
         self._restart()
 
-    def queue_bytes(self) -> int:
-        """Upper bound of the memory the queued samples take (both bounded stages of every topic)."""
-        return self.inputs.queue_bytes()
-
-    def queue_reasons(self) -> list[str]:
-        """Topics whose queue is full in an open episode: one WARN reason each."""
-        return self.inputs.reasons()
-
-    def latest_arrival(self, i: int) -> int:
-        """Arrival (ns) of topic ``i``'s newest message, including messages the worker has not drained yet."""
-        return self.inputs.latest_arrival(i)
-
-    def silent(self, now_ns: int, timeout_s: float, looking_since_ns: int = 0) -> list[str]:
-        """Signals without a message for ``timeout_s`` (never received counts as silent) although the node
-        was looking: only when the executor has been running for longer than ``timeout_s``
-        (``looking_since_ns``: start of its current uninterrupted run); otherwise nothing can be told."""
-        lim = int(timeout_s * 1e9)
-        if looking_since_ns and now_ns - looking_since_ns <= lim:
-            return []
-        out = []
-        for i, s in enumerate(self.signals):
-            a = self.latest_arrival(i)
-            if a == 0 or now_ns - a > lim:
-                out.append(s)
-        return out
-
-    def note_stall(self, start_ns: int, end_ns: int) -> None:
-        """The node's own stall (the executor did not run from ``start_ns`` to ``end_ns``)."""
-        self.stalls.note(start_ns, end_ns)
-
-    def check_rates(self, now_ns: int, time_scale: float = 1.0) -> list[str]:
-        """Arrival rate of each topic over the last ``rate_window_s`` vs ``rate_hz * time_scale`` (the speed of
-        the sample clock, 1 without sim time); returns the newly mismatched topics' one-line reasons."""
-        return self.rates.check(now_ns, time_scale)
-
-    def _arrival_gap_ns(self, arrivals_ns: np.ndarray) -> int:
-        """Longest arrival spacing that is not a pause of the topic (one message per sample: the data gap)."""
-        return self.settings.gap_ns
-
     @property
     def arrival_is_the_clock(self) -> bool:
         """The samples' times come from their arrival (Float64 topics): an arrival rate that contradicts
         ``loop_rate_hz`` is then a wrong time scale. Header-stamped samples carry their own time."""
         return not self.stamped
-
-    @property
-    def rate_error(self) -> str:
-        """One line when the arrival rate of an input whose arrival is its clock contradicts ``loop_rate_hz`` (the
-        model's time scale would be wrong: nothing is published then), else ``''``."""
-        if not self.rate_mismatch or not self.arrival_is_the_clock:
-            return ""
-        label, rate = next(iter(self.rate_mismatch.items()))
-        return (f"loop_rate_hz disagrees with the data's timing ({self.rate_reason(label, rate, self.expected_rate)}):"
-                " no estimate is published until they agree")
-
-    def lasting_reasons(self) -> list[str]:
-        """Lasting problems specific to the input kind (none for topics; block input: the controller invariant)."""
-        return []
-
-    def extra_values(self) -> dict[str, Any]:
-        """Estimator-status values specific to the input kind (none for topics; block input: its counters)."""
-        return {}
-
-    def rate_reason(self, label: str, rate: float, expected: float | None = None) -> str:
-        """One line: ``arrival rate 2048 Hz on /plant_output, loop_rate_hz 4096``."""
-        return self.rates.reason(label, rate, expected)
 
     # ----------------------------------------------------------------------------------------- alignment
     def collect(self, now_ns: int, *, idle_since_ns: int = 0, ros_now_s: float = 0.0) -> Aligned | None:

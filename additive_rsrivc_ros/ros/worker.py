@@ -17,7 +17,8 @@ import time
 from collections.abc import Callable
 
 from .channel import ChannelContext, ChannelCore, ChannelSettings, ChannelStats, Outbox
-from .sync import Aligned, InputSync
+from .input_stage import InputStage
+from .sync_state import Aligned
 
 STALL_NS = 250_000_000     # the executor or the worker not running for this long is a stall of the node itself
 BLOCK_IDLE_S = 0.05          # block input: longest worker sleep without a new block (reorder timeouts, rate checks)
@@ -135,14 +136,14 @@ class Worker:
             else:
                 self.ctx.logger.warning(note)
 
-    def log_events(self, sync: InputSync, n_ev: int) -> None:
+    def log_events(self, sync: InputStage, n_ev: int) -> None:
         """Log the sync events raised since ``n_ev`` (each is one line, once per episode)."""
         new = sync.n_events - n_ev
         if new > 0:
             for ev in list(sync.events)[-min(new, len(sync.events)):]:
                 self.ctx.logger.warning(f"input: {ev}")
 
-    def _once_per_second(self, now: int, sync: InputSync) -> None:
+    def _once_per_second(self, now: int, sync: InputStage) -> None:
         """Graph (wrong types), CPU, arrival rates."""
         self._next_graph_ns = now + 1_000_000_000
         self.check_graph()
