@@ -18,7 +18,7 @@ import threading
 import time
 from collections.abc import Callable, Mapping
 from dataclasses import dataclass
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 import numpy as np
 from diagnostic_msgs.msg import DiagnosticArray
@@ -29,6 +29,9 @@ from ..status import Finding, StatusRecord, estimator_summary, mode_summary
 from . import convert as cv
 from .channel import MODES_QUEUE, ChannelContext, ChannelCore, ChannelSettings, ChannelStats, Outbox, RingStats
 from .input_stage import InputStage
+
+if TYPE_CHECKING:
+    from rclpy.lifecycle import LifecyclePublisher
 
 __all__ = ["DUPLICATE_NAME_CHECK_S", "MODES_QUEUE", "QUANTITIES", "Outputs", "Publisher", "RingStats",
            "alignment_values", "mode_message"]
@@ -67,9 +70,9 @@ of a running graph takes a few hundred milliseconds on loopback)."""
 class Outputs:
     """A channel's publishers (None until configured): ~/modes, ~/modes_stamped and /diagnostics."""
 
-    modes: Any = None           # LifecyclePublisher of Float64MultiArray
-    modes_stamped: Any = None   # LifecyclePublisher of PointCloud2
-    diagnostics: Any = None     # LifecyclePublisher of DiagnosticArray (shared by the joints of a group)
+    modes: LifecyclePublisher | None = None           # Float64MultiArray
+    modes_stamped: LifecyclePublisher | None = None   # PointCloud2
+    diagnostics: LifecyclePublisher | None = None     # DiagnosticArray (shared by the joints of a group)
 
 
 class Publisher:
