@@ -81,7 +81,7 @@ def _msg(k: int, names: list[str], pos: list[float], eff: list[float]):
 def _channel():
     sync = SimpleNamespace(queues=[deque(maxlen=100), deque(maxlen=100)], overflow=[0, 0], events=[])
     sync._event = lambda now, text: sync.events.append(text)
-    return SimpleNamespace(sync=sync, _malformed={})
+    return SimpleNamespace(sync=sync, malformed={})      # the joint's input stage and statistics
 
 
 def test_fan_out_by_name_in_any_order_and_missing_joints():
@@ -90,8 +90,8 @@ def test_fan_out_by_name_in_any_order_and_missing_joints():
     a, b = _channel(), _channel()
     topic = SharedJointTopic("/joint_states", 10)
     for ch, j in ((a, "a"), (b, "b")):
-        topic.add_reader(Reader(ch, 0, "input", j, "effort"))
-        topic.add_reader(Reader(ch, 1, "output", j, "position"))
+        topic.add_reader(Reader(ch.sync, ch, 0, "input", j, "effort"))
+        topic.add_reader(Reader(ch.sync, ch, 1, "output", j, "position"))
     msgs = [_msg(0, ["a", "b"], [1.0, 2.0], [10.0, 20.0]), _msg(1, ["b", "a"], [2.1, 1.1], [20.1, 10.1]),
             _msg(2, ["a"], [1.2], [10.2]), _msg(3, ["a"], [1.3], [10.3]), _msg(4, ["b", "x", "a"], [2.4, 0.0, 1.4],
                                                                             [20.4, 0.0, 10.4])]
@@ -102,7 +102,7 @@ def test_fan_out_by_name_in_any_order_and_missing_joints():
     assert list(a.sync.queues[1]) == list(zip([1.0, 1.1, 1.2, 1.3, 1.4], range(1000, 1005), stamps, strict=True))
     assert [v for v, _, _ in a.sync.queues[0]] == [10.0, 10.1, 10.2, 10.3, 10.4]
     assert [(v, s) for v, _, s in b.sync.queues[1]] == [(2.0, stamps[0]), (2.1, stamps[1]), (2.4, stamps[4])]
-    assert b._malformed == {"input": 2, "output": 2} and not a._malformed
+    assert b.malformed == {"input": 2, "output": 2} and not a.malformed
     assert len(b.sync.events) == 2 and "not in 2 message(s)" in b.sync.events[0] and "back" in b.sync.events[1]
     assert not a.sync.events
 
@@ -110,7 +110,7 @@ def test_fan_out_by_name_in_any_order_and_missing_joints():
 def test_fan_out_counts_the_queue_bound_for_every_reader():
     a = _channel()
     topic = SharedJointTopic("/joint_states", 3)
-    topic.add_reader(Reader(a, 1, "output", "a", "position"))
+    topic.add_reader(Reader(a.sync, a, 1, "output", "a", "position"))
     for k in range(5):
         topic.enqueue(_msg(k, ["a"], [float(k)], [0.0]), k)
     topic.fan_out(0)
@@ -177,11 +177,11 @@ def test_raw_fan_out_equals_the_object_fan_out():
         chans = {j: _channel() for j in ("j0", "j1", "jx2")}
         topic = SharedJointTopic("/joint_states", 1000, raw=raw, msg_type=JointState)
         for j, ch in chans.items():
-            topic.add_reader(Reader(ch, 0, "input", j, "effort"))
-            topic.add_reader(Reader(ch, 1, "output", j, "position"))
+            topic.add_reader(Reader(ch.sync, ch, 0, "input", j, "effort"))
+            topic.add_reader(Reader(ch.sync, ch, 1, "output", j, "position"))
         for k, m in enumerate(msgs):
             topic.enqueue(serialize_message(m) if raw else m, k)
         topic.fan_out(0)
-        got.append({j: ([list(q) for q in ch.sync.queues], ch._malformed, ch.sync.events) for j, ch in chans.items()})
+        got.append({j: ([list(q) for q in ch.sync.queues], ch.malformed, ch.sync.events) for j, ch in chans.items()})
         assert topic.deserialized == 0
     assert got[0] == got[1] and sum(len(q) for q in got[0]["j1"][0]) > 140

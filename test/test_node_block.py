@@ -464,12 +464,13 @@ def test_block_input_runtime_change_applies_the_silence_as_at_start_up():
     """Block input takes stale_timeout_s without the Float64 stall floor, at start-up and at runtime alike, and
     ignores the Float64-only settings (backlog, quiet, hold) as its start-up does."""
     s = _sync(silent_s=1.0)
-    assert s.silent_ns == 1_000_000_000
-    before = (s.max_backlog, s.quiet_ns, s.hold_ns, s.persist_ns)
+    assert s.settings.silent_ns == 1_000_000_000
+    before = (s.settings.max_backlog, s.settings.quiet_ns, s.settings.hold_ns, s.settings.persist_ns)
     s.update(silent_s=0.3, gap_s=0.2, max_backlog=3, quiet_s=9.0, hold_s=1.0)
     fresh = _sync(silent_s=0.3, gap_s=0.2)
-    assert (s.silent_ns, s.gap_ns) == (fresh.silent_ns, fresh.gap_ns) == (300_000_000, 200_000_000)
-    assert (s.max_backlog, s.quiet_ns, s.hold_ns, s.persist_ns) == before
+    assert ((s.settings.silent_ns, s.settings.gap_ns) == (fresh.settings.silent_ns, fresh.settings.gap_ns)
+            == (300_000_000, 200_000_000))
+    assert (s.settings.max_backlog, s.settings.quiet_ns, s.settings.hold_ns, s.settings.persist_ns) == before
 
 
 

@@ -247,7 +247,8 @@ def test_stall_of_the_node_is_not_an_input_pause():
 
 
 def _limits(s: InputSync) -> tuple[int, ...]:
-    return s.max_backlog, s.gap_ns, s.hold_ns, s.quiet_ns, s.persist_ns, s.silent_ns
+    st = s.settings
+    return st.max_backlog, st.gap_ns, st.hold_ns, st.quiet_ns, st.persist_ns, st.silent_ns
 
 
 def test_a_runtime_change_gets_the_floors_and_conversions_of_start_up():
@@ -255,11 +256,11 @@ def test_a_runtime_change_gets_the_floors_and_conversions_of_start_up():
     the silence (stale_timeout_s) and the count-mismatch persistence never below a stall (sync.stall_s, 2 x
     sync.quiet_s); sync.gap_s 0 is automatic; sync.max_backlog_s at least 8 samples."""
     s = make(stall_s=4.0, silent_s=1.0)
-    assert s.silent_ns == 4_000_000_000                     # start-up floor: a stall
+    assert s.settings.silent_ns == 4_000_000_000                     # start-up floor: a stall
     s.update(silent_s=0.5)                                  # a runtime stale_timeout_s below the stall
-    assert s.silent_ns == 4_000_000_000 == make(stall_s=4.0, silent_s=0.5).silent_ns
+    assert s.settings.silent_ns == 4_000_000_000 == make(stall_s=4.0, silent_s=0.5).settings.silent_ns
     s.update(quiet_s=3.0)                                   # the persistence follows quiet_s as at start-up
-    assert (s.persist_ns, s.silent_ns) == (6_000_000_000, 6_000_000_000)
+    assert (s.settings.persist_ns, s.settings.silent_ns) == (6_000_000_000, 6_000_000_000)
     assert _limits(s) == _limits(make(stall_s=4.0, silent_s=0.5, quiet_s=3.0))
     params = {"stale_timeout_s": 0.2, "sync.max_backlog_s": 0.001, "sync.gap_s": 0.0, "sync.quiet_s": 0.05,
               "sync.hold_s": 0.3}

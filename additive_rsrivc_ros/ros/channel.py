@@ -1,35 +1,34 @@
-"""What the mixins of one monitor channel share: its attributes, with their types, and what it asks of its host.
+"""One monitor channel's shared, typed state: what its parts (:mod:`.params`, :mod:`.inputs`, :mod:`.worker`,
+:mod:`.publishing`, :mod:`.state`) receive in their constructors.
 
 A channel is one monitored axis: :class:`.monitor_node.MonitorNode` (a node of its own) or
-:class:`.joint_channel.JointChannel` (one joint of :class:`.joint_group.JointGroupNode`). Both are composed of the
-mixins of :mod:`.params`, :mod:`.inputs`, :mod:`.state`, :mod:`.worker` and :mod:`.publishing`, which read and write
-the attributes declared here. The declarations are annotations only (nothing is set on the class); the methods the
-host provides (``get_logger``, ``get_clock``, ...; rclpy's ``Node`` for a monitor node) and those one mixin calls on
-another are declared for the type checker only.
+:class:`.joint_channel.JointChannel` (one joint of :class:`.joint_group.JointGroupNode`); both own one
+:class:`.channel_parts.ChannelParts`. Here: :class:`ChannelContext` (name, logger, clock, parameters and the host's
+:class:`Activity`), :class:`ChannelCore` (configuration, pipeline, input stage, under one lock),
+:class:`ChannelSettings` (periods and options), :class:`ChannelStats` (the worker's and the inputs' statistics) and
+:class:`Outbox` (reports from the worker to the publisher).
 """
 
 from __future__ import annotations
 
+import math
 import threading
 from collections import deque
-from collections.abc import Callable, Mapping
+from collections.abc import Callable
+from dataclasses import dataclass, field, fields
 from typing import TYPE_CHECKING, Any
 
 import numpy as np
 
 if TYPE_CHECKING:   # annotations only: the host's (rclpy's) and the pipeline's types
-    from rcl_interfaces.msg import ParameterDescriptor
     from rclpy.clock import Clock
     from rclpy.impl.rcutils_logger import RcutilsLogger
-    from rclpy.lifecycle import LifecyclePublisher
-    from rclpy.parameter import Parameter
-    from rclpy.qos import QoSProfile
-    from rclpy.qos_overriding_options import QoSOverridingOptions
-    from rclpy.subscription import Subscription
 
-    from ..config import MonitorConfig, Param
+    from ..config import MonitorConfig
     from ..core.pipeline import MonitorPipeline, Report
-    from .sync import InputSync
+    from .input_stage import InputStage
+
+MODES_QUEUE = 10_000        # ~/modes messages the publisher may fall behind before the oldest are coalesced (counted)
 
 
 class RingStats:
@@ -63,59 +62,41 @@ class NotConfiguredError(RuntimeError):
     """A configured channel's part (pipeline, input stage, configuration) was used before configuration."""
 
 
-class ChannelState:
-    """The state of one monitor channel, shared by its mixins (see the module docstring)."""
+@dataclass
+class Activity:
+    """What the host node's executor loop (:func:`.monitor_node.spin`) and lifecycle record; one per node (a joint
+    channel shares its group's)."""
 
-    # configuration and the running parts (None until configured)
-    _table: dict[str, Param]
-    lock: threading.RLock
-    pipeline: MonitorPipeline | None
-    cfg: MonitorConfig | None
-    sync: InputSync | None
-    signals: tuple[str, ...]
-    topics: dict[str, str]              # signal -> label in every message (the resolved topic for a node)
-    _subs: list[Any]                    # rclpy Subscription
-    _srvs: list[Any]                    # rclpy Service
-    _modes_pub: LifecyclePublisher | None
-    _modes_stamped_pub: LifecyclePublisher | None
-    _diag_pub: LifecyclePublisher | None
-    _save_path: str
-    _closed: bool
-    _stop: threading.Event
-    # periods and options of the configuration (_configure_runtime)
-    _use_sim_time: bool
-    _stale_timeout_s: float
-    _publish_period_s: float
-    _diag_period_s: float
-    _hardware_id: str
-    _block_period_s: float
-    _block_batch_s: float
-    _block_step_due: float
-    # statistics (WorkerMixin._reset_stats)
-    delays_ms: RingStats
-    _delay_cache: tuple[float, float, float]
-    _delay_cache_ns: int
-    _busy_s: float
-    _data_s: float
-    _cpu0: tuple[float, float]
-    _cpu_fraction: float
-    _malformed: dict[str, int]
-    _wrong_types: list[str]
-    _errors: int
-    _last_error: str
-    _next_graph_ns: int
-    _latest_report: Report | None       # newest pipeline report (worker -> publisher)
-    _modes_queue: deque[tuple[float, np.ndarray]]
-    _reports_made: int
-    _reports_published: int
-    _snapshot: tuple[Report | None, np.ndarray | None]
-    _push_started_ns: int
-    _last_step_ns: int
-    node_stalls: int
-    node_stall_max_s: float
-    worker_stalls: int
-    worker_stall_max_s: float
-    _clock_pts: list[tuple[int, float]]
+    active: bool = False          # activated: inputs are taken, outputs published
+    idle_since_ns: int = 0        # the executor's last wait without work
+    looking_since_ns: int = 0     # start of the executor's current uninterrupted run (0: not yet)
+
+
+@dataclass(frozen=True)
+class ChannelContext:
+    """Who a channel is: its fully qualified name (statuses, state file), logger, clock, parameter lookup and the
+    host's activity."""
+
+    name: str
+    logger: RcutilsLogger
+    clock: Clock
+    parameter: Callable[[str], Any]
+    activity: Activity
+
+    def ros_now_s(self) -> float:
+        return self.clock.now().nanoseconds * 1e-9
+
+
+class ChannelCore:
+    """The configured parts of a channel (None until configured), guarded by :attr:`lock`."""
+
+    def __init__(self) -> None:
+        self.lock = threading.RLock()
+        self.pipeline: MonitorPipeline | None = None
+        self.cfg: MonitorConfig | None = None
+        self.sync: InputStage | None = None
+        self.signals: tuple[str, ...] = ()
+        self.topics: dict[str, str] = {}    # signal -> label in every message (the resolved topic for a node)
 
     def configured_pipeline(self) -> MonitorPipeline:
         """The pipeline of a configured channel (:class:`NotConfiguredError` before)."""
@@ -123,7 +104,7 @@ class ChannelState:
             raise NotConfiguredError("the monitor is not configured (no pipeline)")
         return self.pipeline
 
-    def configured_sync(self) -> InputSync:
+    def configured_sync(self) -> InputStage:
         """The input stage of a configured channel (:class:`NotConfiguredError` before)."""
         if self.sync is None:
             raise NotConfiguredError("the monitor is not configured (no input stage)")
@@ -135,42 +116,57 @@ class ChannelState:
             raise NotConfiguredError("the monitor is not configured")
         return self.cfg
 
-    if TYPE_CHECKING:
-        # provided by the host: rclpy's Node for MonitorNode, JointChannel's own for a joint
-        @property
-        def _active(self) -> bool: ...
-        @property
-        def looking_since_ns(self) -> int: ...
-        @property
-        def idle_since_ns(self) -> int: ...
-        def get_logger(self) -> RcutilsLogger: ...
-        def get_clock(self) -> Clock: ...
-        def get_fully_qualified_name(self) -> str: ...
-        def parameter_value(self, name: str) -> Any: ...
 
-        # a monitor node's own (rclpy Node): declaring parameters, subscribing, the graph (JointGroupNode does
-        # this for its joints)
-        _parameter_overrides: dict[str, Parameter]
-        _parameters: dict[str, Parameter]
-        def declare_parameter(self, name: str, value: Any = None, descriptor: ParameterDescriptor | None = None,
-                              ignore_override: bool = False) -> Parameter: ...
-        def get_parameter(self, name: str) -> Parameter: ...
-        def get_parameter_or(self, name: str, alternative_value: Parameter | None = None) -> Parameter: ...
-        def resolve_topic_name(self, topic: str, *, only_expand: bool = False) -> str: ...
-        def create_subscription(self, msg_type: Any, topic: str, callback: Callable[[Any], None],
-                                qos_profile: QoSProfile | int, *, callback_group: Any = None,
-                                event_callbacks: Any = None, qos_overriding_options: QoSOverridingOptions | None = None,
-                                raw: bool = False) -> Subscription: ...
-        def get_topic_names_and_types(self, no_demangle: bool = False) -> list[tuple[str, list[str]]]: ...
-        def get_node_names_and_namespaces(self) -> list[tuple[str, str]]: ...
+@dataclass
+class ChannelSettings:
+    """Periods and options of a configuration (parameters; the periods change at runtime)."""
 
-        # one mixin's methods another calls
-        def _check_graph(self) -> None: ...
-        def _make_sync(self, cfg: MonitorConfig, v: Mapping[str, Any]) -> InputSync: ...
-        def _reset_stats(self) -> None: ...
-        def _estimator_values(self, rep: Report | None, h: Mapping[str, Any],
-                              silent: list[str]) -> dict[str, Any]: ...
-        def save_state(self) -> str: ...
-        def warn_duplicate_name(self) -> bool: ...
-        def _run_worker(self) -> None: ...
-        def _run_publisher(self) -> None: ...
+    use_sim_time: bool = False
+    stale_timeout_s: float = 1.0
+    publish_period_s: float = 0.1
+    diag_period_s: float = 1.0
+    hardware_id: str = ""
+    block_period_s: float = 0.05
+    block_batch_s: float = 0.0
+
+
+@dataclass
+class ChannelStats:
+    """Statistics of a channel for its estimator status: written by the worker and the input callbacks, read by the
+    publisher. :meth:`reset` starts them afresh in place (the parts keep their reference)."""
+
+    delays_ms: RingStats = field(default_factory=RingStats)
+    busy_s: float = 0.0
+    data_s: float = 0.0
+    cpu_fraction: float = math.nan
+    malformed: dict[str, int] = field(default_factory=dict)   # signal -> messages without a usable value
+    wrong_types: list[str] = field(default_factory=list)
+    errors: int = 0
+    last_error: str = ""
+    push_started_ns: int = 0           # a pipeline update running since (0: none)
+    node_stalls: int = 0               # executor stalls (the node did not look at its inputs)
+    node_stall_max_s: float = 0.0
+    worker_stalls: int = 0             # worker steps further apart than STALL_NS (GC, compile, ...)
+    worker_stall_max_s: float = 0.0
+
+    def reset(self) -> None:
+        fresh = ChannelStats()
+        for f in fields(self):
+            if f.name != "malformed":          # the callbacks and the fan-out keep a reference to it
+                setattr(self, f.name, getattr(fresh, f.name))
+        self.malformed.clear()
+
+
+class Outbox:
+    """Reports from the worker to the publisher: every report's (K, 6) estimate for ~/modes in order (a cheap message:
+    none is coalesced unless the publisher falls ``MODES_QUEUE`` behind), the newest report for /diagnostics."""
+
+    def __init__(self) -> None:
+        self.reset()
+
+    def reset(self) -> None:
+        self.latest_report: Report | None = None
+        self.modes_queue: deque[tuple[float, np.ndarray]] = deque(maxlen=MODES_QUEUE)
+        self.reports_made = 0
+        self.reports_published = 0
+        self.snapshot: tuple[Report | None, np.ndarray | None] = (None, None)   # what the publisher can always use

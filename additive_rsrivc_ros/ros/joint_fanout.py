@@ -17,20 +17,25 @@ from __future__ import annotations
 from collections import deque
 from collections.abc import Iterable
 from dataclasses import dataclass
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 import numpy as np
 from rclpy.serialization import deserialize_message
 
 from .joint_cdr import Layout, decode_run, parse_layout
 
+if TYPE_CHECKING:
+    from .channel import ChannelStats
+    from .input_stage import InputStage
+
 
 @dataclass
 class Reader:
-    """One joint's signal read from the topic: the joint's channel (``.sync``, ``._malformed``), the index of the
-    signal in its input stage, the signal's name, the joint's name in the messages and the field."""
+    """One joint's signal read from the topic: the joint's input stage and statistics (``malformed``, ``errors``),
+    the index of the signal in its input stage, the signal's name, the joint's name in the messages and the field."""
 
-    channel: Any
+    sync: InputStage
+    stats: ChannelStats
     index: int
     signal: str
     joint: str
@@ -120,7 +125,7 @@ class SharedJointTopic:
         self._shed_seen += shed
         if shed:
             for r in self.readers:       # a message lost at the bound is a sample lost for every joint that reads it
-                r.channel.sync.overflow[r.index] += shed
+                r.sync.overflow[r.index] += shed
         if not m:
             return 0
         items = [q.popleft() for _ in range(m)]
@@ -176,11 +181,11 @@ class SharedJointTopic:
         """Messages with one name list, converted: each reader's column to its joint's queue."""
         n = len(stamps)
         width = len(names)
-        missed: dict[str, tuple[Any, int, str]] = {}
+        missed: dict[str, tuple[InputStage, int, str]] = {}
         for r, col in zip(self.readers, self.columns(names), strict=True):
             if col < 0:
                 self._malformed(r, n)
-                missed[r.joint] = (r.channel, n, f"joint '{r.joint}' not in {n} message(s) on {self.topic} (names: "
+                missed[r.joint] = (r.sync, n, f"joint '{r.joint}' not in {n} message(s) on {self.topic} (names: "
                                    f"{', '.join(names[:8])}{' ...' if width > 8 else ''})")
                 continue
             mat, ok = mats[r.field]
@@ -195,12 +200,12 @@ class SharedJointTopic:
                 k = len(keep)
                 if k < n:
                     self._malformed(r, n - k)
-                    missed.setdefault(r.joint, (r.channel, n - k, f"{n - k} message(s) on {self.topic} with fewer "
+                    missed.setdefault(r.joint, (r.sync, n - k, f"{n - k} message(s) on {self.topic} with fewer "
                                                 f"{r.field} values than names: no sample of joint '{r.joint}'"))
-            dq = r.channel.sync.queues[r.index]
+            dq = r.sync.queues[r.index]
             over = len(dq) + k - dq.maxlen if dq.maxlen is not None else 0
             if over > 0:                  # the bounded deque drops its oldest items: count them as its callback does
-                r.channel.sync.overflow[r.index] += over
+                r.sync.overflow[r.index] += over
             dq.extend(rows)
             r.delivered += k
         self._episodes(missed, now_ns)
@@ -208,18 +213,18 @@ class SharedJointTopic:
     @staticmethod
     def _malformed(r: Reader, n: int) -> None:
         """``n`` messages gave no sample of ``r``'s signal: malformed on that joint (as ``rsrivc_monitor`` counts)."""
-        mal = r.channel._malformed
+        mal = r.stats.malformed
         mal[r.signal] = mal.get(r.signal, 0) + n
 
-    def _episodes(self, missed: dict[str, tuple[Any, int, str]], now_ns: int) -> None:
+    def _episodes(self, missed: dict[str, tuple[InputStage, int, str]], now_ns: int) -> None:
         """One event per joint when messages without it begin on this topic, one when it is back."""
-        for joint, (channel, n, text) in missed.items():
+        for joint, (sync, n, text) in missed.items():
             if not self._open.get(joint):
-                channel.sync._event(now_ns, text)
+                sync._event(now_ns, text)
             self._open[joint] = self._open.get(joint, 0) + n
         for r in self.readers:
             count = self._open.get(r.joint, 0)
             if count and r.joint not in missed:
-                r.channel.sync._event(now_ns, f"joint '{r.joint}' back in the messages on {self.topic} after {count} "
-                                      "message(s) without it")
+                r.sync._event(now_ns, f"joint '{r.joint}' back in the messages on {self.topic} after {count} "
+                              "message(s) without it")
                 self._open[r.joint] = 0

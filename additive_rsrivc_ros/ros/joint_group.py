@@ -34,6 +34,7 @@ from ..core.pipeline import PipelineError
 from ..warmup import is_warm, load_kernels
 from . import convert as cv
 from . import joint_cdr
+from .channel import Activity
 from .inputs import first_line, reader_depth
 from .joint_channel import JointChannel
 from .joint_fanout import Reader, SharedJointTopic
@@ -56,10 +57,8 @@ class JointGroupNode(LifecycleNode):
         self.channels: dict[str, JointChannel] = {}
         self.shared: dict[str, SharedJointTopic] = {}
         self.config_error = ""
-        self._active = False
+        self.activity = Activity()               # shared by the joints: active, the executor's idle and looking times
         self.active_since = time.monotonic()
-        self.looking_since_ns = 0
-        self.idle_since_ns = 0
         self._subs: list[Any] = []
         self._diag_pub = None
         self._stop = threading.Event()
@@ -180,8 +179,8 @@ class JointGroupNode(LifecycleNode):
         for joint, names in self._split_change(list(by_name)).items():
             ch = self.channels.get(joint)
             if ch is not None:
-                ch._post_set([Parameter(n.partition(".")[2] if n not in self._table else n, value=by_name[n].value)
-                              for n in names])
+                ch.parts.runtime.apply([Parameter(n.partition(".")[2] if n not in self._table else n,
+                                                  value=by_name[n].value) for n in names])
 
     # ------------------------------------------------------------------------------------ lifecycle
     def on_configure(self, state: LifecycleState) -> TransitionCallbackReturn:
@@ -207,7 +206,7 @@ class JointGroupNode(LifecycleNode):
         for ch in self.channels.values():
             ch.create_outputs(self._diag_pub)
         topics = ", ".join(f"{t} ({len(s.readers)} signals)" for t, s in self.shared.items())
-        blocks = [j for j, ch in self.channels.items() if ch.configured_cfg().block_input]
+        blocks = [j for j, ch in self.channels.items() if ch.parts.core.configured_cfg().block_input]
         self.get_logger().info(
             f"configured: {len(self.channels)} joints ({', '.join(self.channels)}); shared topics: {topics or 'none'}"
             + (f"; block input: {', '.join(blocks)}" if blocks else "") + f"; worker period {self._period_s:g} s"
@@ -257,19 +256,21 @@ class JointGroupNode(LifecycleNode):
         self._raw = joint_cdr.checked_against_rclpy()
         rate: dict[str, float] = {}
         for ch in self.channels.values():
-            cfg, sync = ch.configured_cfg(), ch.configured_sync()
+            core = ch.parts.core
+            cfg, sync = core.configured_cfg(), core.configured_sync()
             r = cfg.loop_rate_hz
             if cfg.block_input:
-                self._create_sub(Float64MultiArray, ch.topic_of["block"], ch._block_cb(), self._qos(r), opts)
+                self._create_sub(Float64MultiArray, ch.topic_of["block"], ch.parts.inputs.block_cb(), self._qos(r),
+                                 opts)
                 continue
-            for i, s in enumerate(ch.signals):
+            for i, s in enumerate(core.signals):
                 topic = ch.topic_of[s]
                 if topic not in self.shared:
                     self.shared[topic] = SharedJointTopic(topic, sync.max_queue, raw=self._raw,
                                                           msg_type=JointState)
                 self.shared[topic].max_queue = max(self.shared[topic].max_queue, sync.max_queue)
                 sc = cfg.signals[s]
-                self.shared[topic].add_reader(Reader(ch, i, s, sc.joint, sc.field))
+                self.shared[topic].add_reader(Reader(sync, ch.parts.stats, i, s, sc.joint, sc.field))
                 rate[topic] = max(rate.get(topic, 0.0), r)
         for topic, shared in self.shared.items():
             self._create_sub(JointState, topic, self._shared_cb(shared), self._qos(rate[topic]), opts, raw=self._raw)
@@ -282,9 +283,10 @@ class JointGroupNode(LifecycleNode):
 
     def _shared_cb(self, shared: SharedJointTopic) -> Any:
         enqueue, mono = shared.enqueue, time.monotonic_ns
+        activity = self.activity
 
         def cb(msg: bytes | JointState) -> None:
-            if self._active:
+            if activity.active:
                 enqueue(msg, mono())
         return cb
 
@@ -301,7 +303,7 @@ class JointGroupNode(LifecycleNode):
 
     def on_activate(self, state: LifecycleState) -> TransitionCallbackReturn:
         self._stop.clear()
-        self._active = True
+        self.activity.active = True
         self.active_since = time.monotonic()
         for ch in self.channels.values():
             ch.cpu_s = 0.0
@@ -327,7 +329,7 @@ class JointGroupNode(LifecycleNode):
         return TransitionCallbackReturn.SUCCESS
 
     def _stop_threads(self) -> None:
-        self._active = False
+        self.activity.active = False
         self._stop.set()
         for th in self._threads:
             if th is not threading.current_thread():
@@ -360,17 +362,19 @@ class JointGroupNode(LifecycleNode):
         while not self._stop.wait(self._period_s):
             now = time.monotonic_ns()
             channels = list(self.channels.values())
-            marks = [ch.sync.n_events if ch.sync is not None else 0 for ch in channels]
+            syncs = [ch.parts.core.sync for ch in channels]
+            marks = [sync.n_events if sync is not None else 0 for sync in syncs]
             for shared in list(self.shared.values()):
                 try:
                     shared.fan_out(now)
                 except Exception as exc:  # noqa: BLE001 - reported on the joints that read the topic
                     for r in shared.readers:
-                        r.channel._errors += 1
-                        r.channel._last_error = f"fan-out of {shared.topic} failed: {type(exc).__name__}: {exc}"
+                        r.stats.errors += 1
+                        r.stats.last_error = f"fan-out of {shared.topic} failed: {type(exc).__name__}: {exc}"
             for ch, mark in zip(channels, marks, strict=True):
-                if ch.sync is not None:
-                    ch._log_events(ch.sync, mark)     # what the fan-out found (a joint missing from messages)
+                sync = ch.parts.core.sync
+                if sync is not None:
+                    ch.parts.worker.log_events(sync, mark)     # what the fan-out found (a joint missing from messages)
                 ch.guarded_step()
 
     def _run_publisher(self) -> None:
@@ -382,11 +386,12 @@ class JointGroupNode(LifecycleNode):
             now = time.monotonic()
             nxt = math.inf
             for ch in list(self.channels.values()):
-                for out, period in (("modes", ch._publish_period_s), ("diagnostics", ch._diag_period_s)):
+                st = ch.parts.settings
+                for out, period in (("modes", st.publish_period_s), ("diagnostics", st.diag_period_s)):
                     key = (ch.joint, out)
                     t = due.setdefault(key, start + period)
                     if now >= t:
-                        ch._publish_guarded(out)
+                        ch.parts.publisher.publish_guarded(out)
                         t = due[key] = max(t + period, now)
                     nxt = min(nxt, t)
             if self._stop.wait(max(0.0, min(nxt, now + 1.0) - time.monotonic())):
@@ -395,7 +400,7 @@ class JointGroupNode(LifecycleNode):
     def note_stall(self, start_ns: int, end_ns: int) -> None:
         """The executor did not run (called by :func:`.monitor_node.spin`): every joint's stall."""
         for ch in list(self.channels.values()):
-            ch.note_stall(start_ns, end_ns)
+            ch.parts.worker.note_stall(start_ns, end_ns)
 
     def graph(self) -> dict[str, list[str]]:
         """Topic names and types, read at most once a second for all joints."""

@@ -14,14 +14,15 @@ from collections.abc import Iterable, Mapping
 from typing import Any
 
 from rcl_interfaces.msg import SetParametersResult
+from rclpy.node import Node
 from rclpy.parameter import Parameter
 
-from ..config import MonitorConfig, ParamError, all_params, validate_params
+from ..config import MonitorConfig, Param, ParamError, all_params, validate_params
 from ..core.faults import FaultSettings
 from ..core.pipeline import PipelineError
 from . import convert as cv
 from . import sync as input_sync
-from .channel import ChannelState
+from .channel import ChannelContext, ChannelCore, ChannelSettings
 
 ALLOWED_EXTRA_PARAMS = ("use_sim_time", "start_type_description_service")
 REQUIRED_PARAMS = ("loop_rate_hz",)     # no usable default: absent means the params file did not reach the node
@@ -80,44 +81,57 @@ def checked_config(values: Mapping[str, Any], *, strict: bool = True) -> tuple[d
     return valid, cfg
 
 
-class ParametersMixin(ChannelState):
-    """Declaration of the table's parameters and their runtime changes (part of :class:`.monitor_node.MonitorNode`)."""
+class ParamsHandler:
+    """A monitor node's parameters: declaration from the table, values, and the checks of a runtime change (the
+    node's parameter callbacks); an accepted change goes to ``runtime`` (:class:`RuntimeChanges`)."""
 
-    def _declare_all(self) -> None:
+    def __init__(self, node: Node, table: dict[str, Param], runtime: RuntimeChanges) -> None:
+        self.node = node
+        self.table = table
+        self.runtime = runtime
+
+    def declare_all(self) -> None:
         """Declare every Param row with its descriptor; integer YAML values of double params are coerced. A
         required parameter nobody gave raises ParamError naming it and the params-file key (one line)."""
+        node, table = self.node, self.table
+        overrides = node._parameter_overrides
         for name in REQUIRED_PARAMS:
-            if name not in self._parameter_overrides:
-                raise ParamError(missing_required(name, self.get_fully_qualified_name(),
-                                                  self._parameter_overrides, self._table))
-        for name, ov in list(self._parameter_overrides.items()):
-            if name in self._table:
-                self._parameter_overrides[name] = cv.coerce_int_to_double(self._table[name], ov)
+            if name not in overrides:
+                raise ParamError(missing_required(name, node.get_fully_qualified_name(), overrides, table))
+        for name, ov in list(overrides.items()):
+            if name in table:
+                overrides[name] = cv.coerce_int_to_double(table[name], ov)
         for p in all_params():
             if isinstance(p.default, list) and not p.default:
                 # an empty list has no inferable type: declare typed, then give it the typed empty default
-                self.declare_parameter(p.name, cv.PARAM_TYPE[p.type], cv.descriptor(p))
-                if self.get_parameter_or(p.name).type_ == Parameter.Type.NOT_SET:
-                    self._parameters[p.name] = Parameter(p.name, cv.PARAM_TYPE[p.type], [])
+                node.declare_parameter(p.name, cv.PARAM_TYPE[p.type], cv.descriptor(p))
+                if node.get_parameter_or(p.name).type_ == Parameter.Type.NOT_SET:
+                    node._parameters[p.name] = Parameter(p.name, cv.PARAM_TYPE[p.type], [])
             else:
-                self.declare_parameter(p.name, p.default, cv.descriptor(p))
+                node.declare_parameter(p.name, p.default, cv.descriptor(p))
 
-    def parameter_value(self, name: str) -> Any:
+    def install(self) -> None:
+        """The node's pre-set, on-set and post-set parameter callbacks."""
+        self.node.add_pre_set_parameters_callback(self.pre_set)
+        self.node.add_on_set_parameters_callback(self.on_set)
+        self.node.add_post_set_parameters_callback(self.runtime.apply)
+
+    def value(self, name: str) -> Any:
         """The current value of the node's parameter ``name``."""
-        return self.get_parameter(name).value
+        return self.node.get_parameter(name).value
 
     def values(self) -> dict[str, Any]:
         """Current parameter values, flat ``{name: plain value}``."""
-        return {name: cv.plain(self.get_parameter(name).value) for name in self._table}
+        return {name: cv.plain(self.node.get_parameter(name).value) for name in self.table}
 
-    def _pre_set(self, params: list[Parameter]) -> list[Parameter]:
-        return [cv.coerce_int_to_double(self._table[p.name], p) if p.name in self._table else p for p in params]
+    def pre_set(self, params: list[Parameter]) -> list[Parameter]:
+        return [cv.coerce_int_to_double(self.table[p.name], p) if p.name in self.table else p for p in params]
 
-    def _on_set(self, params: list[Parameter]) -> SetParametersResult:
+    def on_set(self, params: list[Parameter]) -> SetParametersResult:
         """Accept a change only when the whole parameter set with it passes the configuration checks."""
         cand = self.values()
         for p in params:
-            if p.name in self._table:
+            if p.name in self.table:
                 cand[p.name] = cv.plain(p.value)
         try:
             checked_config(cand, strict=False)
@@ -125,23 +139,36 @@ class ParametersMixin(ChannelState):
             return SetParametersResult(successful=False, reason=f"rejected: {exc}")
         return SetParametersResult(successful=True)
 
-    def _post_set(self, params: list[Parameter]) -> None:
+
+class RuntimeChanges:
+    """Applies an accepted parameter change to a running channel: pipeline settings, publisher periods, the input
+    stage (a part of :class:`.channel_parts.ChannelParts`)."""
+
+    def __init__(self, ctx: ChannelContext, core: ChannelCore, settings: ChannelSettings,
+                 table: Mapping[str, Param]) -> None:
+        self.ctx = ctx
+        self.core = core
+        self.settings = settings
+        self.table = table
+
+    def apply(self, params: list[Parameter]) -> None:
         """Apply an accepted change: pipeline settings, publisher periods, the input stage."""
-        changed = {p.name: cv.plain(p.value) for p in params if p.name in self._table}
+        changed = {p.name: cv.plain(p.value) for p in params if p.name in self.table}
         runtime = {k: v for k, v in changed.items() if k in PIPELINE_RUNTIME or k.startswith("faults.")}
-        with self.lock:
-            if self.pipeline is not None and runtime:
+        core, st, log = self.core, self.settings, self.ctx.logger
+        with core.lock:
+            if core.pipeline is not None and runtime:
                 try:
-                    self.pipeline.update_params(runtime)
+                    core.pipeline.update_params(runtime)
                 except PipelineError as exc:   # validated before; keep running and say so
-                    self.get_logger().error(f"runtime parameter change not applied: {exc}")
+                    log.error(f"runtime parameter change not applied: {exc}")
                 else:
-                    self.get_logger().info("applied " + ", ".join(f"{k}={v}" for k, v in runtime.items()))
+                    log.info("applied " + ", ".join(f"{k}={v}" for k, v in runtime.items()))
             if "publish_rate_hz" in changed:
-                self._publish_period_s = 1.0 / float(changed["publish_rate_hz"])
+                st.publish_period_s = 1.0 / float(changed["publish_rate_hz"])
             if "diagnostics_period_s" in changed:
-                self._diag_period_s = float(changed["diagnostics_period_s"])
+                st.diag_period_s = float(changed["diagnostics_period_s"])
             if "stale_timeout_s" in changed:
-                self._stale_timeout_s = float(changed["stale_timeout_s"])
-            if self.sync is not None and self.cfg is not None:
-                self.sync.update(**input_sync.settings(changed, self.cfg.loop_rate_hz))
+                st.stale_timeout_s = float(changed["stale_timeout_s"])
+            if core.sync is not None and core.cfg is not None:
+                core.sync.update(**input_sync.settings(changed, core.cfg.loop_rate_hz))

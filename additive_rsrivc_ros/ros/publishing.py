@@ -1,4 +1,4 @@
-"""Outputs of the monitor node: ``~/modes`` and ``/diagnostics``, published by their own thread.
+"""Outputs of a monitor channel: ``~/modes`` and ``/diagnostics``, published by their own thread.
 
 A separate publisher thread publishes every report's estimate on ``~/modes`` and, with its data time and named
 fields, on ``~/modes_stamped`` (``sensor_msgs/msg/PointCloud2``, :func:`.convert.modes_stamped`) (in order, once per
@@ -14,9 +14,11 @@ namespace and the full name without its leading '/' under a namespace (``axis1/a
 from __future__ import annotations
 
 import math
+import threading
 import time
-from collections.abc import Mapping
-from typing import Any
+from collections.abc import Callable, Mapping
+from dataclasses import dataclass
+from typing import TYPE_CHECKING, Any
 
 import numpy as np
 from diagnostic_msgs.msg import DiagnosticArray
@@ -25,10 +27,14 @@ from ..core.faults import Level
 from ..core.pipeline import Report
 from ..status import Finding, StatusRecord, estimator_summary, mode_summary
 from . import convert as cv
-from .channel import ChannelState, RingStats  # noqa: F401 - RingStats: its home was here
-from .sync import InputSync
+from .channel import MODES_QUEUE, ChannelContext, ChannelCore, ChannelSettings, ChannelStats, Outbox, RingStats
+from .input_stage import InputStage
 
-MODES_QUEUE = 10_000        # ~/modes messages the publisher may fall behind before the oldest are coalesced (counted)
+if TYPE_CHECKING:
+    from rclpy.lifecycle import LifecyclePublisher
+
+__all__ = ["DUPLICATE_NAME_CHECK_S", "MODES_QUEUE", "QUANTITIES", "Outputs", "Publisher", "RingStats",
+           "alignment_values", "mode_message"]
 QUANTITIES = ("natural_frequency", "damping", "gain")   # the fault flags' quantities in a mode's message
 
 
@@ -60,43 +66,58 @@ DUPLICATE_NAME_CHECK_S = 2.0
 of a running graph takes a few hundred milliseconds on loopback)."""
 
 
-class PublishingMixin(ChannelState):
-    """The publisher thread and the composition of ``/diagnostics`` (part of :class:`.monitor_node.MonitorNode`)."""
+@dataclass
+class Outputs:
+    """A channel's publishers (None until configured): ~/modes, ~/modes_stamped and /diagnostics."""
 
-    def warn_duplicate_name(self) -> bool:
-        """Warn (once per call) when another node in the graph has this node's fully qualified name: their
-        statuses, ~/modes, parameters and state files would be mixed up. True when one was found."""
-        me = self.get_fully_qualified_name()
-        same = [ns for name, ns in self.get_node_names_and_namespaces()
-                if f"{ns.rstrip('/')}/{name}" == me]
-        if len(same) > 1:
-            self.get_logger().warning(f"{len(same)} nodes named {me} run in this ROS graph (domain): their "
-                                      "/diagnostics, ~/modes, parameters and state files collide; give each a "
-                                      "name or namespace of its own (-r __node:=... or -r __ns:=...)")
-            return True
-        return False
+    modes: LifecyclePublisher | None = None           # Float64MultiArray
+    modes_stamped: LifecyclePublisher | None = None   # PointCloud2
+    diagnostics: LifecyclePublisher | None = None     # DiagnosticArray (shared by the joints of a group)
 
-    def _run_publisher(self) -> None:
+
+class Publisher:
+    """The publisher thread and the composition of ``/diagnostics`` (a part of :class:`.channel_parts.ChannelParts`);
+    ``extra_values`` adds values to the estimator status (a joint's CPU share)."""
+
+    def __init__(self, ctx: ChannelContext, core: ChannelCore, settings: ChannelSettings, stats: ChannelStats,
+                 outbox: Outbox, outputs: Outputs, extra_values: Callable[[], dict[str, Any]] | None = None) -> None:
+        self.ctx = ctx
+        self.core = core
+        self.settings = settings
+        self.stats = stats
+        self.outbox = outbox
+        self.outputs = outputs
+        self.extra_values = extra_values
+        self.reset()
+
+    def reset(self) -> None:
+        """The delay figures start afresh (a new configuration)."""
+        self._delay_cache = (math.nan, math.nan, math.nan)
+        self._delay_cache_ns = 0
+
+    def run(self, stop: threading.Event, name_check: Callable[[], object]) -> None:
         """Publish the newest report on ~/modes once per ``1/publish_rate_hz`` and one /diagnostics array once
-        per ``diagnostics_period_s``, each on its own schedule (no catch-up burst after falling behind)."""
+        per ``diagnostics_period_s``, each on its own schedule (no catch-up burst after falling behind);
+        ``name_check`` once, ``DUPLICATE_NAME_CHECK_S`` after the start."""
+        st = self.settings
         start = time.monotonic()
-        due = {"modes": start + self._publish_period_s, "diagnostics": start + self._diag_period_s}
-        name_check = start + DUPLICATE_NAME_CHECK_S     # once discovery has had time to see the graph
-        while not self._stop.is_set():
+        due = {"modes": start + st.publish_period_s, "diagnostics": start + st.diag_period_s}
+        name_check_s = start + DUPLICATE_NAME_CHECK_S     # once discovery has had time to see the graph
+        while not stop.is_set():
             now = time.monotonic()
-            if self._stop.wait(max(0.0, min(due.values()) - now)):
+            if stop.wait(max(0.0, min(due.values()) - now)):
                 break
             now = time.monotonic()
-            if now >= name_check:
-                name_check = math.inf
-                self.warn_duplicate_name()
-            for out, period in (("modes", self._publish_period_s), ("diagnostics", self._diag_period_s)):
+            if now >= name_check_s:
+                name_check_s = math.inf
+                name_check()
+            for out, period in (("modes", st.publish_period_s), ("diagnostics", st.diag_period_s)):
                 if now < due[out]:
                     continue
                 due[out] = max(due[out] + period, now)   # fell behind (loaded CPU): no catch-up burst
-                self._publish_guarded(out)
+                self.publish_guarded(out)
 
-    def _publish_guarded(self, out: str) -> None:
+    def publish_guarded(self, out: str) -> None:
         """Publish ``out`` (modes | diagnostics); an exception is counted and logged once, never raised."""
         try:
             if out == "modes":
@@ -104,52 +125,55 @@ class PublishingMixin(ChannelState):
             else:
                 self._publish_diagnostics()
         except Exception as exc:  # noqa: BLE001 - reported like a worker error
-            self._errors += 1
+            stats = self.stats
+            stats.errors += 1
             msg = f"publishing failed: {type(exc).__name__}: {exc}"
-            if msg != self._last_error:
-                self.get_logger().error(msg)
-            self._last_error = msg
+            if msg != stats.last_error:
+                self.ctx.logger.error(msg)
+            stats.last_error = msg
 
     def _current(self) -> tuple[Report | None, np.ndarray | None]:
         """(report, modal) for /diagnostics: the newest report (the same vetted estimate as the last ~/modes
         message), else, before any report (a state restored from ``state_file``), the live estimate when the worker
         lets go of the lock within 20 ms, else the last snapshot."""
-        rep = self._latest_report          # read once; the worker only ever replaces it (no lost update)
+        outbox, core = self.outbox, self.core
+        rep = outbox.latest_report          # read once; the worker only ever replaces it (no lost update)
         if rep is not None:
             return rep, rep.modal
-        if self.lock.acquire(timeout=0.02):
+        if core.lock.acquire(timeout=0.02):
             try:
-                if self.pipeline is not None:
-                    self._snapshot = (self.pipeline.last_report, self.pipeline.modal())
+                if core.pipeline is not None:
+                    outbox.snapshot = (core.pipeline.last_report, core.pipeline.modal())
             finally:
-                self.lock.release()
-        return self._snapshot
+                core.lock.release()
+        return outbox.snapshot
 
     def _publish_modes(self) -> None:
         """~/modes and ~/modes_stamped (the same estimate with its data time and named fields): every report's
         estimate not published yet, in order."""
-        modes_pub, stamped_pub = self._modes_pub, self._modes_stamped_pub
-        if self.sync is None or modes_pub is None or not self._active:
+        modes_pub, stamped_pub = self.outputs.modes, self.outputs.modes_stamped
+        sync, outbox = self.core.sync, self.outbox
+        if sync is None or modes_pub is None or not self.ctx.activity.active:
             return
-        while self._modes_queue:
-            t_s, modal = self._modes_queue.popleft()
-            if self.sync.rate_error:       # estimates on a wrong time scale: none is published
+        while outbox.modes_queue:
+            t_s, modal = outbox.modes_queue.popleft()
+            if sync.rate_error:       # estimates on a wrong time scale: none is published
                 continue
             modes_pub.publish(cv.modes_array(modal))
             if stamped_pub is not None:
                 stamped_pub.publish(cv.modes_stamped(modal, round(t_s * 1e9)))
-            self._reports_published += 1
+            outbox.reports_published += 1
 
     def _publish_diagnostics(self) -> None:
         """/diagnostics: one status per mode and the estimator status, always (STALE without data)."""
-        sync, diag_pub = self.sync, self._diag_pub
-        if sync is None or diag_pub is None or not self._active:
+        sync, diag_pub = self.core.sync, self.outputs.diagnostics
+        if sync is None or diag_pub is None or not self.ctx.activity.active:
             return
         rep, modal = self._current()
-        silent = sync.silent(time.monotonic_ns(), self._stale_timeout_s, self.looking_since_ns)
-        hw = self._hardware_id or self.get_fully_qualified_name()
+        silent = sync.silent(time.monotonic_ns(), self.settings.stale_timeout_s, self.ctx.activity.looking_since_ns)
+        hw = self.settings.hardware_id or self.ctx.name
         arr = DiagnosticArray()
-        arr.header.stamp = self.get_clock().now().to_msg()
+        arr.header.stamp = self.ctx.clock.now().to_msg()
         arr.status = [cv.mode_status(r, hw) for r in self._mode_records(rep, modal, silent)]
         arr.status.append(cv.status(self._estimator_record(rep, silent), hw))
         diag_pub.publish(arr)
@@ -158,14 +182,14 @@ class PublishingMixin(ChannelState):
         """Name prefix of this node's /diagnostics statuses: the node name in the root namespace (as ever), the
         full name without its leading '/' under a namespace (``axis1/additive_rsrivc_monitor``), so that the
         monitors of several axes publishing on the one /diagnostics topic never share a status name."""
-        return self.get_fully_qualified_name().lstrip("/")
+        return self.ctx.name.lstrip("/")
 
     def _mode_records(self, rep: Report | None, modal: np.ndarray | None, silent: list[str]) -> list[StatusRecord]:
         """One ``<node>: mode <i>`` record per mode (none while the modes are being found)."""
-        n_modes = self.configured_cfg().K if modal is None else len(modal)
-        silent_text = "no data on " + ", ".join(self.topics[s] for s in silent) if silent else ""
+        n_modes = self.core.configured_cfg().K if modal is None else len(modal)
+        silent_text = "no data on " + ", ".join(self.core.topics[s] for s in silent) if silent else ""
         out = []
-        rate_error = self.sync is not None and bool(self.sync.rate_error)
+        rate_error = self.core.sync is not None and bool(self.core.sync.rate_error)
         for i in range(n_modes):
             if rate_error:               # estimates on a wrong time scale: no number; the estimator status says why
                 out.append(StatusRecord(f"{self.status_prefix()}: mode {i + 1}", Level.ERROR,
@@ -182,7 +206,7 @@ class PublishingMixin(ChannelState):
                     vals.update(decision_state=rep.decisions[i].state.value, decision_reason=rep.decisions[i].reason)
                 found = Finding(Level(int(rep.mode_levels[i])), mode_message(rep, i))
             level, msg = mode_summary(found, silent=silent_text, estimating=rep is not None and rep.estimating,
-                                      looking=bool(self.looking_since_ns))
+                                      looking=bool(self.ctx.activity.looking_since_ns))
             out.append(StatusRecord(f"{self.status_prefix()}: mode {i + 1}", level, msg, vals))
         return out
 
@@ -190,7 +214,7 @@ class PublishingMixin(ChannelState):
         """Median, p95, max of the delays; recomputed at most once a second (composition stays cheap)."""
         now = time.monotonic_ns()
         if now - self._delay_cache_ns > 1_000_000_000 or math.isnan(self._delay_cache[0]):
-            v = self.delays_ms.values().copy()
+            v = self.stats.delays_ms.values().copy()
             if v.size:
                 p50, p95, p100 = (float(x) for x in np.percentile(v, (50, 95, 100)))
                 self._delay_cache = (p50, p95, p100)
@@ -199,14 +223,14 @@ class PublishingMixin(ChannelState):
             self._delay_cache_ns = now
         return self._delay_cache
 
-    def _sync_values(self, sync: InputSync) -> dict[str, Any]:
+    def _sync_values(self, sync: InputStage) -> dict[str, Any]:
         """Key/values of the input stage (counters, queues, arrival rates)."""
         sc = sync.counters
         return {
             "input_pauses": sc.gaps,
             "misaligned_events": sc.mismatches,
             "unmatched_messages": sc.unmatched,
-            "malformed_messages": sum(self._malformed.values()),
+            "malformed_messages": sum(self.stats.malformed.values()),
             "queue_backlog": max((len(q) + len(p) for q, p in zip(sync.queues, sync.pending, strict=True)),
                                  default=0),
             "queue_bound_samples": sync.max_queue,
@@ -218,13 +242,14 @@ class PublishingMixin(ChannelState):
             "rate_mismatches": sc.rate_mismatches,
         }
 
-    def _estimator_values(self, rep: Report | None, h: Mapping[str, Any], silent: list[str]) -> dict[str, Any]:
+    def estimator_values(self, rep: Report | None, h: Mapping[str, Any], silent: list[str]) -> dict[str, Any]:
         """Key/values of the estimator status (counters, health, timing), in the published order."""
-        sync, pipe = self.configured_sync(), self.configured_pipeline()
+        sync, pipe = self.core.configured_sync(), self.core.configured_pipeline()
+        stats, outbox = self.stats, self.outbox
         sc = sync.counters
         est = rep.estimator_health if rep is not None else None     # core/estimator.py EstimatorHealth
         cond = [c for c in (est.cond if est is not None else ()) if c is not None]
-        rtf = self._data_s / self._busy_s if self._busy_s > 0 else math.nan
+        rtf = stats.data_s / stats.busy_s if stats.busy_s > 0 else math.nan
         d50, d95, dmax = self._delays()
         return {
             "phase": rep.phase if rep is not None else pipe.phase,
@@ -239,12 +264,12 @@ class PublishingMixin(ChannelState):
             "gaps": int(h.get("gaps", 0)),
             **self._sync_values(sync),
             **alignment_values(h.get("alignment") or {}),
-            "node_stalls": self.node_stalls,
-            "node_stall_max_s": float(self.node_stall_max_s),
+            "node_stalls": stats.node_stalls,
+            "node_stall_max_s": float(stats.node_stall_max_s),
             "node_stall_gaps": sc.node_stall_gaps,
-            "worker_stalls": self.worker_stalls,
-            "worker_stall_max_s": float(self.worker_stall_max_s),
-            "reports_coalesced": max(0, self._reports_made - self._reports_published),
+            "worker_stalls": stats.worker_stalls,
+            "worker_stall_max_s": float(stats.worker_stall_max_s),
+            "reports_coalesced": max(0, outbox.reports_made - outbox.reports_published),
             "projections": int(sum(est.projections)) if est is not None else 0,
             "reprimes": int(est.reprimes or 0) if est is not None else 0,
             "condition_number": float(max(cond)) if cond else math.nan,
@@ -254,22 +279,23 @@ class PublishingMixin(ChannelState):
             "initializations": int(h.get("initializations", 0)),
             "reinitializations": int(h.get("reinitializations", 0)),
             "real_time_factor": float(rtf),
-            "cpu_fraction": float(self._cpu_fraction),
+            "cpu_fraction": float(stats.cpu_fraction),
             "delay_median_ms": d50,
             "delay_p95_ms": d95,
             "delay_max_ms": dmax,
-            "internal_errors": self._errors,
-            "silent_topics": " ".join(self.topics[s] for s in silent),
-            "wrong_types": "; ".join(self._wrong_types),
+            "internal_errors": stats.errors,
+            "silent_topics": " ".join(self.core.topics[s] for s in silent),
+            "wrong_types": "; ".join(stats.wrong_types),
             **sync.extra_values(),
+            **(self.extra_values() if self.extra_values is not None else {}),
         }
 
-    def _input_reasons(self, sync: InputSync) -> list[str]:
+    def _input_reasons(self, sync: InputStage) -> list[str]:
         """Open input problems that last (rate mismatch, queue overflow, a busy estimator): WARN reasons."""
         out = [sync.rate_reason(lb, r, sync.expected_rate) for lb, r in list(sync.rate_mismatch.items())]
         out += sync.lasting_reasons()
         out += sync.queue_reasons()
-        busy = self._push_started_ns
+        busy = self.stats.push_started_ns
         if busy and time.monotonic_ns() - busy > 500_000_000:
             out.append(f"estimator busy for {(time.monotonic_ns() - busy) * 1e-9:.1f} s (the node, not the "
                        "inputs: samples wait in the queues)")
@@ -277,10 +303,10 @@ class PublishingMixin(ChannelState):
 
     def _estimator_record(self, rep: Report | None, silent: list[str]) -> StatusRecord:
         """The ``<node>: estimator`` record: values, and level and reasons composed by :func:`estimator_summary`."""
-        sync = self.configured_sync()
+        sync, stats = self.core.configured_sync(), self.stats
         h = dict(rep.health) if rep is not None else {}
-        h.update(self.configured_pipeline().counters.to_dict())      # live counters (the report may be older)
-        vals = self._estimator_values(rep, h, silent)
+        h.update(self.core.configured_pipeline().counters.to_dict())      # live counters (the report may be older)
+        vals = self.estimator_values(rep, h, silent)
         lasting = self._input_reasons(sync)
         recent = time.monotonic_ns() - sync.last_event_ns < 5e9 and sync.last_event_ns > 0
         event = None
@@ -289,10 +315,10 @@ class PublishingMixin(ChannelState):
         level, text = estimator_summary(
             Finding(Level(int(h.get("level", 0))) if rep is not None else Level.STALE),
             list(h.get("reasons", [])), recent_event=event, lasting=lasting,
-            internal_error=self._last_error if self._errors else "",
-            silent="no data on " + ", ".join(f"{self.topics[s]} for more than {self._stale_timeout_s:g} s"
-                                             for s in silent) if silent else "",
-            wrong_types="wrong message type: " + "; ".join(self._wrong_types) if self._wrong_types else "")
+            internal_error=stats.last_error if stats.errors else "",
+            silent="no data on " + ", ".join(f"{self.core.topics[s]} for more than "
+                                             f"{self.settings.stale_timeout_s:g} s" for s in silent) if silent else "",
+            wrong_types="wrong message type: " + "; ".join(stats.wrong_types) if stats.wrong_types else "")
         if sync.rate_error:         # the configured time scale contradicts the data: an error, nothing published
             level, text = Level.ERROR, "; ".join(t for t in (sync.rate_error, text) if t)
         vals["reasons"] = text

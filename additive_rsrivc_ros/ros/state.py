@@ -16,7 +16,7 @@ from std_srvs.srv import Trigger
 
 from ..config import MonitorConfig
 from ..core.pipeline import MonitorPipeline, PipelineError
-from .channel import ChannelState
+from .channel import ChannelContext, ChannelCore
 
 
 def beside(path: str) -> str:
@@ -46,72 +46,77 @@ def write_atomic(path: str, text: str) -> None:
             os.unlink(tmp)
 
 
-class StateMixin(ChannelState):
-    """Restore and save of the pipeline state, and the reset, rebaseline and save_state services (part of
-    :class:`.monitor_node.MonitorNode`)."""
+class StateStore:
+    """Restore and save of the pipeline state, and the reset, rebaseline and save_state services (a part of
+    :class:`.channel_parts.ChannelParts`)."""
 
-    def _restore(self, cfg: MonitorConfig, state_file: str) -> MonitorPipeline | None:
+    def __init__(self, ctx: ChannelContext, core: ChannelCore) -> None:
+        self.ctx = ctx
+        self.core = core
+        self.save_path = ""                # where save_state writes ("" -> the state_file parameter)
+
+    def restore(self, cfg: MonitorConfig, state_file: str) -> MonitorPipeline | None:
         """The pipeline restored from ``state_file``, or None. A refused file (corrupt, another node's fully
         qualified name, other K, rate, controller, delay, loop or structures) is kept untouched: this run saves
         beside it (one log line)."""
-        self._save_path = state_file
+        self.save_path = state_file
         if not state_file or not Path(state_file).exists():
             return None
         try:
             saved = json.loads(Path(state_file).read_text())
             node = str(saved.get("node", ""))
-            if node and node != self.get_fully_qualified_name():
-                raise PipelineError(f"written by node {node}, this node is {self.get_fully_qualified_name()}")
+            if node and node != self.ctx.name:
+                raise PipelineError(f"written by node {node}, this node is {self.ctx.name}")
             pipeline = MonitorPipeline(cfg, state=saved["pipeline"])
         except (OSError, ValueError, KeyError, TypeError, PipelineError) as exc:
             reason = str(exc) if isinstance(exc, PipelineError) else f"unreadable: {type(exc).__name__}: {exc}"
-            self._save_path = beside(state_file)
-            self.get_logger().warning(f"state file {state_file} refused ({reason}); starting fresh, the file is "
-                                      f"kept unchanged and this run's state will be saved to {self._save_path}")
+            self.save_path = beside(state_file)
+            self.ctx.logger.warning(f"state file {state_file} refused ({reason}); starting fresh, the file is "
+                                      f"kept unchanged and this run's state will be saved to {self.save_path}")
             return None
-        self.get_logger().info(f"state restored from {state_file} (estimating: {pipeline.initialized})")
+        self.ctx.logger.info(f"state restored from {state_file} (estimating: {pipeline.initialized})")
         return pipeline
 
     def save_state(self) -> str:
         """Write the pipeline state atomically (temp file, fsync, ``os.replace``) to ``state_file`` or, when
         that file was refused at start, beside it; returns a one-line result."""
-        path = self._save_path if self.pipeline is not None else self.parameter_value("state_file")
+        path = self.save_path if self.core.pipeline is not None else self.ctx.parameter("state_file")
         if not path:
             return "state_file is empty: nothing saved"
-        with self.lock:
-            if self.pipeline is None:
+        with self.core.lock:
+            if self.core.pipeline is None:
                 return "not configured: nothing saved"
-            doc = {"node": self.get_fully_qualified_name(), "saved_unix_s": time.time(),
-                   "pipeline": self.pipeline.get_state()}
+            doc = {"node": self.ctx.name, "saved_unix_s": time.time(),
+                   "pipeline": self.core.pipeline.get_state()}
         write_atomic(path, json.dumps(doc))
-        self.get_logger().info(f"state saved to {path}")
+        self.ctx.logger.info(f"state saved to {path}")
         return f"state saved to {path}"
 
     # ------------------------------------------------------------------------------------ services
-    def _srv_reset(self, request: Trigger.Request, response: Trigger.Response) -> Trigger.Response:
-        with self.lock:
-            if self.pipeline is None:
+    def srv_reset(self, request: Trigger.Request, response: Trigger.Response) -> Trigger.Response:
+        with self.core.lock:
+            if self.core.pipeline is None:
                 response.success, response.message = False, "not configured"
                 return response
-            self.pipeline.reset()
-            sync = self.configured_sync()
+            self.core.pipeline.reset()
+            sync = self.core.configured_sync()
             sync.resync(time.monotonic_ns(), "reset requested", count=False)
             sync.set_time_floor(None)
         response.success, response.message = True, "estimator, baseline and fault state reset"
         return response
 
-    def _srv_rebaseline(self, request: Trigger.Request, response: Trigger.Response) -> Trigger.Response:
-        with self.lock:
-            if self.pipeline is None:
+    def srv_rebaseline(self, request: Trigger.Request, response: Trigger.Response) -> Trigger.Response:
+        with self.core.lock:
+            if self.core.pipeline is None:
                 response.success, response.message = False, "not configured"
                 return response
-            closed = self.pipeline.rebaseline()
+            closed = self.core.pipeline.rebaseline()
         response.success = True
         response.message = f"learning a new baseline; {len(closed)} open fault event(s) closed"
         return response
 
-    def _srv_save(self, request: Trigger.Request, response: Trigger.Response) -> Trigger.Response:
-        path = self.parameter_value("state_file")
+    def srv_save(self, request: Trigger.Request, response: Trigger.Response) -> Trigger.Response:
+        path = self.ctx.parameter("state_file")
         if not path:
             response.success, response.message = False, "parameter state_file is empty"
             return response
