@@ -120,6 +120,22 @@ def test_time_floor_after_restore_keeps_times_increasing():
     assert t[0] > 1e4 + 0.5 and np.allclose(np.diff(t), 1e-3)
 
 
+def test_stamps_that_continue_after_a_restored_state_keep_their_time():
+    """Data that resume where the saved state ended (the next stamp one sample later) continue the estimate: their
+    times are their stamps, with no gap inserted; a stamp at or before the restored last time is moved above it."""
+    s = make(stamped=True)
+    last = (5_000_000_000 + 9 * H_NS) * 1e-9  # the restored pipeline's last sample: stamp 9 (feed's stamps)
+    s.set_time_floor(last)
+    feed(s, range(10, 20), 0, stamped=True)
+    t = assert_aligned(collect_all(s, 30 * H_NS))
+    np.testing.assert_allclose(t, (5_000_000_000 + np.arange(10, 20) * H_NS) * 1e-9, rtol=0, atol=1e-9)
+    s = make(stamped=True)
+    s.set_time_floor(last)
+    feed(s, range(5, 15), 0, stamped=True)       # starts before the restored last sample
+    t = assert_aligned(collect_all(s, 30 * H_NS))
+    assert t[0] >= last + 1.0 and np.allclose(np.diff(t), 1e-3)
+
+
 def test_bad_construction_is_rejected():
     with pytest.raises(ValueError, match="signals"):
         InputSync(("bogus",), RATE, stamped=False, max_backlog=5, quiet_s=0.1, gap_s=0.1, hold_s=0.0)

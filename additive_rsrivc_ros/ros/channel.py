@@ -170,3 +170,5 @@ class Outbox:
         self.reports_made = 0
         self.reports_published = 0
         self.snapshot: tuple[Report | None, np.ndarray | None] = (None, None)   # what the publisher can always use
+        # before the first report of a restored state: its baseline and flags (core.report_assembly.fault_fields)
+        self.restored: dict[str, Any] | None = None

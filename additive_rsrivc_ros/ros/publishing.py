@@ -25,6 +25,7 @@ from diagnostic_msgs.msg import DiagnosticArray
 
 from ..core.faults import Level
 from ..core.pipeline import Report
+from ..core.report_assembly import fault_fields
 from ..status import Finding, StatusRecord, estimator_summary, mode_summary
 from . import convert as cv
 from .channel import MODES_QUEUE, ChannelContext, ChannelCore, ChannelSettings, ChannelStats, Outbox, RingStats
@@ -144,6 +145,8 @@ class Publisher:
             try:
                 if core.pipeline is not None:
                     outbox.snapshot = (core.pipeline.last_report, core.pipeline.modal())
+                    outbox.restored = None if core.pipeline.last_report is not None else \
+                        fault_fields(core.pipeline.faults)
             finally:
                 core.lock.release()
         return outbox.snapshot
@@ -199,6 +202,10 @@ class Publisher:
             vals: dict[str, Any] = {f: math.nan for f in cv.MODE_FIELDS} if modal is None else \
                 {f: float(modal[i, j]) for j, f in enumerate(cv.MODE_FIELDS)}
             found = None
+            restored = self.outbox.restored if rep is None else None
+            if restored is not None and len(restored["baseline"]) == n_modes:   # a restored state, no report yet
+                vals.update({k: float(restored["baseline"][i, q]) for q, k in enumerate(cv.BASELINE_FIELDS)})
+                vals.update({k: bool(restored["flags"][i, q]) for q, k in enumerate(cv.FLAG_FIELDS)})
             if rep is not None and rep.K == n_modes:
                 md = rep.mode_dict(i)
                 vals.update({k: md[k] for k in (*cv.BASELINE_FIELDS, *cv.FLAG_FIELDS)})

@@ -2,7 +2,9 @@
 
 Samples match by equal stamps; a stamp that does not increase on its topic is dropped (out of order or repeated), a
 stamp without partners on the other topics is dropped (unmatched). After a restored estimator state the times are
-offset to lie above its last time.
+offset to lie above its last time only when they do not (a recorder restarted from an earlier time); stamps that
+continue after it keep their time, so data that resume where the saved state ended continue the estimate without a
+gap, and a real gap is measured as it was.
 """
 
 from __future__ import annotations
@@ -81,8 +83,8 @@ class StampedPairing:
         if self._offset_s is None:
             self._offset_s = 0.0
             first = stamps_s[0] * 1e-9
-            if self.time_floor is not None and first <= self.time_floor + 1.0:
-                self._offset_s = self.time_floor + 1.0 - first
+            if self.time_floor is not None and first <= self.time_floor:
+                self._offset_s = self.time_floor + 1.0 - first   # earlier than the restored data: a 1 s gap
         t = stamps_s * 1e-9 + self._offset_s
         vals = np.asarray(out_v, dtype=float)
         self.counters.aligned += t.size

@@ -12,6 +12,7 @@ import os
 import time
 from pathlib import Path
 
+import numpy as np
 from std_srvs.srv import Trigger
 
 from ..config import MonitorConfig
@@ -75,7 +76,21 @@ class StateStore:
                                       f"kept unchanged and this run's state will be saved to {self.save_path}")
             return None
         self.ctx.logger.info(f"state restored from {state_file} (estimating: {pipeline.initialized})")
+        self._memory_from_parameter(pipeline)
         return pipeline
+
+    def _memory_from_parameter(self, pipeline: MonitorPipeline) -> None:
+        """The parameter ``modes.memory_s`` is the one owner of the memories: a state saved after a runtime change
+        restores the estimate, and the memories the parameter gives apply from here on (one log line)."""
+        if pipeline.K == 0:
+            return
+        wanted = np.array([m.memory_s for m in pipeline.cfg.modes], dtype=float)
+        if np.array_equal(wanted, pipeline.memory_s):
+            return
+        saved = pipeline.memory_s.tolist()
+        pipeline.update_params({"modes.memory_s": wanted.tolist()})
+        self.ctx.logger.info(f"the state was saved with modes.memory_s={saved}; the parameter's {wanted.tolist()} "
+                             "applies (runtime parameter changes are not saved: set them in the params file)")
 
     def save_state(self) -> str:
         """Write the pipeline state atomically (temp file, fsync, ``os.replace``) to ``state_file`` or, when
