@@ -10,8 +10,8 @@ erratum 2 in docs/DESIGN.md): ``K = P phi^ / (lam + phi^T P phi^)``, ``P = (P_ba
 sandwich accumulator ``S = lam^2 S + zeta zeta^T`` gives the covariance ``sigma^2 P_bar S P_bar^T``. A rigid body's
 free response ``c0 + c1 t`` is estimated with ``b0`` and folded into its input filter (:func:`fold_free_response`).
 Every safeguard is counted, never silent: rejected updates per mode and reason (``rejr``), skipped samples, re-primes,
-P capped at ``p_cap`` x P(0). All state lives in flat arrays (``core/recursive.py``), so a snapshot is bit-identical;
-with ``NUMBA_DISABLE_JIT=1`` the same code runs interpreted.
+P capped at ``p_cap`` x P(0). All state lives in flat arrays (``core/recursive_state.py``), so a snapshot is
+bit-identical; with ``NUMBA_DISABLE_JIT=1`` the same code runs interpreted.
 """
 
 from __future__ import annotations
