@@ -353,3 +353,36 @@ def test_coupled_modes_that_deviate_together_are_named_by_the_joint_check():
     mon, events = _coupled_run(0.9, joint_support_at=(66.0, 67.0))
     assert [(e.mode, e.quantity) for e in events] == [(1, "gain")]
     assert 66.0 <= events[0].alarm_time_s <= 67.0
+
+
+def test_gain_and_damping_that_deviate_together_are_named_by_the_joint_check():
+    """A gain drop lowers the resonance peak b0/(2 zeta) at once; while the recursion re-converges it splits that
+    move between gain and damping (a gain change was confirmed as a damping rise of the same mode). While both
+    deviate, with an identified reference, neither is confirmed by the recursion alone; once the damping estimate
+    is back, the gain is."""
+    from additive_rsrivc_ros.core.joint_check import JointVerdict
+
+    t0 = 60.0
+
+    def change(t: np.ndarray, truth: np.ndarray) -> np.ndarray:
+        truth[t >= t0, 0, 2] *= 0.7                                   # the real change: mode 1's gain
+        truth[(t >= t0) & (t < t0 + 12.0), 0, 1] *= 1.6                # the split's transient: its damping
+        return truth
+
+    t, modal = stream(110.0, 45, change)
+    K, std = 2, np.abs(TRUTH) * 1e-3
+    events: list = []
+    mon = FaultMonitor(MEMORY)
+    for k in range(t.size):
+        if mon.phase == "monitoring" and mon.joint_reference is None:
+            mon.arm_joint(JointVerdict(float(t[k]), (float(t[k]) - 4.0, float(t[k])), True, TRUTH.copy(), std,
+                                       np.ones((K, 3), bool), np.zeros((K, 3), int), np.zeros(K), np.zeros(K),
+                                       np.zeros(K, int), np.zeros(K), "converged", np.zeros((K, K))))
+        events += mon.update(float(t[k]), modal[k]).opened
+    assert [(e.mode, e.quantity) for e in events] == [(1, "gain")]
+    assert events[0].alarm_time_s >= t0 + 12.0
+    # without an identified reference the rule does not apply: the damping transient is confirmed (the rule is what
+    # stops it)
+    plain = FaultMonitor(MEMORY)
+    named = [(e.mode, e.quantity) for k in range(t.size) for e in plain.update(float(t[k]), modal[k]).opened]
+    assert (1, "damping") in named

@@ -193,6 +193,7 @@ class FaultMonitor:
         open_modes = np.zeros(self.K, dtype=bool)
         open_modes[[e.mode - 1 for e in self.open_events]] = True
         self.joint_confirmation.judge_coupled(deviating | (open_modes & ~held_mode))
+        self.joint_confirmation.judge_peaks(relevant & (score >= 0) & ~held_mode[:, None])
         lead = self._leads(score)
         memory_now = [self.effective_memory_s(i) for i in range(self.K)]
         moving = self.recent.moving(t, modal, rho, memory_now)

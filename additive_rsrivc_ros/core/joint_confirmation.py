@@ -22,6 +22,7 @@ from .fault_settings import FaultSetup
 from .joint_check import COUPLING, JointVerdict, applicable_mask
 from .sequential_test import FaultUpdate, SequentialTest, SequentialTests
 from .stress_episode import StressEpisode
+from .vocabulary import QUANTITIES
 
 
 class JointConfirmation:
@@ -44,6 +45,8 @@ class JointConfirmation:
         self.several_modes_t = math.nan   # last stressed joint check that moved several modes at once
         # per mode: it deviates together with a mode the reference shows coupled to it (recomputed every update)
         self.coupled_pending = np.zeros(setup.K, dtype=bool)
+        # per mode: its damping and gain deviate together (the resonance peak moved; recomputed every update)
+        self.peak_pending = np.zeros(setup.K, dtype=bool)
 
     def reset(self) -> None:
         """Unarmed, no reference, no streak (a new baseline)."""
@@ -51,6 +54,7 @@ class JointConfirmation:
         self.latest, self.reference = None, None
         self.streak[:] = 0
         self.coupled_pending[:] = False
+        self.peak_pending[:] = False
 
     @property
     def armed(self) -> bool:
@@ -71,6 +75,8 @@ class JointConfirmation:
         was confirmed in the same stress episode: the recursion's split between the modes is then re-converging
         too, and a second mode's deviation needs the joint fit's support."""
         if self.armed_modes[i] or self.reference_pending or self.coupled_pending[i]:
+            return True
+        if self._second_quantity(i, q) or (q > 0 and self.peak_pending[i]):
             return True
         since = self.stress.anomaly_since
         if since is None or self.reference is None or not self.reference.converged:
@@ -100,6 +106,28 @@ class JointConfirmation:
         dev = np.asarray(deviating, bool)
         self.coupled_pending[:] = dev & np.any(coupled[:, dev], axis=1)
         return self.coupled_pending
+
+    def judge_peaks(self, relevant: np.ndarray) -> None:
+        """Mark the modes whose damping and gain deviate together (``relevant``: (K, 3) bool, relevant deviations):
+        the resonance peak ``b0/(2 zeta)`` moved, and while the recursion re-converges it splits that move between
+        the two (a gain drop read as a damping rise); with an identified reference, only a joint fit of the data
+        after the change says which of them changed."""
+        ref = self.reference
+        rel = np.asarray(relevant, bool)
+        self.peak_pending[:] = (ref is not None and ref.converged) & rel[:, 1] & rel[:, 2]
+
+    def _second_quantity(self, i: int, q: int) -> bool:
+        """(mode ``i``, quantity ``q``) deviates beside a fault of another quantity of the same mode: the recursion's
+        split between the mode's quantities re-converges after the change (a gain drop read as a damping rise: the
+        resonance peak ``b0/(2 zeta)`` moves first), so only a joint fit of the data after it can name a second one."""
+        ref = self.reference
+        return ref is not None and ref.converged and any(e.mode == i + 1 and e.quantity != QUANTITIES[q]
+                                                         for e in self.tests.open_events)
+
+    def _second_pending(self) -> np.ndarray:
+        """(K,) bool: modes with a suspected deviation beside a fault of another of their quantities."""
+        return np.array([any(tst.state == "suspect" and self._second_quantity(i, q) for q, tst in enumerate(row))
+                         for i, row in enumerate(self.tests)], dtype=bool)
 
     def _joint_events_open(self) -> bool:
         return any(tst.state == "fault" and tst.by_joint for row in self.tests for tst in row)
@@ -136,7 +164,8 @@ class JointConfirmation:
         """Whether a joint check is due: every half memory while a test deviates or a joint event is open, else every
         two memory lengths."""
         needed = self.armed or (self.stress.anomaly_since is not None and self.reference is not None) or \
-            bool(self.coupled_pending.any()) or self._joint_events_open()
+            bool(self.coupled_pending.any() or self.peak_pending.any()) or self._joint_events_open() or \
+            bool(self._second_pending().any())
         if not needed or self.phases.phase != "monitoring":
             return False
         busy = any(tst.state != "ok" for row in self.tests for tst in row) or bool(np.any(self.streak))
@@ -148,8 +177,9 @@ class JointConfirmation:
         two no longer support. An unconverged fit judges nothing (streaks and events are kept)."""
         out = FaultUpdate()
         self.latest = verdict
-        needed = self.armed or self.stress.anomaly_since is not None or bool(self.coupled_pending.any()) or \
-            self._joint_events_open()
+        needed = self.armed or self.stress.anomaly_since is not None or \
+            bool(self.coupled_pending.any() or self.peak_pending.any()) or self._joint_events_open() or \
+            bool(self._second_pending().any())
         if not (needed and verdict.converged) or self.phases.baseline is None or held:
             return out
         if self.reference_pending:
@@ -183,7 +213,8 @@ class JointConfirmation:
             return
         if test.state == "fault" or abs(self.streak[i, q]) < 2 or not self.setup.applicable(i, q) \
                 or not (self.armed_modes[i] or self.stress.anomaly_since is not None
-                        or self.coupled_pending[i]):   # the recursion alone decides
+                        or self.coupled_pending[i] or self._second_quantity(i, q)
+                        or (q > 0 and self.peak_pending[i])):   # the recursion alone decides
             return
         ref_value, ref_std = self.basis()
         sigma = math.hypot(float(verdict.std[i, q]), float(ref_std[i, q]))
