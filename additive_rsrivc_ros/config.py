@@ -29,8 +29,8 @@ from .core.model import SubmodelStructure, guess_structure, guess_theta
 from .core.params import DEFAULT_MEMORY_S, ESTIMATOR_PARAMS, FAULT_PARAMS, EstimatorOptions, Param
 
 if TYPE_CHECKING:   # annotations only: imported where used (the fault monitor and aligner are heavier)
-    from .core.alignment import AlignmentSettings
-    from .core.faults import FaultSettings
+    from .core.diagnosis.faults import FaultSettings
+    from .core.input.alignment import AlignmentSettings
 
 DEFAULT_NODE_NAME = "additive_rsrivc_monitor"
 
@@ -57,7 +57,7 @@ CORE_PARAMS: list[Param] = [
     Param("input_delay_samples", "int", 0, "Known input delay in samples.", 0, 10000, True),
     Param("modes.natural_frequency_hz", "double[]", [], "Initial guess of each mode's natural frequency (Hz); "
           "its length defines K. 0 for a pure rigid-body mode b0/p^l. Empty (with empty damping_ratio and gain): "
-          "the modes are found from the data (core/modefind.py; modes.count).", 0.0, None, True),
+          "the modes are found from the data (core/identification/modefind.py; modes.count).", 0.0, None, True),
     Param("modes.damping_ratio", "double[]", [], "Initial guess of each mode's damping ratio.", 0.0, 10.0, True),
     Param("modes.gain", "double[]", [], "Initial guess of each mode's DC gain b0.", None, None, True),
     Param("modes.integrators", "int[]", [], "Poles at the origin per mode (rigid body: 2); default 0. Ignored "
@@ -110,7 +110,7 @@ SIGNAL_PARAMS += [
           "up to this much delay. 0: every block at once.", 0.0, 1.0, True),
 ]
 
-# Verified stream alignment (core/alignment.py): the controller invariant u = C_d(q)(r - y) re-pairs r, u, y.
+# Verified stream alignment (core/input/alignment.py): the controller invariant u = C_d(q)(r - y) re-pairs r, u, y.
 ALIGN_PARAMS: list[Param] = [
     Param("alignment.mode", "string", "auto", "Verify and re-establish the pairing of r, u, y from the controller "
           "invariant u = C_d(q)(r - y): auto (closed loop with Float64 signals; JointState stamps are exact) or off.",
@@ -340,7 +340,7 @@ class MonitorConfig:
     @property
     def alignment(self) -> AlignmentSettings:
         """The ``alignment.*`` parameters, typed."""
-        from .core.alignment import AlignmentSettings
+        from .core.input.alignment import AlignmentSettings
 
         p = self.params
         return AlignmentSettings(str(p.get("alignment.mode", "auto")), int(p.get("alignment.max_shift", 3)),
@@ -354,7 +354,7 @@ class MonitorConfig:
     @property
     def fault_settings(self) -> FaultSettings:
         """The ``faults.*`` parameters, typed (:class:`.core.faults.FaultSettings`)."""
-        from .core.faults import FaultSettings
+        from .core.diagnosis.faults import FaultSettings
 
         return FaultSettings.from_params(self.params)
 
@@ -399,7 +399,7 @@ class MonitorConfig:
         """The node's view of a block-input configuration: one more signal ``block`` of type Float64MultiArray.
 
         Its rows are paired by the controller's index, so the pipeline's stream aligner (per-sample Float64 topics
-        only, core/alignment.py) does not re-pair them. Offline tools keep the per-sample view: a bag of the three
+        only, core/input/alignment.py) does not re-pair them. Offline tools keep the per-sample view: a bag of the three
         topics is still verified by the aligner."""
         sig = dict(self.signals)
         sig["block"] = SignalConfig(str(self.params["block.topic"]), "std_msgs/msg/Float64MultiArray")
@@ -407,7 +407,7 @@ class MonitorConfig:
 
     @property
     def auto_modes(self) -> bool:
-        """No guesses: the modes are to be found from the data (core/modefind.py)."""
+        """No guesses: the modes are to be found from the data (core/identification/modefind.py)."""
         return self.K == 0
 
     def with_memory(self, memory_s: list[float]) -> MonitorConfig:

@@ -6,7 +6,8 @@ module's source and on the install that runs them (package location, ``sys.prefi
 numba and llvmlite): ``$RSRIVC_CACHE_DIR/numba-<version>-<source hash>-<install hash>/`` (default root
 ``$XDG_CACHE_HOME/additive_rsrivc_ros`` or ``~/.cache/additive_rsrivc_ros``; the system temporary directory when none is
 writable). Two installs never load or overwrite each other's kernels. The directory also holds the kernels compiled
-ahead of time (``core/compiled.py``). A ``NUMBA_CACHE_DIR`` set by the user is respected as is. :func:`configure` runs
+ahead of time (``core/estimation/compiled.py``). A ``NUMBA_CACHE_DIR`` set by the user is respected as is.
+:func:`configure` runs
 once, from the package's ``__init__``, before any kernel module is imported; ``rsrivc_warmup`` fills the cache.
 """
 
@@ -24,9 +25,10 @@ from ._version import __version__
 #: ``NUMBA_CACHE_DIR`` (recomputed for their own sources) from one the user set.
 AUTO_MARKER = "RSRIVC_NUMBA_CACHE_AUTO"
 _PACKAGE = Path(__file__).resolve().parent
-#: the modules that define or call numba kernels (their source decides the cache directory; ``core/compiled.py``
+#: the modules that define or call numba kernels (their source decides the cache directory;
+# ``core/estimation/compiled.py``
 #: checks the same files against its manifest).
-KERNEL_SOURCES = ("core/*.py", "mcap_fast.py")
+KERNEL_SOURCES = ("core/**/*.py", "io/mcap_fast.py")
 
 
 def source_hash() -> str:

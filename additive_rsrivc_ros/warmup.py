@@ -48,7 +48,7 @@ def load_kernels() -> float:
     import scipy.linalg  # noqa: F401 - the offline start's expm (core/zoh.zoh_matrices)
     import scipy.special  # noqa: F401 - the offline start's F quantile (core/offline/stable.initial_transient_test)
 
-    from .core import zoh
+    from .core.estimation import zoh
 
     t0 = time.monotonic()
     phi, gam = np.zeros((2, 2)), np.zeros(2)
@@ -104,7 +104,7 @@ def _run_case(work: Path, scenario: str, params: str, after_s: float) -> None:
 def warm(verbose: bool = True) -> float:
     """Run :data:`CASES` under numba's JIT, build the ahead-of-time extension from the signatures they met
     (:mod:`.core.compiled`), mark the cache directory warm; return the seconds it took."""
-    from .core import compiled
+    from .core.estimation import compiled
 
     t0 = time.monotonic()
     compiled.ensure_jit()                              # the JIT cache and the signatures to export
@@ -123,7 +123,7 @@ def warm(verbose: bool = True) -> float:
 
 def _build_extension(directory: Path, verbose: bool) -> None:
     """Compile the kernels ahead of time; on failure (no C compiler, say) the JIT cache serves, one line says why."""
-    from .core import compiled
+    from .core.estimation import compiled
 
     try:
         count, seconds = compiled.build(directory, kernel_dispatchers())
@@ -192,7 +192,7 @@ def main(argv: list[str] | None = None) -> int:
 def _check() -> int:
     """Print every kernel never compiled into the JIT cache and whether the ahead-of-time extension loads for
     these sources; 1 if anything is missing."""
-    from .core import compiled
+    from .core.estimation import compiled
 
     missing = compiled._load_extension() is None
     if missing:

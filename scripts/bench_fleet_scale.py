@@ -40,7 +40,7 @@ from typing import Any
 from additive_rsrivc_ros.cli import fleet
 from additive_rsrivc_ros.cli.dask_loopback import LoopbackCluster
 from additive_rsrivc_ros.cli.diagnose import diagnose_bag
-from additive_rsrivc_ros.core.trend import DEFAULT_ALPHA
+from additive_rsrivc_ros.core.diagnosis.trend import DEFAULT_ALPHA
 from additive_rsrivc_ros.sim import fleetsim
 
 DRIFT = 0.005

@@ -54,9 +54,9 @@ def report_microseconds(calls: int = 2000) -> tuple[float, float]:
 
     import numpy as np
 
+    from additive_rsrivc_ros.core.estimation.recursive import COVARIANCE_REL_TOL, RecursiveAdditiveSRIVC
+    from additive_rsrivc_ros.core.estimation.report_numbers import report_numbers
     from additive_rsrivc_ros.core.model import SubmodelStructure
-    from additive_rsrivc_ros.core.recursive import COVARIANCE_REL_TOL, RecursiveAdditiveSRIVC
-    from additive_rsrivc_ros.core.report_numbers import report_numbers
     from additive_rsrivc_ros.sim.plants import BEAM_THETAS, beam_controller
 
     est = RecursiveAdditiveSRIVC([SubmodelStructure()] * 2, [t * 1.01 for t in BEAM_THETAS[:2]], 4096.0,

@@ -85,7 +85,7 @@ def write_joint_bag(path: Path, joints: list[arm.ArmJoint], rate_hz: float) -> P
     per sample, interleaved in time order."""
     from rosbags.rosbag2 import StoragePlugin, Writer
 
-    from additive_rsrivc_ros.bagio import SIGNAL_QOS, _typestore, sample_times_ns
+    from additive_rsrivc_ros.io.bagio import SIGNAL_QOS, _typestore, sample_times_ns
 
     names = [j.name for j in joints]
     n = joints[0].r.size

@@ -23,7 +23,7 @@ import tempfile
 import time
 from pathlib import Path
 
-from additive_rsrivc_ros.bagio import write_bag
+from additive_rsrivc_ros.io.bagio import write_bag
 from additive_rsrivc_ros.sim.experiments import CLOSE_PAIR_RATE_HZ, close_pair_params_yaml, close_pair_record
 from additive_rsrivc_ros.sim.simulate import ModalChange
 
@@ -41,9 +41,9 @@ def _run(argv: list[str]) -> tuple[float, float, dict]:
 
 
 def _read_figures(bag: Path, params: Path, duration: float) -> None:
-    from additive_rsrivc_ros.bagio import read_signals
     from additive_rsrivc_ros.config import load_config
-    from additive_rsrivc_ros.timerange import TimeRange
+    from additive_rsrivc_ros.io.bagio import read_signals
+    from additive_rsrivc_ros.io.timerange import TimeRange
 
     cfg = load_config(params)
     read_signals(bag, cfg, TimeRange(0.0, 1.0))        # imports and compiled kernels

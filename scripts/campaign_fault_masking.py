@@ -45,8 +45,9 @@ sys.path.insert(0, str(Path(__file__).resolve().parent))
 from validate_autostart import design_controller, random_plant  # noqa: E402
 
 from additive_rsrivc_ros.config import MonitorConfig  # noqa: E402
-from additive_rsrivc_ros.core.pipeline import MonitorPipeline  # noqa: E402
+from additive_rsrivc_ros.core.monitor.pipeline import MonitorPipeline  # noqa: E402
 from additive_rsrivc_ros.core.vocabulary import QUANTITIES  # noqa: E402
+from additive_rsrivc_ros.outputs.verdict import assess  # noqa: E402
 from additive_rsrivc_ros.sim.simulate import (  # noqa: E402
     ModalChange,
     PlantMode,
@@ -55,7 +56,6 @@ from additive_rsrivc_ros.sim.simulate import (  # noqa: E402
     sum_of_sines,
     white_noise,
 )
-from additive_rsrivc_ros.verdict import assess  # noqa: E402
 
 PROBLEMS = ("none", "glitch", "nan", "lost", "duplicate", "clock_back", "clock_fwd", "pause", "restart", "weak_mode")
 SIM_QUANTITY = {"natural_frequency": "frequency", "damping": "damping", "gain": "gain"}

@@ -108,7 +108,7 @@ def decimated(x: np.ndarray, rate: float) -> tuple[np.ndarray, float]:
 
 # ------------------------------------------------------------------------------------------------- the methods
 def product_modes(sim, ctrl, case: Case) -> np.ndarray:
-    from additive_rsrivc_ros.core.modefind import find_modes
+    from additive_rsrivc_ros.core.identification.modefind import find_modes
 
     res = find_modes(sim.u, sim.y, case.rate, r=sim.r, controller=ctrl, input_delay=case.delay)
     return np.array([m[:2] for m in res.modal if m[0] > 0])
@@ -231,13 +231,13 @@ def track_recursive(sim, ctrl, case: Case, memory_s: float,
     """``(t, f_hat, cpu s of the tracking, cpu s of the start)``: the product's recursive estimator, every mode's
     memory ``memory_s``, started from the modes the product finds on the first ``init_s`` seconds (its offline
     initialization on the same samples)."""
+    from additive_rsrivc_ros.core.estimation.recursive import RecursiveAdditiveSRIVC
     from additive_rsrivc_ros.core.model import SubmodelStructure, theta_from_modal
-    from additive_rsrivc_ros.core.recursive import RecursiveAdditiveSRIVC
 
     n0 = int(init_s * case.rate)
     w = slice(0, n0)
     c0 = time.process_time()
-    from additive_rsrivc_ros.core.modefind import find_modes
+    from additive_rsrivc_ros.core.identification.modefind import find_modes
 
     found = find_modes(sim.u[w], sim.y[w], case.rate, r=sim.r[w], controller=ctrl, input_delay=case.delay)
     thetas = [theta_from_modal(*m) for m in found.modal]

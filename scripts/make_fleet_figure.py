@@ -18,7 +18,7 @@ import tempfile
 from pathlib import Path
 
 from additive_rsrivc_ros.cli import fleet
-from additive_rsrivc_ros.fleet_report import trend_svg
+from additive_rsrivc_ros.outputs.fleet_report import trend_svg
 from additive_rsrivc_ros.sim import fleetsim
 
 REPO = Path(__file__).resolve().parents[1]

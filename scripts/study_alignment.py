@@ -1,5 +1,5 @@
 #!/usr/bin/env python3
-"""Print what the controller-invariant stream aligner (core/alignment.py) does on the bundled beam_fault record.
+"""Print what the controller-invariant stream aligner (core/input/alignment.py) does on the bundled beam_fault record.
 
 For each data fault (a message lost or repeated on one stream, early / in the baseline window / after the fault,
 1 % random loss, a 5 % wrong controller, feedforward) it prints the aligner's counters, the number of released
@@ -14,11 +14,11 @@ from pathlib import Path
 
 import numpy as np
 
-from additive_rsrivc_ros.bagio import read_signals
 from additive_rsrivc_ros.config import MonitorConfig, load_params_file
-from additive_rsrivc_ros.core.alignment import InvariantAligner, align_record, invariant_residual
 from additive_rsrivc_ros.core.controller import DiscreteController
-from additive_rsrivc_ros.core.pipeline import MonitorPipeline
+from additive_rsrivc_ros.core.input.alignment import InvariantAligner, align_record, invariant_residual
+from additive_rsrivc_ros.core.monitor.pipeline import MonitorPipeline
+from additive_rsrivc_ros.io.bagio import read_signals
 
 REPO = Path(__file__).resolve().parents[1]
 

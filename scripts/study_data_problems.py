@@ -18,9 +18,9 @@ from pathlib import Path
 
 import numpy as np
 
-from additive_rsrivc_ros.bagio import read_signals
 from additive_rsrivc_ros.config import load_config
-from additive_rsrivc_ros.core.pipeline import MonitorPipeline
+from additive_rsrivc_ros.core.monitor.pipeline import MonitorPipeline
+from additive_rsrivc_ros.io.bagio import read_signals
 
 REPO = Path(__file__).resolve().parents[1]
 
@@ -69,7 +69,7 @@ def run(cfg, sig, kind: str, t_at: float) -> None:
 def run_autostart(cfg, sig, kind: str, t_at: float) -> None:
     """No mode guesses (``config/beam_plant.yaml``): the damage lands in the automatic start's first window. Prints
     the window the modes were found on, the baseline's trust and note, and the offline verdict."""
-    from additive_rsrivc_ros.verdict import assess
+    from additive_rsrivc_ros.outputs.verdict import assess
 
     t, r, u, y = damaged(sig, kind, t_at, cfg.loop_rate_hz)
     pipe, reps = _through_pipeline(cfg, t, r, u, y)

@@ -28,7 +28,7 @@ from campaign_fault_masking import draw, excitation  # noqa: E402
 
 from additive_rsrivc_ros.config import MonitorConfig  # noqa: E402
 from additive_rsrivc_ros.core.controller import DiscreteController  # noqa: E402
-from additive_rsrivc_ros.core.pipeline import MonitorPipeline  # noqa: E402
+from additive_rsrivc_ros.core.monitor.pipeline import MonitorPipeline  # noqa: E402
 from additive_rsrivc_ros.sim.simulate import simulate_modes, white_noise  # noqa: E402
 
 

@@ -1,6 +1,6 @@
 #!/usr/bin/env python3
 """A wrong ``input_delay_samples`` on the bundled beam bag (true delay 4 samples at 4096 Hz): what the data say and
-what the monitor says (model-order check, step 0: ``core/adequacy.py``).
+what the monitor says (model-order check, step 0: ``core/identification/adequacy.py``).
 
 1. The offline fit (additive CLSRIVC, [A-SRIVC] eq. 29) of the K = 2 modes on the first 70 % of 15 s at each delay 0-8,
    and its simulated output error on the held-out rest (``modefind._held_out_error``): how sharply the delay shows.
@@ -21,11 +21,11 @@ os.environ.setdefault("OPENBLAS_NUM_THREADS", "1")
 
 import numpy as np  # noqa: E402
 
-from additive_rsrivc_ros.bagio import read_signals  # noqa: E402
 from additive_rsrivc_ros.config import MonitorConfig, load_params_file  # noqa: E402
-from additive_rsrivc_ros.core.modefind import _held_out_error  # noqa: E402
-from additive_rsrivc_ros.core.offline import identify  # noqa: E402
-from additive_rsrivc_ros.core.pipeline import MonitorPipeline  # noqa: E402
+from additive_rsrivc_ros.core.identification.modefind import _held_out_error  # noqa: E402
+from additive_rsrivc_ros.core.identification.offline import identify  # noqa: E402
+from additive_rsrivc_ros.core.monitor.pipeline import MonitorPipeline  # noqa: E402
+from additive_rsrivc_ros.io.bagio import read_signals  # noqa: E402
 
 REPO = Path(__file__).resolve().parents[1]
 

@@ -31,7 +31,7 @@ os.environ.setdefault("OPENBLAS_NUM_THREADS", "1")
 
 import numpy as np  # noqa: E402
 
-from additive_rsrivc_ros.core.pipeline import MonitorPipeline  # noqa: E402
+from additive_rsrivc_ros.core.monitor.pipeline import MonitorPipeline  # noqa: E402
 from additive_rsrivc_ros.sim.scenarios import build  # noqa: E402
 
 #: (scenario, overrides making it healthy, seconds): every window fits (memory lengths x longest memory + init)
@@ -94,7 +94,7 @@ def _through_pipeline(cfg, t, r, u, y, path: int = 0) -> dict:
 
 def _baseline_state(pipe) -> str:
     """``-`` no baseline yet, ``T`` trusted, ``U`` untrusted (cut short, or its thirds differ:
-    ``core/baseline_phases.py``)."""
+    ``core/diagnosis/baseline_phases.py``)."""
     base = None if pipe.faults is None else pipe.faults.baseline
     return "-" if base is None else ("T" if base.trusted else "U")
 

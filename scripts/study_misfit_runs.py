@@ -23,8 +23,8 @@ sys.path.insert(0, str(Path(__file__).resolve().parent))
 import numpy as np  # noqa: E402
 import validate_autostart as va  # noqa: E402
 
-from additive_rsrivc_ros.core.adequacy import MISFIT_RUN_BINS, longest_misfit_run, misfit  # noqa: E402
-from additive_rsrivc_ros.core.frf import estimate_frf, model_frf_on_bins  # noqa: E402
+from additive_rsrivc_ros.core.identification.adequacy import MISFIT_RUN_BINS, longest_misfit_run, misfit  # noqa: E402
+from additive_rsrivc_ros.core.identification.frf import estimate_frf, model_frf_on_bins  # noqa: E402
 
 
 def main() -> None:

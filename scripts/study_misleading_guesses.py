@@ -13,7 +13,8 @@ parameters, so every structural event is a false alarm. Each case starts the sam
 * ``truth+1``: the true two modes plus a third guess at 100 Hz, where the plant has no mode.
 
 Printed per case: structural events (must be 0), the end estimate of each mode against the nearest true mode,
-whether the end health is flagged, the model-order check's finding (core/adequacy.py: ``too_low`` flags health,
+whether the end health is flagged, the model-order check's finding (core/identification/adequacy.py: ``too_low``
+flags health,
 ``adequate`` does not) and the verdict line "trust": an estimate more than 1 % (frequency) off the truth must come with
 a flagged health, or it is *confidently wrong*.
 
@@ -28,7 +29,7 @@ import sys
 import numpy as np
 
 from additive_rsrivc_ros.config import MonitorConfig, load_params_file
-from additive_rsrivc_ros.core.pipeline import MonitorPipeline
+from additive_rsrivc_ros.core.monitor.pipeline import MonitorPipeline
 from additive_rsrivc_ros.sim.scenarios import build, config_dir
 
 TRUE_F = np.array([3.2487, 32.972, 171.7, 183.2])

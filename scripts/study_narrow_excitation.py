@@ -2,7 +2,8 @@
 """Faults on narrow excitation: the [RA-SRIVC] §5 loop, four reference lines plus a weak dither.
 
 For each injected change (gain -20 % on mode 1, gain -20 % on mode 2, damping -30 % on mode 2, and no change) and
-each seed, the monitor (``core/pipeline.py`` with the joint confirmation of ``core/joint_check.py``) runs on
+each seed, the monitor (``core/monitor/pipeline.py`` with the joint confirmation of
+``core/diagnosis/joint_check.py``) runs on
 ``--duration`` s with the change at ``--change-at`` s. Printed per run: whether the joint confirmation was armed and
 what the baseline's joint fit found not identifiable, every event (``ok`` on the changed mode and quantity, ``WRONG``
 otherwise), the first resonance-peak report on health (``ok``/``WRONG`` by mode and direction), and the delays in memory
@@ -18,8 +19,8 @@ import argparse
 import sys
 
 from additive_rsrivc_ros.cli.evaluate import Case, simulate_case
-from additive_rsrivc_ros.core.joint_check import applicable_mask
-from additive_rsrivc_ros.core.pipeline import MonitorPipeline
+from additive_rsrivc_ros.core.diagnosis.joint_check import applicable_mask
+from additive_rsrivc_ros.core.monitor.pipeline import MonitorPipeline
 
 CHANGES = (("gain mode 1 -20 %", (0, "gain", -0.20)), ("gain mode 2 -20 %", (1, "gain", -0.20)),
            ("damping mode 2 -30 %", (1, "damping", -0.30)), ("no change", None))

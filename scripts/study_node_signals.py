@@ -33,7 +33,7 @@ SIGNALS = ("/reference", "/plant_input", "/plant_output")
 def valid_state_file(path: Path) -> str:
     """A state file of the beam configuration with an initialized estimator (6 s of simulated beam data)."""
     from additive_rsrivc_ros.config import MonitorConfig, load_params_file
-    from additive_rsrivc_ros.core.pipeline import MonitorPipeline
+    from additive_rsrivc_ros.core.monitor.pipeline import MonitorPipeline
     from additive_rsrivc_ros.sim import scenarios
 
     sc = scenarios.build("beam", duration_s=6.0, seed=2)
@@ -47,7 +47,7 @@ def valid_state_file(path: Path) -> str:
 def check_state(path: Path) -> str:
     """valid / lost / corrupt (unreadable, or refused by a pipeline of the same parameters)."""
     from additive_rsrivc_ros.config import MonitorConfig, load_params_file
-    from additive_rsrivc_ros.core.pipeline import MonitorPipeline, PipelineError
+    from additive_rsrivc_ros.core.monitor.pipeline import MonitorPipeline, PipelineError
 
     if not path.exists():
         return "lost"

@@ -23,7 +23,7 @@ from pathlib import Path
 
 import numpy as np
 
-from additive_rsrivc_ros.bagio import write_bag
+from additive_rsrivc_ros.io.bagio import write_bag
 
 REPO = Path(__file__).resolve().parents[1]
 

@@ -18,7 +18,7 @@ import sys
 import numpy as np
 
 from additive_rsrivc_ros.config import MonitorConfig
-from additive_rsrivc_ros.core.recursive import RecursiveAdditiveSRIVC
+from additive_rsrivc_ros.core.estimation.recursive import RecursiveAdditiveSRIVC
 from additive_rsrivc_ros.sim.scenarios import build
 
 

@@ -19,7 +19,7 @@ import sys
 import numpy as np
 from study_misleading_guesses import CASES, TRUE_F, TRUE_Z, config_for
 
-from additive_rsrivc_ros.core.pipeline import MonitorPipeline
+from additive_rsrivc_ros.core.monitor.pipeline import MonitorPipeline
 from additive_rsrivc_ros.sim.scenarios import build
 
 

@@ -33,9 +33,9 @@ for _v in ("OPENBLAS_NUM_THREADS", "OMP_NUM_THREADS", "MKL_NUM_THREADS"):
 
 import numpy as np  # noqa: E402
 
+from additive_rsrivc_ros.core.estimation.recursive import RecursiveAdditiveSRIVC  # noqa: E402
+from additive_rsrivc_ros.core.estimation.zoh import second_order_zoh  # noqa: E402
 from additive_rsrivc_ros.core.model import modal_from_theta  # noqa: E402
-from additive_rsrivc_ros.core.recursive import RecursiveAdditiveSRIVC  # noqa: E402
-from additive_rsrivc_ros.core.zoh import second_order_zoh  # noqa: E402
 from additive_rsrivc_ros.sim import scenarios as S  # noqa: E402
 
 NOISE_STD = S.BEAM_NOISE_STD

@@ -23,8 +23,8 @@ import numpy as np
 sys.path.insert(0, str(Path(__file__).resolve().parent.parent / "test"))
 from frf_cases import CONTROLLER, DELAY, FS, MODES, split_mode_window  # noqa: E402
 
-from additive_rsrivc_ros.core import modefind  # noqa: E402
-from additive_rsrivc_ros.core.offline import stable  # noqa: E402
+from additive_rsrivc_ros.core.identification import modefind  # noqa: E402
+from additive_rsrivc_ros.core.identification.offline import stable  # noqa: E402
 
 
 def _right(res) -> bool:

@@ -20,8 +20,8 @@ import json
 import tempfile
 from pathlib import Path
 
-from additive_rsrivc_ros.bagio import write_bag
 from additive_rsrivc_ros.cli import identify
+from additive_rsrivc_ros.io.bagio import write_bag
 from additive_rsrivc_ros.sim.experiments import close_pair_params_yaml, close_pair_record
 from additive_rsrivc_ros.sim.scenarios import build
 from additive_rsrivc_ros.sim.simulate import ModalChange

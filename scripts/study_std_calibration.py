@@ -40,13 +40,13 @@ for _v in ("OPENBLAS_NUM_THREADS", "OMP_NUM_THREADS", "MKL_NUM_THREADS"):
 
 import numpy as np  # noqa: E402
 
+from additive_rsrivc_ros.core.estimation.recursive import RecursiveAdditiveSRIVC  # noqa: E402
 from additive_rsrivc_ros.core.model import (  # noqa: E402
     SubmodelStructure,
     modal_from_theta,
     modal_std,
     theta_from_modal,
 )
-from additive_rsrivc_ros.core.recursive import RecursiveAdditiveSRIVC  # noqa: E402
 from additive_rsrivc_ros.sim.plants import BEAM_THETAS, PAPER_PID, beam_controller  # noqa: E402
 from additive_rsrivc_ros.sim.simulate import PlantMode, simulate_modes  # noqa: E402
 

@@ -44,10 +44,10 @@ os.environ.setdefault("OMP_NUM_THREADS", "1")
 
 import numpy as np  # noqa: E402
 
-from additive_rsrivc_ros.core.adequacy import check_start, longest_misfit_run, misfit  # noqa: E402
 from additive_rsrivc_ros.core.controller import DiscreteController  # noqa: E402
-from additive_rsrivc_ros.core.frf import discrete_model_frf, model_frf_on_bins  # noqa: E402
-from additive_rsrivc_ros.core.modefind import find_modes  # noqa: E402
+from additive_rsrivc_ros.core.identification.adequacy import check_start, longest_misfit_run, misfit  # noqa: E402
+from additive_rsrivc_ros.core.identification.frf import discrete_model_frf, model_frf_on_bins  # noqa: E402
+from additive_rsrivc_ros.core.identification.modefind import find_modes  # noqa: E402
 from additive_rsrivc_ros.core.plant import loop_margins  # noqa: E402
 from additive_rsrivc_ros.sim.simulate import (  # noqa: E402
     PlantMode,
@@ -205,9 +205,10 @@ def _timed(module, name: str, acc: dict[str, float]):
 def timing(n_plants: int, seed: int) -> None:
     """The automatic start in the pipeline on 20 s of 4096 Hz closed-loop data with K = 4 (see the docstring)."""
     from additive_rsrivc_ros.config import MonitorConfig, validate_params
-    from additive_rsrivc_ros.core import adequacy, modefind, recursive
-    from additive_rsrivc_ros.core import frf as frf_mod
-    from additive_rsrivc_ros.core.pipeline import MonitorPipeline
+    from additive_rsrivc_ros.core.estimation import recursive
+    from additive_rsrivc_ros.core.identification import adequacy, modefind
+    from additive_rsrivc_ros.core.identification import frf as frf_mod
+    from additive_rsrivc_ros.core.monitor.pipeline import MonitorPipeline
 
     print(f"{'plant':>5} {'K':>2} {'found':>5} {'total[s]':>8} {'search':>6} {'frf':>5} {'scan':>5} {'heldout':>7} "
           f"{'on-frf':>6} {'check':>5} {'init':>5}  modes (f Hz)")

@@ -42,9 +42,9 @@ for _v in ("OPENBLAS_NUM_THREADS", "OMP_NUM_THREADS", "MKL_NUM_THREADS"):
 import numpy as np  # noqa: E402
 
 from additive_rsrivc_ros.core.controller import DiscreteController  # noqa: E402
+from additive_rsrivc_ros.core.identification.offline import identify as _identify_path0  # noqa: E402
+from additive_rsrivc_ros.core.identification.offline import to_unfactored  # noqa: E402
 from additive_rsrivc_ros.core.model import SubmodelStructure  # noqa: E402
-from additive_rsrivc_ros.core.offline import identify as _identify_path0  # noqa: E402
-from additive_rsrivc_ros.core.offline import to_unfactored  # noqa: E402
 from additive_rsrivc_ros.sim.independent import (  # noqa: E402
     MODE,
     PAPER_THETAS,

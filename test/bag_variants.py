@@ -22,7 +22,7 @@ def write_stamped_bag(path: str | Path, t_ns: np.ndarray, r: np.ndarray | None, 
     from rosbags.rosbag2.enums import StoragePlugin
     from rosbags.typesys import Stores, get_typestore
 
-    from additive_rsrivc_ros.bagio import float64_cdr
+    from additive_rsrivc_ros.io.bagio import float64_cdr
 
     ts = get_typestore(Stores.ROS2_JAZZY)
     path = Path(path)
@@ -72,7 +72,7 @@ def write_topics(path, streams: dict[str, tuple[np.ndarray, np.ndarray]]):
     """A bag with Float64 topics given as (log times ns, values), as a recorder would have stored them."""
     from rosbags.rosbag2 import StoragePlugin, Writer
 
-    from additive_rsrivc_ros.bagio import _typestore, float64_cdr
+    from additive_rsrivc_ros.io.bagio import _typestore, float64_cdr
     with Writer(path, version=9, storage_plugin=StoragePlugin.MCAP) as w:
         conns = {topic: w.add_connection(topic, "std_msgs/msg/Float64", typestore=_typestore()) for topic in streams}
         rows = sorted((int(t), topic, k) for topic, (ts, _) in streams.items() for k, t in enumerate(ts))

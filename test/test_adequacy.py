@@ -1,4 +1,5 @@
-"""Model-order check (core/adequacy.py, issue 12 item 4): a model with a mode too few that biases what we report is
+"""Model-order check (core/identification/adequacy.py, issue 12 item 4): a model with a mode too few that biases what
+we report is
 flagged on health with the unmodelled resonance; a correct or deliberately reduced model is not."""
 
 from __future__ import annotations
@@ -7,9 +8,9 @@ import numpy as np
 import pytest
 
 from additive_rsrivc_ros.config import MonitorConfig, load_params_file
-from additive_rsrivc_ros.core.adequacy import ModelOrderCheck
-from additive_rsrivc_ros.core.faults import Level
-from additive_rsrivc_ros.core.pipeline import MonitorPipeline
+from additive_rsrivc_ros.core.diagnosis.faults import Level
+from additive_rsrivc_ros.core.identification.adequacy import ModelOrderCheck
+from additive_rsrivc_ros.core.monitor.pipeline import MonitorPipeline
 from additive_rsrivc_ros.sim.plants import BEAM_MODES, PAPER_MODES
 from additive_rsrivc_ros.sim.scenarios import build, config_dir
 from additive_rsrivc_ros.sim.simulate import simulate_modes, sum_of_sines, time_vector, white_noise
@@ -166,7 +167,7 @@ def test_a_model_that_misfits_the_data_without_a_named_cause_is_flagged():
     with 3 noise seeds: 158-179 of 360-370 bins): before, that was ``adequate`` ("N of M FRF bins misfit, no
     unmodelled resonance found there"); now ``misfit``, flagged for health. (Leaving out any other mode, the refit
     finds the true modes but 29.9 Hz and the check names it: ``too_low``.)"""
-    from additive_rsrivc_ros.core.adequacy import MISFIT_FRACTION, check_model_order
+    from additive_rsrivc_ros.core.identification.adequacy import MISFIT_FRACTION, check_model_order
     rate, delay, ctrl, sim, thetas, structures = _four_mode_loop()
     kw = dict(r=sim.r, controller=ctrl, input_delay=delay)
     right = check_model_order(thetas, structures, sim.u, sim.y, rate, **kw)
@@ -189,8 +190,8 @@ def test_a_band_the_model_misses_is_flagged_though_few_bins_misfit():
     misfits only about 8 % of the bins, under the 15 % rule, so it was ``adequate``; but the misfit bins lie in one
     band, 22 in a row, where right models misfit at most a few in a row (MISFIT_RUN_BINS). Now ``misfit``, named with
     its band; the true model stays ``adequate`` with a short longest run."""
-    from additive_rsrivc_ros.core.adequacy import MISFIT_FRACTION, MISFIT_RUN_BINS, check_model_order
     from additive_rsrivc_ros.core.controller import DiscreteController
+    from additive_rsrivc_ros.core.identification.adequacy import MISFIT_FRACTION, MISFIT_RUN_BINS, check_model_order
     from additive_rsrivc_ros.core.model import theta_from_modal
     from additive_rsrivc_ros.sim.simulate import PlantMode
 
@@ -226,7 +227,7 @@ def _beam_two_modes(seconds: float, seed: int):
 def test_the_configured_input_delay_is_checked_against_one_sample_more_and_fewer(configured, better):
     """Step 0: the true delay (4 samples) passes, both neighbours fit worse; a wrong one is flagged (``misfit``) with
     the neighbour towards the truth, and the misfit is not read as unmodelled resonances."""
-    from additive_rsrivc_ros.core.adequacy import DELAY_ERROR_RATIO, check_model_order
+    from additive_rsrivc_ros.core.identification.adequacy import DELAY_ERROR_RATIO, check_model_order
 
     cfg, t, r, sim = _beam_two_modes(10.0, seed=3)
     assert cfg.input_delay_samples == 4
@@ -258,7 +259,7 @@ def test_a_wrong_input_delay_in_the_pipeline_is_on_health_without_events_or_a_re
     assert not any(rep.events_opened for rep in reports)
     assert not any("restart from the data" in n for rep in reports for n in rep.notices)
     # the offline verdict does not call the silent fault tests on that model healthy (verdict.assess)
-    from additive_rsrivc_ros.verdict import assess
+    from additive_rsrivc_ros.outputs.verdict import assess
 
     v = assess(reports, float(t[-1]))
     assert v.level == "DEGRADED" and "input_delay_samples 3 instead of 2" in v.text, v.line
@@ -269,8 +270,13 @@ def test_a_refit_that_misfits_does_not_flag_an_estimate_that_fits():
     at its true modes on 15 s: the check's K-mode refit does not converge there and misfits 13-41 bins in a row at
     21-42 Hz (3 of 4 noise seeds), while the true modes fit the FRF (1 bin). That is the refit's failure: not flagged
     (it was 'model misfits the data' on a healthy plant). An estimate that misfits a band itself stays flagged."""
-    from additive_rsrivc_ros.core.adequacy import MISFIT_RUN_BINS, OrderCheckResult, _verdict, check_model_order
     from additive_rsrivc_ros.core.controller import DiscreteController
+    from additive_rsrivc_ros.core.identification.adequacy import (
+        MISFIT_RUN_BINS,
+        OrderCheckResult,
+        _verdict,
+        check_model_order,
+    )
     from additive_rsrivc_ros.core.model import theta_from_modal
     from additive_rsrivc_ros.sim.simulate import PlantMode, square_wave
 
@@ -302,7 +308,7 @@ def test_the_initial_model_is_screened_on_its_own_window():
     4-mode plant above on a 5 s window of its data passes the screen (None, no check run); with its 95 Hz mode left
     out it is flagged (``misfit``); NaN outputs are left out (the longest finite stretch is judged); a window whose
     longest finite stretch is under 2 s is not judged (None, never a flag from too little data)."""
-    from additive_rsrivc_ros.core.adequacy import check_initial_model
+    from additive_rsrivc_ros.core.identification.adequacy import check_initial_model
     rate, delay, ctrl, sim, thetas, structures = _four_mode_loop()
     w = slice(int(10 * rate), int(15 * rate))
     r, u, y = sim.r[w], sim.u[w], sim.y[w].copy()
@@ -321,7 +327,7 @@ def test_a_candidate_that_a_found_resonance_explains_is_not_refitted(monkeypatch
     of the 172 Hz resonance (a candidate near 120-140 Hz, no mode of the plant); once the 172 Hz mode is found, its
     K + 1 model fits the data there and that candidate is not refitted. Paired with every candidate refitted: the same
     state, message and real extra modes (the skipped refit only wandered back onto 172 Hz), one refit more."""
-    from additive_rsrivc_ros.core import adequacy
+    from additive_rsrivc_ros.core.identification import adequacy
 
     cfg = _beam_config(2)
     data = build("beam_healthy", duration_s=12.0, seed=1)

@@ -1,4 +1,5 @@
-"""Verified alignment by the controller invariant u = C_d(q)(r - y) (core/alignment.py) and its use by the pipeline.
+"""Verified alignment by the controller invariant u = C_d(q)(r - y) (core/input/alignment.py) and its use by the
+pipeline.
 
 Bad-data catalogue: a message lost or repeated on each stream, early and late, 1 % random loss, a wrong
 controller, feedforward; each case must end corrected (every released valid sample satisfies the invariant) or
@@ -11,12 +12,12 @@ import numpy as np
 import pytest
 from bag_variants import write_topics
 
-from additive_rsrivc_ros.bagio import read_signals
 from additive_rsrivc_ros.config import MonitorConfig, load_params_file
-from additive_rsrivc_ros.core.alignment import InvariantAligner
 from additive_rsrivc_ros.core.controller import DiscreteController
-from additive_rsrivc_ros.core.pipeline import MonitorPipeline
+from additive_rsrivc_ros.core.input.alignment import InvariantAligner
+from additive_rsrivc_ros.core.monitor.pipeline import MonitorPipeline
 from additive_rsrivc_ros.core.vocabulary import ALIGN_APPROXIMATE_RELATIVE
+from additive_rsrivc_ros.io.bagio import read_signals
 
 
 @pytest.fixture(scope="module")
@@ -199,7 +200,7 @@ def test_bag_with_a_lost_repeated_or_shifted_message_keeps_the_verdict(beam, tmp
     """beam_fault as a recorder would have stored it, with one message lost, recorded twice, or lost with the counts
     evened out (only the invariant can tell): the -5 % mode-2 frequency fault is still found on mode 2 /
     natural_frequency / down, nothing on mode 1, and the run says what it corrected."""
-    from additive_rsrivc_ros.bagio import read_signals as read
+    from additive_rsrivc_ros.io.bagio import read_signals as read
     cfg, sig = beam
     bag = write_topics(tmp_path / "bag", _bag_case(sig, case))
     s2 = read(bag, cfg)
@@ -216,8 +217,8 @@ def test_bag_with_a_lost_repeated_or_shifted_message_keeps_the_verdict(beam, tmp
 
 @pytest.mark.parametrize("scale", [1.01, 2.0])
 def test_bag_at_the_wrong_rate_is_refused_with_the_reason(beam, tmp_path, scale):
-    from additive_rsrivc_ros.bagio import BagError
-    from additive_rsrivc_ros.bagio import read_signals as read
+    from additive_rsrivc_ros.io.bagio import BagError
+    from additive_rsrivc_ros.io.bagio import read_signals as read
     cfg, sig = beam
     n = 8192
     t_ns = sig.t0_ns + np.rint(sig.t[:n] * scale * 1e9).astype(np.int64)

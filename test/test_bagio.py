@@ -1,4 +1,4 @@
-"""rosbag2 round trip (mcap, sqlite3), determinism, third-party readability and bag validation (bagio.py)."""
+"""rosbag2 round trip (mcap, sqlite3), determinism, third-party readability and bag validation (io/bagio.py)."""
 import json
 import shutil
 
@@ -8,7 +8,9 @@ from rosbags.rosbag2 import Writer
 from rosbags.rosbag2.enums import StoragePlugin
 from rosbags.typesys import Stores, get_typestore
 
-from additive_rsrivc_ros.bagio import (
+from additive_rsrivc_ros.config import MonitorConfig, validate_params
+from additive_rsrivc_ros.core.controller import DiscreteController
+from additive_rsrivc_ros.io.bagio import (
     DEFAULT_T0_NS,
     BagError,
     bag_info,
@@ -17,8 +19,6 @@ from additive_rsrivc_ros.bagio import (
     write_bag,
     write_bag_atomic,
 )
-from additive_rsrivc_ros.config import MonitorConfig, validate_params
-from additive_rsrivc_ros.core.controller import DiscreteController
 from additive_rsrivc_ros.sim.plants import PAPER_PID
 from additive_rsrivc_ros.sim.simulate import (
     ModalChange,
@@ -315,7 +315,14 @@ def test_truth_messages_decoded_without_the_type_store_as_with_it():
     fault JSON with non-ASCII text); a truncated message is an error, not a short array."""
     from rosbags.typesys import Stores, get_typestore
 
-    from additive_rsrivc_ros.bagio import MULTIARRAY, STRING, _decode_multiarray, _decode_string, _multiarray, _string
+    from additive_rsrivc_ros.io.bagio import (
+        MULTIARRAY,
+        STRING,
+        _decode_multiarray,
+        _decode_string,
+        _multiarray,
+        _string,
+    )
 
     ts = get_typestore(Stores.ROS2_JAZZY)
     rng = np.random.default_rng(3)
@@ -338,7 +345,7 @@ def test_metadata_custom_data_is_read_when_libyaml_fails(repo, monkeypatch):
     rejects is read by the pure-Python parser, never dropped in silence."""
     import yaml
 
-    from additive_rsrivc_ros import bagio
+    from additive_rsrivc_ros.io import bagio
 
     fast = bagio._metadata_info(repo / "bags" / "beam_fault")
     assert fast["storage"] == "mcap" and "additive_rsrivc.parameters" in fast["metadata"]

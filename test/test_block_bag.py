@@ -12,9 +12,9 @@ import pytest
 import yaml
 from rosbags.rosbag2 import Writer
 
-from additive_rsrivc_ros.bagio import MULTIARRAY, BagError, _typestore, read_signals
 from additive_rsrivc_ros.cli import diagnose
 from additive_rsrivc_ros.config import load_config
+from additive_rsrivc_ros.io.bagio import MULTIARRAY, BagError, _typestore, read_signals
 
 TOPIC = "/controller/block"
 

@@ -7,9 +7,9 @@ import json
 import numpy as np
 import pytest
 
-from additive_rsrivc_ros.bagio import write_bag
 from additive_rsrivc_ros.cli.identify import main
 from additive_rsrivc_ros.core.model import modal_from_theta
+from additive_rsrivc_ros.io.bagio import write_bag
 from additive_rsrivc_ros.sim.independent import MODE, PAPER_THETAS, PID_DEN, PID_NUM, simulate
 
 RATE = 20.0
@@ -112,7 +112,7 @@ def test_a_bag_with_a_pause_is_identified_on_its_longest_gap_free_segment(tmp_pa
     from rosbags.rosbag2.enums import StoragePlugin
     from rosbags.typesys import Stores, get_typestore
 
-    from additive_rsrivc_ros.bagio import DEFAULT_T0_NS, float64_cdr
+    from additive_rsrivc_ros.io.bagio import DEFAULT_T0_NS, float64_cdr
 
     rng = np.random.default_rng(8)
     n, cut = 5000, 1500

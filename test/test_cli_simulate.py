@@ -5,8 +5,8 @@ import subprocess
 import numpy as np
 import pytest
 
-from additive_rsrivc_ros.bagio import read_signals
 from additive_rsrivc_ros.cli import simulate as cli
+from additive_rsrivc_ros.io.bagio import read_signals
 from additive_rsrivc_ros.sim.scenarios import build
 
 
@@ -70,7 +70,7 @@ def test_existing_bag_is_not_overwritten(tmp_path, capsys):
 
 
 def test_failure_during_writing_leaves_no_partial_bag(tmp_path, capsys, monkeypatch):
-    from additive_rsrivc_ros import bagio
+    from additive_rsrivc_ros.io import bagio
 
     real = bagio.write_bag
 

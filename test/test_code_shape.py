@@ -30,7 +30,7 @@ MAX_FUNCTION_LINES = 120
 # propagation as one inlined stage with its rare path an ordinary call cost 0.6 %; every stage but the IV-RLS step
 # (den, gain, theta, P loops left in the loop) 23 %; the IV-RLS step as called or inlined stages the rest.
 # It must stay a compiled kernel for this exception.
-COMPILED_HOT_LOOPS = {("core/kernel.py", "run_block")}
+COMPILED_HOT_LOOPS = {("core/estimation/kernel.py", "run_block")}
 MAX_DOCSTRING_LINES = 15
 # Rewritten separately (their docstrings are shortened there); remove an entry when its file complies.
 DOCSTRINGS_PENDING: set[str] = set()

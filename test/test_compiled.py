@@ -1,4 +1,5 @@
-"""Kernels compiled ahead of time (issue 16, ``core/compiled.py``): a call is served by the extension only with
+"""Kernels compiled ahead of time (issue 16, ``core/estimation/compiled.py``): a call is served by the extension only
+with
 exactly the exported argument types; anything else, and an extension built from other sources, goes to the JIT."""
 import json
 import os
@@ -8,8 +9,8 @@ from pathlib import Path
 
 import numpy as np
 
-from additive_rsrivc_ros.core import compiled
-from additive_rsrivc_ros.core.compiled import ArgSpec
+from additive_rsrivc_ros.core.estimation import compiled
+from additive_rsrivc_ros.core.estimation.compiled import ArgSpec
 
 REPO = Path(__file__).resolve().parents[1]
 C2 = ArgSpec("array", "float64", 2, "C")
@@ -63,7 +64,7 @@ def _fake_extension(directory: Path, sources: dict, cpu: str = "generic") -> Non
 def test_an_extension_of_other_sources_or_a_broken_one_is_not_loaded(tmp_path, monkeypatch):
     monkeypatch.setenv("NUMBA_CACHE_DIR", str(tmp_path / "stale"))
     stale = dict(compiled._source_digests())
-    stale["core/zoh.py"] = "0" * 64                                      # one kernel module changed since
+    stale["core/estimation/zoh.py"] = "0" * 64                                      # one kernel module changed since
     _fake_extension(tmp_path / "stale", stale)
     assert compiled._load_extension() is None
     monkeypatch.setenv("NUMBA_CACHE_DIR", str(tmp_path / "broken"))
@@ -84,7 +85,7 @@ def test_an_extension_of_other_sources_or_a_broken_one_is_not_loaded(tmp_path, m
 FALLBACK = r"""
 import sys
 import numpy as np
-from additive_rsrivc_ros.core import compiled, zoh
+from additive_rsrivc_ros.core.estimation import compiled, zoh
 assert compiled.extension_loaded()
 def zoh_of(phi, gam):
     zoh.second_order_zoh(30.0, 4e4, 1.0 / 4096, phi, gam)
@@ -118,7 +119,7 @@ def _env() -> dict:
 
 
 def _built() -> bool:
-    code = "from additive_rsrivc_ros.core import compiled, zoh; print(compiled.extension_loaded())"
+    code = "from additive_rsrivc_ros.core.estimation import compiled, zoh; print(compiled.extension_loaded())"
     run = subprocess.run([sys.executable, "-c", code], env=_env(), capture_output=True, text=True, cwd=REPO)
     return run.stdout.strip() == "True"
 

@@ -18,7 +18,7 @@ def test_paper_example_loads_with_truth_modes():
     np.testing.assert_allclose(thetas[:, 1], [0.25, 0.04, 0.0025], rtol=1e-6)
     np.testing.assert_allclose(thetas[:, 0], [0.25, 0.01, 0.01], rtol=1e-6)
     # lambda has one home, the estimator's set_memory: the paper's lambda = 0.999 at 20 Hz
-    from additive_rsrivc_ros.core.recursive import RecursiveAdditiveSRIVC
+    from additive_rsrivc_ros.core.estimation.recursive import RecursiveAdditiveSRIVC
 
     np.testing.assert_allclose(RecursiveAdditiveSRIVC.from_config(cfg).forgetting, 0.999)
     assert cfg.controller.numerator == PAPER_PID_NUM and cfg.controller.denominator == PAPER_PID_DEN
@@ -26,7 +26,7 @@ def test_paper_example_loads_with_truth_modes():
 
 def test_typed_views_of_the_alignment_memory_and_fault_parameters():
     """What core reads of the parameters, typed: the values given (not the defaults), the lag in whole samples."""
-    from additive_rsrivc_ros.core.faults import FaultSettings
+    from additive_rsrivc_ros.core.diagnosis.faults import FaultSettings
 
     p = validate_params({"loop_rate_hz": 1000.0, "closed_loop": False, "modes.natural_frequency_hz": [3.0, 30.0],
                          "modes.damping_ratio": [0.1, 0.1], "modes.gain": [1.0, 1.0], "modes.memory_s": [7.0],

@@ -18,10 +18,10 @@ import numpy as np
 import pytest
 import yaml
 
-from additive_rsrivc_ros.bagio import read_signals
 from additive_rsrivc_ros.cli import diagnose
 from additive_rsrivc_ros.config import MonitorConfig, load_config, load_params_file
-from additive_rsrivc_ros.core.pipeline import ABSOLUTE_BOUND, MagnitudeGuard, MonitorPipeline
+from additive_rsrivc_ros.core.monitor.pipeline import ABSOLUTE_BOUND, MagnitudeGuard, MonitorPipeline
+from additive_rsrivc_ros.io.bagio import read_signals
 
 REPO = Path(__file__).resolve().parents[1]
 BAG = REPO / "bags" / "beam_fault"
@@ -165,7 +165,7 @@ def test_model_destabilizing_the_loop_is_never_published(bag, tmp_path, monkeypa
     def no_modes(*_args, **_kwargs):
         raise ValueError("no resonance found (test)")
 
-    monkeypatch.setattr("additive_rsrivc_ros.core.modefind.autostart_config", no_modes)
+    monkeypatch.setattr("additive_rsrivc_ros.core.identification.modefind.autostart_config", no_modes)
     _, sig = bag
     path, cfg = _destabilizing_params(tmp_path)
     pipe, reps = _run(cfg, sig.t, sig.r, sig.u, sig.y)

@@ -1,4 +1,5 @@
-"""The per-mode fault decision (core/decision.py): holds scoped to the mode they concern, bounded stress isolation,
+"""The per-mode fault decision (core/diagnosis/decision.py): holds scoped to the mode they concern, bounded stress
+isolation,
 and a verdict that lists every mode's blind time. Cases from the fault-masking reports: one weak mode blinding the
 others, a short glitch just before a real fault, and the README workflow with ``--modes auto``."""
 
@@ -13,14 +14,14 @@ import numpy as np
 import pytest
 from test_faults import MEMORY, TRUTH, stream
 
-from additive_rsrivc_ros.bagio import read_signals
 from additive_rsrivc_ros.cli import diagnose, identify, simulate
 from additive_rsrivc_ros.config import load_config
-from additive_rsrivc_ros.core.decision import Hold, ModeDecision, ModeState, decide
-from additive_rsrivc_ros.core.estimator import EstimatorHealth
-from additive_rsrivc_ros.core.faults import FaultMonitor, HealthMonitor
-from additive_rsrivc_ros.core.pipeline import MonitorPipeline
-from additive_rsrivc_ros.verdict import assess
+from additive_rsrivc_ros.core.diagnosis.decision import Hold, ModeDecision, ModeState, decide
+from additive_rsrivc_ros.core.diagnosis.faults import FaultMonitor, HealthMonitor
+from additive_rsrivc_ros.core.estimation.estimator import EstimatorHealth
+from additive_rsrivc_ros.core.monitor.pipeline import MonitorPipeline
+from additive_rsrivc_ros.io.bagio import read_signals
+from additive_rsrivc_ros.outputs.verdict import assess
 
 
 def test_decide_gives_each_mode_one_state_with_its_reason():
@@ -194,7 +195,7 @@ def test_a_clock_step_back_before_a_fault_is_re_based_and_hides_nothing(repo, st
 def test_a_deviation_only_the_joint_check_can_confirm_is_blind_not_ok():
     """Under stress a gain deviation needs the joint check's support; without it the test cannot conclude: the
     monitor lists it as awaiting (the pipeline makes it a hold owned by the joint check), never a silent OK."""
-    from additive_rsrivc_ros.core.joint_check import JointVerdict
+    from additive_rsrivc_ros.core.diagnosis.joint_check import JointVerdict
 
     t0 = 60.0
     t, modal = stream(80.0, 41, lambda t, truth: (truth.__setitem__((t >= t0, 0, 2), truth[t >= t0, 0, 2] * 0.7),
@@ -239,7 +240,7 @@ def test_a_baseline_the_joint_fit_cannot_identify_arms_every_mode():
     """Narrow excitation: the baseline window's joint fit does not converge (fewer lines than parameters). The
     recursion's split between the modes is then no evidence: every mode needs the joint check's support, judged
     against the baseline, and a deviation waiting for it shows as awaiting (blind), never as a confirmed event."""
-    from additive_rsrivc_ros.core.joint_check import JointVerdict
+    from additive_rsrivc_ros.core.diagnosis.joint_check import JointVerdict
 
     t0 = 60.0
     t, modal = stream(80.0, 43, lambda t, truth: (truth.__setitem__((t >= t0, 0, 2), truth[t >= t0, 0, 2] * 0.7),
@@ -278,7 +279,7 @@ def test_fast_tracking_shortens_only_the_changed_mode_within_its_decay_floor():
     shortened, to the fraction asked for but never below 3 decay times 1/(zeta omega) of its baseline (mode 1 of
     TRUTH: 3.2 Hz, zeta 0.1 -> 0.50 s decay, floor 1.49 s of its 2.44 s memory); it ends after 1.5 memory lengths,
     and no mode is shortened on the healthy part. Off by default."""
-    from additive_rsrivc_ros.core.faults import FaultSettings
+    from additive_rsrivc_ros.core.diagnosis.faults import FaultSettings
 
     assert FaultMonitor(MEMORY).memory_scale().tolist() == [1.0, 1.0]
     t0 = 60.0
@@ -305,7 +306,7 @@ def _coupled_run(coupling: float, joint_support_at: tuple[float, ...] = ()) -> t
     """Two modes' estimates after a real gain change of mode 1 at 60 s, while mode 2's frequency estimate moves by
     5 % for 14 s (the recursion re-splitting the data between overlapping modes), judged with a converged reference
     fit that identifies every quantity and shows the two modes' quantities correlated by ``coupling``."""
-    from additive_rsrivc_ros.core.joint_check import JointVerdict
+    from additive_rsrivc_ros.core.diagnosis.joint_check import JointVerdict
 
     t0 = 60.0
 
@@ -360,7 +361,7 @@ def test_gain_and_damping_that_deviate_together_are_named_by_the_joint_check():
     move between gain and damping (a gain change was confirmed as a damping rise of the same mode). While both
     deviate, with an identified reference, neither is confirmed by the recursion alone; once the damping estimate
     is back, the gain is."""
-    from additive_rsrivc_ros.core.joint_check import JointVerdict
+    from additive_rsrivc_ros.core.diagnosis.joint_check import JointVerdict
 
     t0 = 60.0
 

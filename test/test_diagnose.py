@@ -10,9 +10,9 @@ from xml.etree import ElementTree
 import numpy as np
 import pytest
 
-from additive_rsrivc_ros.bagio import read_signals, write_bag
 from additive_rsrivc_ros.cli import diagnose
 from additive_rsrivc_ros.config import load_config
+from additive_rsrivc_ros.io.bagio import read_signals, write_bag
 
 ESTIMATES_HEADER = ("time_s,mode,natural_frequency_hz,damping_ratio,gain,natural_frequency_hz_std,damping_ratio_std,"
                     "gain_std,fault_natural_frequency,fault_damping,fault_gain")
@@ -123,7 +123,8 @@ def test_estimates_track_truth(beam_run: dict) -> None:
 
 
 def test_deliberately_reduced_model_is_not_flagged_as_too_low(beam_run: dict) -> None:
-    """beam_fault.yaml models 2 of the beam's 4 modes (000 §6): the model-order check (core/adequacy.py) finds the
+    """beam_fault.yaml models 2 of the beam's 4 modes (000 §6): the model-order check
+    (core/identification/adequacy.py) finds the
     unmodelled 172 Hz resonance in the bag, but adding it moves the modelled modes by ~0.01 %: health not flagged."""
     summary = json.loads((beam_run["out"] / "summary.json").read_text())
     final = summary["health"]["final"]

@@ -11,8 +11,8 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from additive_rsrivc_ros.bagio import write_bag
 from additive_rsrivc_ros.cli import diagnose
+from additive_rsrivc_ros.io.bagio import write_bag
 
 REPO = Path(__file__).resolve().parents[1]
 PARAMS = REPO / "config" / "beam_fault.yaml"   # 4096 Hz, closed loop

@@ -10,7 +10,7 @@ from types import SimpleNamespace
 import numpy as np
 
 from additive_rsrivc_ros.cli import evaluate as ev
-from additive_rsrivc_ros.core.faults import FaultEvent
+from additive_rsrivc_ros.core.diagnosis.faults import FaultEvent
 from additive_rsrivc_ros.sim.simulate import ModalChange, SensorFault
 
 

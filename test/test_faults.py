@@ -1,7 +1,7 @@
 """Fault logic on synthetic estimate streams with known truth.
 
 A recursive estimate with memory T behaves like the truth seen through a first-order lag of time
-constant T plus AR(1) noise with correlation exp(-dt/T) (core/faults.py, S1). The streams below are
+constant T plus AR(1) noise with correlation exp(-dt/T) (core/diagnosis/faults.py, S1). The streams below are
 built that way, so detection delays, isolation and false alarms can be checked against the truth.
 """
 
@@ -15,14 +15,14 @@ import pytest
 from scipy import signal
 
 from additive_rsrivc_ros.config import validate_params
-from additive_rsrivc_ros.core.estimator import EstimatorHealth
-from additive_rsrivc_ros.core.faults import (
+from additive_rsrivc_ros.core.diagnosis.faults import (
     FaultConfigError,
     FaultMonitor,
     FaultSettings,
     HealthMonitor,
     Level,
 )
+from additive_rsrivc_ros.core.estimation.estimator import EstimatorHealth
 from additive_rsrivc_ros.core.model import SubmodelStructure
 from additive_rsrivc_ros.core.vocabulary import EVENTS_HEADER, QUANTITIES
 

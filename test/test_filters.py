@@ -1,4 +1,4 @@
-"""ZOH-exact filter bank (core/filters.py) against independent references with known truth."""
+"""ZOH-exact filter bank (core/estimation/filters.py) against independent references with known truth."""
 
 from __future__ import annotations
 
@@ -6,8 +6,8 @@ import numpy as np
 import pytest
 from scipy import signal
 
-from additive_rsrivc_ros.core import filters as F
 from additive_rsrivc_ros.core.controller import DiscreteController
+from additive_rsrivc_ros.core.estimation import filters as F
 from additive_rsrivc_ros.core.model import SubmodelStructure, theta_from_modal
 from additive_rsrivc_ros.sim.independent import MODE, PAPER_THETAS, PID_DEN, PID_NUM, simulate
 from additive_rsrivc_ros.sim.plants import PAPER_PID

@@ -25,9 +25,9 @@ pytest.importorskip("dask.distributed")
 
 from dask.distributed import Client  # noqa: E402
 
-from additive_rsrivc_ros.bagio import write_bag  # noqa: E402
 from additive_rsrivc_ros.cli import fleet  # noqa: E402
 from additive_rsrivc_ros.cli.dask_loopback import LoopbackCluster  # noqa: E402
+from additive_rsrivc_ros.io.bagio import write_bag  # noqa: E402
 from additive_rsrivc_ros.sim import fleetsim  # noqa: E402
 
 N_GOOD = 8

@@ -1,4 +1,4 @@
-"""Nonparametric FRF (core/frf.py) against the true ZOH frequency response of simulated plants.
+"""Nonparametric FRF (core/identification/frf.py) against the true ZOH frequency response of simulated plants.
 
 Tolerances come from the reported uncertainty: for a complex Gaussian error, ``|G_hat - G|^2 / var`` is
 exponentially distributed with mean 1 (F(2, 2 n_d) with the variance estimated from ``n_d`` averages:
@@ -11,7 +11,7 @@ import numpy as np
 import pytest
 from frf_cases import CONTROLLER, DELAY, FS, MODES
 
-from additive_rsrivc_ros.core.frf import discrete_model_frf, estimate_frf
+from additive_rsrivc_ros.core.identification.frf import discrete_model_frf, estimate_frf
 from additive_rsrivc_ros.core.model import SubmodelStructure
 from additive_rsrivc_ros.core.plant import discrete_plant, loop_margins
 from additive_rsrivc_ros.sim.simulate import simulate_modes, square_wave, white_noise

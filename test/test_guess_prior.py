@@ -7,7 +7,7 @@ from __future__ import annotations
 import numpy as np
 
 from additive_rsrivc_ros.config import MonitorConfig, load_config
-from additive_rsrivc_ros.core.recursive import RecursiveAdditiveSRIVC
+from additive_rsrivc_ros.core.estimation.recursive import RecursiveAdditiveSRIVC
 from additive_rsrivc_ros.sim import plants
 from additive_rsrivc_ros.sim.scenarios import config_dir
 from additive_rsrivc_ros.sim.simulate import simulate_modes, sum_of_sines, time_vector, white_noise

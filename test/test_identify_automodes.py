@@ -10,9 +10,9 @@ import pytest
 from figure_checks import assert_figure_matches_table, parse_svg
 from frf_cases import CONTROLLER, DELAY, FS, MODES, no_guess_params_yaml
 
-from additive_rsrivc_ros.bagio import write_bag
 from additive_rsrivc_ros.cli import diagnose, identify
 from additive_rsrivc_ros.config import load_config, load_params_file
+from additive_rsrivc_ros.io.bagio import write_bag
 from additive_rsrivc_ros.sim.simulate import simulate_modes, square_wave, white_noise
 
 PARAMS = no_guess_params_yaml()
@@ -108,9 +108,9 @@ def test_diagnose_without_guesses_starts_from_the_data(bag, tmp_path, capsys):
 
 def test_pipeline_with_empty_guesses_tracks_the_right_modes(bag):
     """The core path the node and rsrivc_diagnose share: the pipeline without guesses finds the modes on the init
-    data itself (core/autostart.py), then tracks them."""
-    from additive_rsrivc_ros.bagio import read_signals
-    from additive_rsrivc_ros.core.pipeline import MonitorPipeline
+    data itself (core/identification/autostart.py), then tracks them."""
+    from additive_rsrivc_ros.core.monitor.pipeline import MonitorPipeline
+    from additive_rsrivc_ros.io.bagio import read_signals
 
     cfg = load_config(bag[1])
     sig = read_signals(bag[0], cfg)
@@ -126,7 +126,7 @@ def test_pipeline_with_empty_guesses_tracks_the_right_modes(bag):
 
 
 def test_estimator_without_guesses_is_a_clear_error(bag):
-    from additive_rsrivc_ros.core.recursive import RecursiveAdditiveSRIVC
+    from additive_rsrivc_ros.core.estimation.recursive import RecursiveAdditiveSRIVC
 
     with pytest.raises(ValueError, match="no mode guesses"):
         RecursiveAdditiveSRIVC.from_config(load_config(bag[1]))

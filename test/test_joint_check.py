@@ -10,10 +10,10 @@ import numpy as np
 import pytest
 
 from additive_rsrivc_ros.cli.evaluate import Case, run_pipeline, simulate_case
-from additive_rsrivc_ros.core.faults import FaultMonitor
-from additive_rsrivc_ros.core.joint_check import verdict_from_fit
+from additive_rsrivc_ros.core.diagnosis.faults import FaultMonitor
+from additive_rsrivc_ros.core.diagnosis.joint_check import verdict_from_fit
 from additive_rsrivc_ros.core.model import SubmodelStructure
-from additive_rsrivc_ros.core.pipeline import MonitorPipeline
+from additive_rsrivc_ros.core.monitor.pipeline import MonitorPipeline
 
 MIN_CHANGE = (0.02, 0.20, 0.10)
 MODE = SubmodelStructure()

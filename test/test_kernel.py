@@ -1,6 +1,6 @@
 """The compiled kernel against a plain numpy reference of 000 Algorithm 2, and JIT vs interpreted.
 
-The reference below is written independently of core/kernel.py: per sample and per iterate it builds the
+The reference below is written independently of core/estimation/kernel.py: per sample and per iterate it builds the
 filters' ``Phi, Gamma`` with scipy's matrix exponential of the augmented matrix (not core.zoh's closed form),
 forms the residual output (000 eq. 22), regressor and instrument (eqs. 26-28, 33), the IV-RLS update of
 Algorithm 2 lines 7-9 (1/lambda, no factor 1/2: NOTES erratum 2) and the stability projection with
@@ -19,10 +19,10 @@ import numpy as np
 import pytest
 from scipy.linalg import expm
 
-from additive_rsrivc_ros.core.kernel import project_second_order
+from additive_rsrivc_ros.core.estimation.kernel import project_second_order
+from additive_rsrivc_ros.core.estimation.recursive import FILTER_PERIODS, RecursiveAdditiveSRIVC, p0_diagonal
+from additive_rsrivc_ros.core.estimation.zoh import companion
 from additive_rsrivc_ros.core.model import SubmodelStructure, reflect_unstable
-from additive_rsrivc_ros.core.recursive import FILTER_PERIODS, RecursiveAdditiveSRIVC, p0_diagonal
-from additive_rsrivc_ros.core.zoh import companion
 from additive_rsrivc_ros.sim.independent import PAPER_THETA, PID, paper_reference, simulate_modal
 
 Y, U, Z, X = range(4)
@@ -165,7 +165,7 @@ import json, sys
 import numpy as np
 from additive_rsrivc_ros.core.controller import DiscreteController
 from additive_rsrivc_ros.core.model import SubmodelStructure
-from additive_rsrivc_ros.core.recursive import RecursiveAdditiveSRIVC
+from additive_rsrivc_ros.core.estimation.recursive import RecursiveAdditiveSRIVC
 d = np.load(sys.argv[1])
 est = RecursiveAdditiveSRIVC([SubmodelStructure()] * 3, list(d["start"]), 20.0, forgetting=0.99,
                              controller=DiscreteController(tuple(d["cnum"]), tuple(d["cden"])), input_delay=2,
@@ -251,7 +251,7 @@ def test_invalid_discretization_is_rejected_per_mode_and_counted():
 def test_iv_denominator_floor():
     """``den = lam + phi^T P phi^``: RLS has den >= lam; tiny positive values (step amplified by lam/den), values at
     the round-off of the terms, non-positive and non-finite ones are refused."""
-    from additive_rsrivc_ros.core.kernel import DEN_FLOOR, iv_denominator_ok
+    from additive_rsrivc_ros.core.estimation.kernel import DEN_FLOOR, iv_denominator_ok
     lam = 0.999
     assert iv_denominator_ok(lam, lam, lam) and iv_denominator_ok(0.5 * lam, 3.0, lam)
     assert iv_denominator_ok(2.0 * DEN_FLOOR * lam, 1.0, lam)

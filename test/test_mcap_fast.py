@@ -2,8 +2,8 @@
 import numpy as np
 import pytest
 
-from additive_rsrivc_ros import bagio, mcap_fast
 from additive_rsrivc_ros.config import load_config
+from additive_rsrivc_ros.io import bagio, mcap_fast
 
 
 def _bits(a):

@@ -1,4 +1,5 @@
-"""Mode finding and order selection (core/modefind.py) on simulated closed- and open-loop data with known truth."""
+"""Mode finding and order selection (core/identification/modefind.py) on simulated closed- and open-loop data with
+known truth."""
 
 from __future__ import annotations
 
@@ -6,7 +7,7 @@ import numpy as np
 import pytest
 from frf_cases import CONTROLLER, DELAY, FS, MODES, split_mode_window
 
-from additive_rsrivc_ros.core.modefind import find_modes
+from additive_rsrivc_ros.core.identification.modefind import find_modes
 from additive_rsrivc_ros.sim.simulate import PlantMode, simulate_modes, square_wave, white_noise
 
 
@@ -65,7 +66,7 @@ def test_peak_prominences_is_scipy_find_peaks():
     random walks) without importing scipy.signal."""
     from scipy.signal import find_peaks
 
-    from additive_rsrivc_ros.core.modefind import peak_prominences
+    from additive_rsrivc_ros.core.identification.modefind import peak_prominences
 
     rng = np.random.default_rng(0)
     for t in range(2000):
@@ -81,7 +82,7 @@ def test_peak_prominences_is_scipy_find_peaks():
 def _square_wave_run(modes, thetas, ctrl, seed: int, duration_s: float, square_hz: float):
     """The loop (asserted stable) under a square-wave setpoint with 5 % white dither, output noise 1 % of the
     output's std (as in validate_autostart.py)."""
-    from additive_rsrivc_ros.core.filters import closed_loop_radius
+    from additive_rsrivc_ros.core.estimation.filters import closed_loop_radius
 
     assert closed_loop_radius(thetas, [m.structure for m in modes], 1 / FS, ctrl, 0) < 1.0
     rng = np.random.default_rng(seed)
@@ -109,7 +110,7 @@ def _low_mode_loop(seed: int):
 def test_low_mode_found_with_a_finer_resolution(seed, monkeypatch):
     """The default FRF shows no peak at 1.8 Hz (too few bins); the finer FRFs below 20 default bins do, and the
     order scan then finds both modes. Without the finer FRFs the search finds no resonance or too few modes."""
-    from additive_rsrivc_ros.core import modefind
+    from additive_rsrivc_ros.core.identification import modefind
 
     modes, ctrl, sim = _low_mode_loop(seed)
     res = find_modes(sim.u, sim.y, FS, r=sim.r, controller=ctrl)
@@ -128,8 +129,8 @@ def test_well_damped_mode_without_a_peak_found_in_the_residual(monkeypatch):
     candidates are the 142 Hz peak and noise. Once 142 Hz is modelled, the residual FRF G - G_model shows the
     11 Hz resonance, and K = 2 is found within the issue's tolerances. Without the residual start, K = 1 when the
     scan's fits stop after 10 iterations (with 20, the start at a noise peak wanders there too, by luck)."""
-    from additive_rsrivc_ros.core import modefind
     from additive_rsrivc_ros.core.controller import DiscreteController
+    from additive_rsrivc_ros.core.identification import modefind
     from additive_rsrivc_ros.core.model import theta_from_modal
 
     modes = (PlantMode(11.35, 0.241, 0.234), PlantMode(141.7, 0.00502, 0.415))
@@ -150,7 +151,7 @@ def test_rigid_body_under_a_square_wave_found_with_a_finer_resolution(monkeypatc
     0.5 Hz bins below the first peak are too few for the slope test; the 2x finer FRF shows the -40 dB/decade slope,
     and the start is the rigid body b0/p^2 plus both modes (also without the rigid start of the scan). Without the
     finer FRFs and the rigid start it is not."""
-    from additive_rsrivc_ros.core import modefind
+    from additive_rsrivc_ros.core.identification import modefind
     from additive_rsrivc_ros.sim.scenarios import build
 
     sc = build("rigid_body", duration_s=10, seed=1)
@@ -187,8 +188,8 @@ def test_rigid_body_without_a_visible_slope_found_by_the_rigid_start(monkeypatch
     the issue's tolerances. Without that start, one wrong mode."""
     import math
 
-    from additive_rsrivc_ros.core import modefind
     from additive_rsrivc_ros.core.controller import DiscreteController
+    from additive_rsrivc_ros.core.identification import modefind
     from additive_rsrivc_ros.core.model import theta_from_modal
 
     b0 = 3.0 * 0.5 * (2 * math.pi * 8.0) ** 2          # the mass line 3x the 8 Hz mode's static gain there
@@ -215,8 +216,8 @@ def test_a_rigid_body_over_a_damped_mode_with_no_candidate_at_all_is_still_tried
     within the issue's tolerances. Without the rigid start it is the old error."""
     import math
 
-    from additive_rsrivc_ros.core import modefind
     from additive_rsrivc_ros.core.controller import DiscreteController
+    from additive_rsrivc_ros.core.identification import modefind
     from additive_rsrivc_ros.core.model import theta_from_modal
 
     b0 = 5.0 * 0.5 * (2 * math.pi * 5.0) ** 2
@@ -256,7 +257,7 @@ def test_an_order_whose_added_mode_adds_nothing_is_not_chosen():
     the noise) beats the scan's poorer K = 2 fit only through its two real modes. The K = 3 row is marked redundant
     and its reduction (the two real modes) becomes the K = 2 model, at the noise level. Counterfactual: the true
     K = 2 fit against K = 1 keeps both modes (each one's removal multiplies the held-out error)."""
-    from additive_rsrivc_ros.core.modefind import OrderRow, _check_relevance, _choice, _held_out_error
+    from additive_rsrivc_ros.core.identification.modefind import OrderRow, _check_relevance, _choice, _held_out_error
 
     sim = _square_wave_closed_loop(11)
     n = sim.u.size
@@ -296,8 +297,8 @@ def test_a_start_refined_on_the_frf_moves_to_the_modes():
     resolution-limited: the time-domain fit that follows refines it). Without valid bins: None."""
     from dataclasses import replace
 
-    from additive_rsrivc_ros.core.frf import estimate_frf
-    from additive_rsrivc_ros.core.modefind import Candidate, refine_on_frf
+    from additive_rsrivc_ros.core.identification.frf import estimate_frf
+    from additive_rsrivc_ros.core.identification.modefind import Candidate, refine_on_frf
 
     sim = _square_wave_closed_loop(11)
     frf = estimate_frf(sim.u, sim.y, FS, sim.r)
@@ -320,8 +321,8 @@ def test_a_start_refined_on_the_frf_moves_to_the_modes():
 def test_frf_objective_jacobian_is_the_derivative_of_its_residual():
     """The analytic Jacobian of the FRF refinement equals central differences of the residual (modes and a rigid
     body), to the differences' own truncation error."""
-    from additive_rsrivc_ros.core.frf import estimate_frf
-    from additive_rsrivc_ros.core.modefind import Candidate, _FrfObjective
+    from additive_rsrivc_ros.core.identification.frf import estimate_frf
+    from additive_rsrivc_ros.core.identification.modefind import Candidate, _FrfObjective
 
     sim = _square_wave_closed_loop(11)
     frf = estimate_frf(sim.u, sim.y, FS, sim.r)
@@ -342,7 +343,7 @@ def test_an_order_gain_must_hold_throughout_the_held_out_data():
     noise as two models' errors on the same data do. No real gain (each model misfits by an independent error of
     the same power): declared a gain in at most 6 of 200 records (1 % test: 2 expected, binomial tail < 0.5 %). A
     real gain (a 20 % larger error from a sinusoidal misfit, t about 10 on average): found in all 200."""
-    from additive_rsrivc_ros.core.modefind import OrderRow, _significant_gain
+    from additive_rsrivc_ros.core.identification.modefind import OrderRow, _significant_gain
 
     def row(e):
         return OrderRow(1, np.nan, float(np.mean(e * e)), residual=e)
@@ -380,7 +381,7 @@ def test_a_split_mode_on_a_short_window_is_not_a_gain(monkeypatch, path):
     path- and CPU-dependent and is printed by ``scripts/study_split_mode_paths.py``, not asserted. The paired test
     itself is checked on residuals with known statistics
     (:func:`test_an_order_gain_must_hold_throughout_the_held_out_data`)."""
-    from additive_rsrivc_ros.core import modefind
+    from additive_rsrivc_ros.core.identification import modefind
 
     r, u, y = split_mode_window(path)
     monkeypatch.setattr(modefind, "SCAN_MAX_ITERATIONS", 20)
@@ -400,9 +401,9 @@ def test_held_out_error_of_a_record_in_motion_is_the_noise(monkeypatch):
     out, the true model's held-out mean squared error is the white noise's variance (3.7e4 held-out samples: its
     relative standard error is 0.7 %; 10 % allowed for the fitted free response); without it, it was 900 times
     that."""
-    from additive_rsrivc_ros.core import modefind
     from additive_rsrivc_ros.core.controller import DiscreteController
-    from additive_rsrivc_ros.core.modefind import Candidate, _held_out_error
+    from additive_rsrivc_ros.core.identification import modefind
+    from additive_rsrivc_ros.core.identification.modefind import Candidate, _held_out_error
 
     rate, delay = 4096.0, 2
     modes = [PlantMode(2.458, 0.108, 0.31), PlantMode(3.915, 0.0365, 0.97), PlantMode(5.811, 0.256, 0.64),
@@ -432,7 +433,7 @@ def test_the_order_after_one_that_fits_its_frf_is_judged_once_its_output_error_s
     within 0.1 %. Without the FRF screen passing, no scan fit is cut short that way (a fit that sat flat may still
     find a missing mode)."""
     from additive_rsrivc_ros.cli.bench import _case_data
-    from additive_rsrivc_ros.core import modefind
+    from additive_rsrivc_ros.core.identification import modefind
     from additive_rsrivc_ros.core.model import modal_from_theta
 
     rate, thetas, ctrl, delay, r, u, y = _case_data("k4", 20.0)
@@ -456,7 +457,7 @@ def test_a_whole_record_refit_that_fits_worse_is_not_taken(monkeypatch):
     says why; the real refit, which fits better, is taken."""
     import copy
 
-    from additive_rsrivc_ros.core import modefind
+    from additive_rsrivc_ros.core.identification import modefind
     from additive_rsrivc_ros.core.model import theta_from_modal
 
     sim = _square_wave_closed_loop(11)

@@ -25,7 +25,7 @@ from std_msgs.msg import Float64, String  # noqa: E402
 from test_node_helpers import Client, cloud_table, start_node, stop_node  # noqa: E402
 
 from additive_rsrivc_ros.config import MonitorConfig, load_params_file, render_params_yaml  # noqa: E402
-from additive_rsrivc_ros.core.pipeline import MonitorPipeline  # noqa: E402
+from additive_rsrivc_ros.core.monitor.pipeline import MonitorPipeline  # noqa: E402
 from additive_rsrivc_ros.core.vocabulary import FLAG_FIELDS  # noqa: E402
 from additive_rsrivc_ros.ros.convert import MODE_KEYS  # noqa: E402
 from additive_rsrivc_ros.sim import scenarios  # noqa: E402
@@ -350,7 +350,7 @@ def test_every_bundled_params_file_configures_the_node_in_a_namespace(params, ro
 def test_use_sim_time_follows_rsrivc_replay_clock(ros_env, tmp_path):
     """With use_sim_time the node's outputs are stamped in bag time (rsrivc_replay --clock), and every sample of
     the bag (Float64, replayed 10x faster than recorded) reaches the estimator."""
-    from additive_rsrivc_ros.bagio import DEFAULT_T0_NS
+    from additive_rsrivc_ros.io.bagio import DEFAULT_T0_NS
 
     dom = int(ros_env["ROS_DOMAIN_ID"])
     sc = scenarios.build("paper_example", duration_s=40.0, seed=5)

@@ -13,7 +13,7 @@ from std_msgs.msg import Float64
 from test_node_helpers import Client, start_node, stop_node  # noqa: E402
 
 from additive_rsrivc_ros.config import MonitorConfig, load_params_file
-from additive_rsrivc_ros.core.pipeline import MonitorPipeline
+from additive_rsrivc_ros.core.monitor.pipeline import MonitorPipeline
 from additive_rsrivc_ros.sim import scenarios
 
 REPO = Path(__file__).resolve().parents[1]
@@ -23,7 +23,7 @@ PAPER = str(REPO / "config" / "paper_example.yaml")
 def test_one_lost_input_message_is_realigned_live(ros_env, tmp_path):
     from bag_variants import write_topics
 
-    from additive_rsrivc_ros.bagio import DEFAULT_T0_NS
+    from additive_rsrivc_ros.io.bagio import DEFAULT_T0_NS
     dom = int(ros_env["ROS_DOMAIN_ID"])
     sc = scenarios.build("paper_example", duration_s=160.0, seed=5, drift1_start_s=1e4, drift1_end_s=1.1e4,
                          drift2_start_s=1.2e4, drift2_end_s=1.3e4)

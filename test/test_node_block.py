@@ -27,7 +27,7 @@ from test_node_helpers import Client, start_node, stop_node  # noqa: E402
 
 from additive_rsrivc_ros.config import MonitorConfig, load_params_file
 from additive_rsrivc_ros.core.controller import DiscreteController
-from additive_rsrivc_ros.core.pipeline import MonitorPipeline
+from additive_rsrivc_ros.core.monitor.pipeline import MonitorPipeline
 from additive_rsrivc_ros.ros import blocks
 from additive_rsrivc_ros.ros.blocks import BlockSync
 from additive_rsrivc_ros.ros.convert import block_message, block_rows

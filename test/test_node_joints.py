@@ -23,7 +23,7 @@ from std_msgs.msg import Float64MultiArray
 from test_node_helpers import DATA_QOS, stop_node
 
 from additive_rsrivc_ros.config import MonitorConfig, _flatten, validate_params
-from additive_rsrivc_ros.core.pipeline import MonitorPipeline
+from additive_rsrivc_ros.core.monitor.pipeline import MonitorPipeline
 from additive_rsrivc_ros.ros.convert import MODE_KEYS
 from additive_rsrivc_ros.sim import arm
 

@@ -22,9 +22,9 @@ from rclpy.qos import ReliabilityPolicy
 from std_msgs.msg import Float64
 from test_node_helpers import Client, start_node, stop_node  # noqa: E402
 
-from additive_rsrivc_ros.bagio import DEFAULT_T0_NS
 from additive_rsrivc_ros.config import MonitorConfig, load_params_file
-from additive_rsrivc_ros.core.pipeline import MonitorPipeline
+from additive_rsrivc_ros.core.monitor.pipeline import MonitorPipeline
+from additive_rsrivc_ros.io.bagio import DEFAULT_T0_NS
 from additive_rsrivc_ros.sim import scenarios
 from additive_rsrivc_ros.sim.experiments import LIMITS
 

@@ -10,9 +10,9 @@ import numpy as np
 import pytest
 
 from additive_rsrivc_ros.core.controller import DiscreteController
-from additive_rsrivc_ros.core.filters import ClosedLoopUnstableError
+from additive_rsrivc_ros.core.estimation.filters import ClosedLoopUnstableError
+from additive_rsrivc_ros.core.identification.offline import identify, split_additive, to_unfactored
 from additive_rsrivc_ros.core.model import SubmodelStructure, modal_from_theta, theta_from_modal
-from additive_rsrivc_ros.core.offline import identify, split_additive, to_unfactored
 from additive_rsrivc_ros.sim.independent import (
     MODE,
     PAPER_THETAS,

@@ -22,10 +22,10 @@ import numpy as np
 import pytest
 from bag_variants import damage, write_stamped_bag
 
-from additive_rsrivc_ros.bagio import DEFAULT_T0_NS, read_signals, write_bag
 from additive_rsrivc_ros.cli import diagnose, identify
 from additive_rsrivc_ros.config import load_config
 from additive_rsrivc_ros.core.vocabulary import json_clean
+from additive_rsrivc_ros.io.bagio import DEFAULT_T0_NS, read_signals, write_bag
 from additive_rsrivc_ros.sim.independent import MODE, PAPER_THETAS, PID_DEN, PID_NUM, simulate
 
 REPO = Path(__file__).resolve().parents[1]

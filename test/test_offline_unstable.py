@@ -1,4 +1,4 @@
-"""Unstable plants and integral action (core/offline/unstable.py, 003 §4-§7), CI-sized."""
+"""Unstable plants and integral action (core/identification/offline/unstable.py, 003 §4-§7), CI-sized."""
 
 from __future__ import annotations
 
@@ -6,8 +6,8 @@ import numpy as np
 import pytest
 
 from additive_rsrivc_ros.core.controller import DiscreteController
+from additive_rsrivc_ros.core.identification.offline import identify
 from additive_rsrivc_ros.core.model import SubmodelStructure
-from additive_rsrivc_ros.core.offline import identify
 from additive_rsrivc_ros.sim.independent import MODE, simulate
 from additive_rsrivc_ros.sim.plants import INT_CONTROLLER_DEN, INT_CONTROLLER_NUM
 

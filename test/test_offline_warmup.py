@@ -3,7 +3,7 @@ filter warm-up)."""
 import numpy as np
 
 from additive_rsrivc_ros.config import load_config
-from additive_rsrivc_ros.core.offline import identify, initial_transient_test, warmup_samples
+from additive_rsrivc_ros.core.identification.offline import identify, initial_transient_test, warmup_samples
 from additive_rsrivc_ros.sim.plants import PAPER_MODES
 from additive_rsrivc_ros.sim.simulate import simulate_modes, white_noise
 
@@ -103,7 +103,7 @@ def test_a_mode_slower_than_a_quarter_of_the_record_in_motion(repo, monkeypatch)
     counts and every parameter is within 4 standard deviations (+ 0.5 %) of the truth in all four windows; with only
     the 15 s warm-up, at least one window's fit fails or is biased beyond that (measured: the one from 300 s, by
     52 standard deviations)."""
-    from additive_rsrivc_ros.core.offline import stable
+    from additive_rsrivc_ros.core.identification.offline import stable
 
     windows = [_segment(repo, a, a + 60.0) for a in (100.0, 123.45, 200.0, 300.0)]
     truth = [m.theta0() for m in windows[0][0].modes]
@@ -129,7 +129,7 @@ def test_a_fit_out_of_iterations_but_nearly_converged_is_tested_not_refitted(rep
     stands (before, it was refitted from the guess with a warm-up: twice the cost for the order scan's short fits);
     cut from the running loop, the free response is detected and projected out in the refit. A first fit
     still moving by more than that is refitted from the guess, as before."""
-    from additive_rsrivc_ros.core.offline.stable import NEARLY_CONVERGED
+    from additive_rsrivc_ros.core.identification.offline.stable import NEARLY_CONVERGED
 
     cfg, r, u, y = _segment(repo, 0.0, 300.0)
     res = _fit(cfg, r, u, y, max_iterations=6, tol=1e-14)

@@ -143,7 +143,7 @@ def test_optional_mcap_is_imported_only_inside_functions():
 
 def test_bags_are_read_by_rosbags_when_mcap_is_not_installed(tmp_path, monkeypatch):
     """With ``import mcap`` failing, read_signals takes the rosbags path and returns the same samples."""
-    from additive_rsrivc_ros import bagio
+    from additive_rsrivc_ros.io import bagio
     from additive_rsrivc_ros.sim.scenarios import build
 
     data = build("beam", duration_s=1.0, seed=3)
@@ -358,7 +358,7 @@ def test_pip_install_into_a_fresh_venv_runs_simulate(tmp_path):
     editable install of the package (the project venv's .pth files are not processed). NUMBA_DISABLE_JIT keeps the
     first run short: this test is about installation; the compiled numerics are tested from the source tree.
     """
-    from additive_rsrivc_ros.bagio import read_signals
+    from additive_rsrivc_ros.io.bagio import read_signals
     from additive_rsrivc_ros.sim.scenarios import build
 
     src, venv = tmp_path / "src", tmp_path / "venv"

@@ -9,7 +9,7 @@ from dataclasses import fields
 import pytest
 
 from additive_rsrivc_ros.config import all_params, validate_params
-from additive_rsrivc_ros.core.faults import FaultSettings
+from additive_rsrivc_ros.core.diagnosis.faults import FaultSettings
 from additive_rsrivc_ros.core.params import (
     ESTIMATOR_PARAMS,
     FAULT_PARAMS,

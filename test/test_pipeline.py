@@ -8,7 +8,7 @@ import numpy as np
 import pytest
 
 from additive_rsrivc_ros.config import MonitorConfig, load_params_file
-from additive_rsrivc_ros.core.pipeline import MonitorPipeline, PipelineError
+from additive_rsrivc_ros.core.monitor.pipeline import MonitorPipeline, PipelineError
 from additive_rsrivc_ros.sim.plants import PAPER_MODES
 from additive_rsrivc_ros.sim.scenarios import build, config_dir
 from additive_rsrivc_ros.sim.simulate import simulate_modes, sum_of_sines, time_vector, white_noise

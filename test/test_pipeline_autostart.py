@@ -1,4 +1,5 @@
-"""The automatic start inside MonitorPipeline (no mode guesses; core/autostart.py), on simulated closed loops with
+"""The automatic start inside MonitorPipeline (no mode guesses; core/identification/autostart.py), on simulated
+closed loops with
 known modes (the plant, controller and excitation of test_frf / test_modefind).
 
 Accuracy of the modes found: the modefind tests' tolerance (1 % in frequency, 15 % in damping). Once found, the
@@ -17,8 +18,8 @@ import pytest
 from frf_cases import CONTROLLER, DELAY, FS, MODES
 
 from additive_rsrivc_ros.config import MonitorConfig, validate_params
-from additive_rsrivc_ros.core.faults import Level
-from additive_rsrivc_ros.core.pipeline import MonitorPipeline, PipelineError
+from additive_rsrivc_ros.core.diagnosis.faults import Level
+from additive_rsrivc_ros.core.monitor.pipeline import MonitorPipeline, PipelineError
 from additive_rsrivc_ros.sim.simulate import simulate_modes, square_wave, white_noise
 
 PARAMS = {"loop_rate_hz": FS, "closed_loop": True, "controller.numerator": list(CONTROLLER.numerator),
@@ -189,7 +190,7 @@ def test_a_wrong_start_is_flagged_by_the_model_check_and_restarted_from_the_data
     ``start``); the model-order check on the first 4 memory lengths after the start names it (no structural event),
     the modes are found again on that window (K automatic: the true two), pass the same check, and the estimator
     starts over from them; at the end the estimates are the truth's and the check passes."""
-    from additive_rsrivc_ros.core import modefind
+    from additive_rsrivc_ros.core.identification import modefind
 
     calls: list = []
     orig = modefind.autostart_config
@@ -270,7 +271,7 @@ def test_a_restart_that_fails_leaves_the_model_flagged_not_crashed(monkeypatch):
     """The forced one-mode start of the test above, and the search on the check's window raises: the run goes on
     with the one-mode model, its flag on health (WARN) with the check's reason, and a notice says why the restart
     failed; nothing crashes and nothing is reported as healthy."""
-    from additive_rsrivc_ros.core import modefind
+    from additive_rsrivc_ros.core.identification import modefind
 
     calls: list = []
     orig = modefind.autostart_config
@@ -297,7 +298,7 @@ def test_a_failed_window_with_invalid_samples_keeps_its_length(monkeypatch, burs
     """A search that fails on an excited window grows the next window (a mode the window was too short for), unless
     the window held invalid samples: then the gaps may be why, and the next window keeps the length (on the bundled
     bag with 40 NaN outputs at 2 s the modes were found at 8 s instead of 12 s). The first search is made to fail."""
-    from additive_rsrivc_ros.core import modefind
+    from additive_rsrivc_ros.core.identification import modefind
 
     calls: list = []
     orig = modefind.autostart_config

@@ -3,8 +3,8 @@ import numpy as np
 import pytest
 
 from additive_rsrivc_ros.config import MonitorConfig
+from additive_rsrivc_ros.core.estimation.recursive import RecursiveAdditiveSRIVC
 from additive_rsrivc_ros.core.model import SubmodelStructure, modal_from_theta
-from additive_rsrivc_ros.core.recursive import RecursiveAdditiveSRIVC
 from additive_rsrivc_ros.sim.independent import PAPER_THETA, PID, paper_reference, simulate_modal
 
 S3 = [SubmodelStructure()] * 3
@@ -246,7 +246,7 @@ def test_report_numbers_follow_every_change_of_state():
 
 
 def test_covariance_problem_flags_non_finite_and_indefinite_blocks():
-    from additive_rsrivc_ros.core.recursive import covariance_problem
+    from additive_rsrivc_ros.core.estimation.recursive import covariance_problem
     rng = np.random.default_rng(3)
     covs = []
     for n in (3, 1, 2, 3, 3, 0):
@@ -347,7 +347,7 @@ def test_p0_from_information_reports_calibrated_uncertainty_from_the_start():
     memory, the two memories after a 200 s init give RMS (error / reported std) <= 1.5 for every parameter
     (about 0.7 expected: the error of a stationary estimate is within its std most of the time). The
     parameter-scaled P(0) of NOTES (0.1 % std on b0) claims far more certainty than the data hold there."""
-    from additive_rsrivc_ros.core.recursive import p0_from_information
+    from additive_rsrivc_ros.core.estimation.recursive import p0_from_information
 
     n0, n1 = 4000, 4000
     z = {"information": [], "relative": []}
@@ -379,8 +379,8 @@ def test_closed_loop_spectral_radius_matches_the_simulator_and_the_paper_erratum
     discretization equals the simulator's independent construction (core/simulate.closed_loop_poles); the 000 §5
     controller as printed (-0.2058) does not stabilize the §5 plant, the corrected one does (NOTES erratum 1)."""
     from additive_rsrivc_ros.core.controller import DiscreteController
+    from additive_rsrivc_ros.core.estimation.recursive import closed_loop_spectral_radius
     from additive_rsrivc_ros.core.plant import closed_loop_poles
-    from additive_rsrivc_ros.core.recursive import closed_loop_spectral_radius
 
     rigid = SubmodelStructure(0, 0, 2)
     cases = [(S3, PAPER_THETA, [0, 0, 0]), ([rigid, SubmodelStructure()], [np.array([0.5]), PAPER_THETA[1]], [2, 0])]

@@ -34,7 +34,7 @@ def test_auto_filter_policy_selects_only_modes_with_memory_below_their_decay_tim
     mode 1 (memory 2.44 s, decay 0.21 s) and every mode of the 000 §5 example (memory 50 s, decay <= 8 s) keep
     Algorithm 2 as printed. A runtime memory change re-evaluates the choice."""
     from additive_rsrivc_ros.config import load_config
-    from additive_rsrivc_ros.core.recursive import RecursiveAdditiveSRIVC
+    from additive_rsrivc_ros.core.estimation.recursive import RecursiveAdditiveSRIVC
 
     repo = Path(__file__).resolve().parents[1]
     beam = RecursiveAdditiveSRIVC.from_config(load_config(repo / "config" / "beam.yaml"))
@@ -54,8 +54,8 @@ def test_beam_short_memory_with_filter_model():
     the whole run after 10 s, including the -10 % frequency drift: mode 2 within 2 %, mode 1 within 1 %, the
     damping never collapses (within 10 % of a zeta of 0.017, i.e. far from the zeta -> 0 breakdown), no
     projections."""
+    from additive_rsrivc_ros.core.estimation.recursive import RecursiveAdditiveSRIVC
     from additive_rsrivc_ros.core.model import modal_from_theta
-    from additive_rsrivc_ros.core.recursive import RecursiveAdditiveSRIVC
     from additive_rsrivc_ros.sim import scenarios
 
     sc = scenarios.build("beam", seed=4)  # the worst of seeds 0-4 with Algorithm 2 (f2 error 95 %)

@@ -207,7 +207,7 @@ def test_wait_for_subscribers_on_a_simulated_bag_skips_its_truth_topics(tmp_path
     from rclpy.qos import QoSProfile, ReliabilityPolicy
     from std_msgs.msg import Float64
 
-    from additive_rsrivc_ros import bagio
+    from additive_rsrivc_ros.io import bagio
     from additive_rsrivc_ros.sim import scenarios
 
     assert set(replay.TRUTH_TOPICS) == {bagio.TRUTH_MODES_TOPIC, bagio.TRUTH_FAULT_TOPIC}

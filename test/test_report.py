@@ -1,4 +1,4 @@
-"""report.py: model and nonparametric frequency responses against known systems; verdict; HTML page."""
+"""outputs/report.py: model and nonparametric frequency responses against known systems; verdict; HTML page."""
 
 from __future__ import annotations
 
@@ -12,8 +12,8 @@ import numpy as np
 import pytest
 from scipy import signal
 
-from additive_rsrivc_ros import report as rp
 from additive_rsrivc_ros.core.model import SubmodelStructure, frequency_response, theta_from_modal
+from additive_rsrivc_ros.outputs import report as rp
 
 RATE = 1000.0
 H = 1.0 / RATE

@@ -1,4 +1,4 @@
-"""The compiled per-report numbers (core/report_numbers.py) against the numpy functions they replace.
+"""The compiled per-report numbers (core/estimation/report_numbers.py) against the numpy functions they replace.
 
 References: model.modal_from_theta and model.modal_std (delta method), recursive.covariance_problem (LAPACK
 eigvalsh), np.linalg.svd for the IV condition number. Tolerances are rounding bounds: a sum computed in another
@@ -14,9 +14,9 @@ import math
 import numpy as np
 import pytest
 
-from additive_rsrivc_ros.core import report_numbers as rn
+from additive_rsrivc_ros.core.estimation import report_numbers as rn
+from additive_rsrivc_ros.core.estimation.recursive import COVARIANCE_REL_TOL, covariance_problem
 from additive_rsrivc_ros.core.model import SubmodelStructure, modal_from_theta, modal_jacobian, modal_std
-from additive_rsrivc_ros.core.recursive import COVARIANCE_REL_TOL, covariance_problem
 
 SECOND, RIGID1, RIGID2 = 0, 1, 2
 
@@ -188,7 +188,7 @@ def test_the_estimator_publishes_the_compiled_numbers_of_its_state():
     """A running estimator's modal(), iv_condition() and information_relative_std() are those numbers of its state."""
     from frf_cases import CONTROLLER, DELAY, FS, MODES
 
-    from additive_rsrivc_ros.core.recursive import RecursiveAdditiveSRIVC
+    from additive_rsrivc_ros.core.estimation.recursive import RecursiveAdditiveSRIVC
     from additive_rsrivc_ros.sim.simulate import simulate_modes, white_noise
 
     rng = np.random.default_rng(3)

@@ -13,9 +13,9 @@ import numpy as np
 import pytest
 
 from additive_rsrivc_ros.config import MonitorConfig
-from additive_rsrivc_ros.core import kernel as kn
-from additive_rsrivc_ros.core.offline import identify
-from additive_rsrivc_ros.core.recursive import RecursiveAdditiveSRIVC
+from additive_rsrivc_ros.core.estimation import kernel as kn
+from additive_rsrivc_ros.core.estimation.recursive import RecursiveAdditiveSRIVC
+from additive_rsrivc_ros.core.identification.offline import identify
 from additive_rsrivc_ros.sim.scenarios import build
 
 TOL_PERCENT = 1.0

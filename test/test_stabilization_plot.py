@@ -7,14 +7,14 @@ import pytest
 from figure_checks import assert_figure_matches_table, order_markers, parse_svg, texts
 from frf_cases import CONTROLLER, DELAY, FS, MODES, split_mode_window
 
-from additive_rsrivc_ros.stabilization_plot import (
+from additive_rsrivc_ros.outputs.stabilization_plot import (
     STABLE_DAMPING,
     STABLE_FREQUENCY,
     from_mode_finding,
     stabilization_figure,
     stable_flags,
 )
-from additive_rsrivc_ros.svgplot import as_file
+from additive_rsrivc_ros.outputs.svgplot import as_file
 
 
 def _row(k: int, modes: list[tuple[float, float]], accepted: bool = False, val: float | None = 1.0,
@@ -52,7 +52,7 @@ def test_the_figure_draws_each_orders_modes_and_marks_the_chosen_order():
 
 def test_figure_of_a_real_order_scan_matches_its_table():
     """The order scan on a closed-loop record of the two-mode plant: the figure's markers are the table's fits."""
-    from additive_rsrivc_ros.core.modefind import find_modes
+    from additive_rsrivc_ros.core.identification.modefind import find_modes
 
     r, u, y = split_mode_window()
     res = find_modes(u, y, FS, r=r, controller=CONTROLLER, input_delay=DELAY)

@@ -1,4 +1,5 @@
-"""Stationarity of an offline record (core/stationarity.py, rsrivc_identify): the statistics on segment estimates of
+"""Stationarity of an offline record (core/identification/stationarity.py, rsrivc_identify): the statistics on
+segment estimates of
 known spread, and real rosbag2 records of the close-pair loop (62 / 71 Hz) with a change part-way, without one, with a
 gain-only change, a short glitch, and too short to split."""
 
@@ -9,11 +10,11 @@ import json
 import numpy as np
 import pytest
 
-from additive_rsrivc_ros.bagio import write_bag
 from additive_rsrivc_ros.cli import identify
+from additive_rsrivc_ros.core.identification.offline.types import IdentificationResult
+from additive_rsrivc_ros.core.identification.stationarity import ALPHA, identify_segments, split_pairs, z_threshold
 from additive_rsrivc_ros.core.model import SubmodelStructure, theta_from_modal
-from additive_rsrivc_ros.core.offline.types import IdentificationResult
-from additive_rsrivc_ros.core.stationarity import ALPHA, identify_segments, split_pairs, z_threshold
+from additive_rsrivc_ros.io.bagio import write_bag
 from additive_rsrivc_ros.sim.experiments import CLOSE_PAIR_MODES, close_pair_params_yaml, close_pair_record
 from additive_rsrivc_ros.sim.simulate import ModalChange
 

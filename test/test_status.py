@@ -1,10 +1,10 @@
-"""Status composition of the monitor's /diagnostics (additive_rsrivc_ros/status.py), without ROS."""
+"""Status composition of the monitor's /diagnostics (additive_rsrivc_ros/outputs/status.py), without ROS."""
 
 import subprocess
 import sys
 
-from additive_rsrivc_ros.core.faults import Level
-from additive_rsrivc_ros.status import Finding, StatusRecord, estimator_summary, merge, mode_summary
+from additive_rsrivc_ros.core.diagnosis.faults import Level
+from additive_rsrivc_ros.outputs.status import Finding, StatusRecord, estimator_summary, merge, mode_summary
 
 OK, WARN, ERROR, STALE = Level.OK, Level.WARN, Level.ERROR, Level.STALE
 
@@ -64,7 +64,7 @@ def test_status_record_keeps_the_values_in_order():
 
 
 def test_status_module_imports_no_ros():
-    code = ("import sys; import additive_rsrivc_ros.status; "
+    code = ("import sys; import additive_rsrivc_ros.outputs.status; "
             "bad = sorted(m for m in sys.modules if m.split('.')[0] in ('rclpy', 'diagnostic_msgs', 'std_msgs', "
             "'rcl_interfaces')); print(bad); sys.exit(1 if bad else 0)")
     r = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, timeout=120)

@@ -15,9 +15,9 @@ import math
 import numpy as np
 import pytest
 
-from additive_rsrivc_ros.core.faults import HealthMonitor
+from additive_rsrivc_ros.core.diagnosis.faults import HealthMonitor
+from additive_rsrivc_ros.core.estimation.recursive import RecursiveAdditiveSRIVC
 from additive_rsrivc_ros.core.model import SubmodelStructure, modal_from_theta, theta_from_modal
-from additive_rsrivc_ros.core.recursive import RecursiveAdditiveSRIVC
 from additive_rsrivc_ros.sim.plants import CL52_THETAS, PAPER_PID
 from additive_rsrivc_ros.sim.simulate import PlantMode, simulate_modes
 

@@ -1,4 +1,5 @@
-"""The report's SVG plotter (additive_rsrivc_ros.svgplot): ticks, the data-to-pixel map, broken and decimated lines.
+"""The report's SVG plotter (additive_rsrivc_ros.outputs.svgplot): ticks, the data-to-pixel map, broken and decimated
+lines.
 
 A figure that draws a value somewhere else than where it is, hides a spike, or joins across a gap is a wrong
 picture of right numbers; these tests read the SVG back and invert the axes' map.
@@ -13,7 +14,7 @@ from xml.etree import ElementTree
 import numpy as np
 import pytest
 
-from additive_rsrivc_ros import svgplot as sp
+from additive_rsrivc_ros.outputs import svgplot as sp
 
 NS = "{http://www.w3.org/2000/svg}"
 

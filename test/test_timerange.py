@@ -9,12 +9,12 @@ import math
 import numpy as np
 import pytest
 
-from additive_rsrivc_ros import mcap_fast
-from additive_rsrivc_ros.bagio import DEFAULT_T0_NS, BagError, read_signals, write_bag
 from additive_rsrivc_ros.cli import identify
 from additive_rsrivc_ros.config import load_config
+from additive_rsrivc_ros.io import mcap_fast
+from additive_rsrivc_ros.io.bagio import DEFAULT_T0_NS, BagError, read_signals, write_bag
+from additive_rsrivc_ros.io.timerange import ABSOLUTE_FROM_S, TimeRange
 from additive_rsrivc_ros.sim.experiments import close_pair_params_yaml
-from additive_rsrivc_ros.timerange import ABSOLUTE_FROM_S, TimeRange
 
 RATE = 1000.0
 N = 20_000        # 20 s

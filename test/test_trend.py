@@ -1,4 +1,4 @@
-"""core/trend.py: per-bag levels and the drift test across recordings, on synthetic data with known truth."""
+"""core/diagnosis/trend.py: per-bag levels and the drift test across recordings, on synthetic data with known truth."""
 
 from __future__ import annotations
 
@@ -7,7 +7,7 @@ import math
 import numpy as np
 import pytest
 
-from additive_rsrivc_ros.core.trend import (
+from additive_rsrivc_ros.core.diagnosis.trend import (
     MIN_RECORDINGS,
     bag_level,
     drift_test,
@@ -114,7 +114,7 @@ def test_false_alarm_rate_with_recording_to_recording_variation() -> None:
 
 
 def test_fleet_drift_skips_excluded_recordings_and_keeps_their_place() -> None:
-    from additive_rsrivc_ros.core.trend import BagLevel
+    from additive_rsrivc_ros.core.diagnosis.trend import BagLevel
 
     def lv(f2: float) -> BagLevel:
         return BagLevel(np.array([[5.0, 0.05, 1.0], [f2, 0.02, 0.2]]), np.full((2, 3), 1e-4), 3.0, np.ones(2))

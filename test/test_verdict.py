@@ -12,8 +12,8 @@ from types import SimpleNamespace
 import numpy as np
 import pytest
 
-from additive_rsrivc_ros import report as rp
-from additive_rsrivc_ros.verdict import assess
+from additive_rsrivc_ros.outputs import report as rp
+from additive_rsrivc_ros.outputs.verdict import assess
 
 P = 0.1   # publish period [s]
 INIT = {"hold": True, "issues": ["initializing"],
@@ -160,8 +160,8 @@ def test_advisory_issue_during_the_startup_hold_is_no_disruption() -> None:
 
 
 def test_advisory_kinds_match_the_health_monitor() -> None:
-    from additive_rsrivc_ros.core.faults import HealthMonitor
-    from additive_rsrivc_ros.verdict import ADVISORY_ISSUES
+    from additive_rsrivc_ros.core.diagnosis.faults import HealthMonitor
+    from additive_rsrivc_ros.outputs.verdict import ADVISORY_ISSUES
 
     assert set(ADVISORY_ISSUES) == set(HealthMonitor.ADVISORY_KINDS)
 

@@ -1,4 +1,5 @@
-"""The shared vocabulary (core/vocabulary.py), the estimator seam (core/estimator.py), and product text free of
+"""The shared vocabulary (core/vocabulary.py), the estimator seam (core/estimation/estimator.py), and product text
+free of
 work-log items (README, docs, configs, docstrings)."""
 
 from __future__ import annotations
@@ -11,10 +12,10 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from additive_rsrivc_ros.core.estimator import EstimatorHealth, RecursiveEstimator
-from additive_rsrivc_ros.core.faults import FaultEvent, HealthMonitor, Level
+from additive_rsrivc_ros.core.diagnosis.faults import FaultEvent, HealthMonitor, Level
+from additive_rsrivc_ros.core.estimation.estimator import EstimatorHealth, RecursiveEstimator
+from additive_rsrivc_ros.core.estimation.recursive import RecursiveAdditiveSRIVC
 from additive_rsrivc_ros.core.model import SubmodelStructure
-from additive_rsrivc_ros.core.recursive import RecursiveAdditiveSRIVC
 from additive_rsrivc_ros.core.vocabulary import (
     EVENTS_HEADER,
     LEVEL_NAMES,

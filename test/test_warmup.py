@@ -6,7 +6,7 @@ import sys
 from pathlib import Path
 
 from additive_rsrivc_ros import numba_cache
-from additive_rsrivc_ros.core import compiled
+from additive_rsrivc_ros.core.estimation import compiled
 
 REPO = Path(__file__).resolve().parents[1]
 
@@ -93,7 +93,7 @@ print("EXIT", code, "MISSED", missed, "HITS", hits)
 AHEAD = """
 import sys
 from additive_rsrivc_ros.cli import diagnose
-from additive_rsrivc_ros.core import compiled
+from additive_rsrivc_ros.core.estimation import compiled
 code = diagnose.main(sys.argv[1:])
 print("EXIT", code, "EXTENSION", compiled.extension_loaded(), "NUMBA", "numba" in sys.modules)
 """

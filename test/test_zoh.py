@@ -5,7 +5,7 @@ import numpy as np
 import pytest
 from scipy.linalg import expm
 
-from additive_rsrivc_ros.core.zoh import companion, integrator_chain_zoh, second_order_zoh, zoh_matrices
+from additive_rsrivc_ros.core.estimation.zoh import companion, integrator_chain_zoh, second_order_zoh, zoh_matrices
 from additive_rsrivc_ros.sim import zoh_reference as vz
 
 
@@ -122,7 +122,7 @@ def test_first_order_limit_of_a_stiff_mode():
 def test_zoh_matrices_of_second_order_companions_are_exact(a1, a2, h, scale):
     """zoh_matrices (used by core.filters for the offline filters) on a (scaled) companion form of 1/A(p) equals the
     reference in the same coordinates, also where the matrix exponential loses the stiff entries."""
-    from additive_rsrivc_ros.core.filters import svf_continuous
+    from additive_rsrivc_ros.core.estimation.filters import svf_continuous
     A = np.array([[0.0, scale], [-1.0 / (a2 * scale), -a1 / a2]])
     B = np.array([0.0, 1.0 / (a2 * scale)])
     phi, gam = zoh_matrices(A, B, h)

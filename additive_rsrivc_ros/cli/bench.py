@@ -28,7 +28,7 @@ import time  # noqa: E402
 
 import numpy as np  # noqa: E402
 
-from ..core.compiled import MODE_ENV, extension_loaded  # noqa: E402
+from ..core.estimation.compiled import MODE_ENV, extension_loaded  # noqa: E402
 from ..core.model import SubmodelStructure  # noqa: E402
 from ..process_exit import console_entry  # noqa: E402
 from .parser import OneLineParser  # noqa: E402
@@ -60,7 +60,7 @@ REPEATS = 7   # runs per case, the fastest counts: on a shared machine other wor
 def bench_case(case: str, sweeps: int, refinements: int, seconds: float | None = None) -> dict[str, float]:
     """Time the estimator on simulated closed-loop data (the fastest of :data:`REPEATS` runs from the same state);
     returns us_per_sample and realtime_factor."""
-    from ..core.recursive import RecursiveAdditiveSRIVC
+    from ..core.estimation.recursive import RecursiveAdditiveSRIVC
     if seconds is None:
         seconds = 1000.0 if case.startswith("k3") else 20.0
     rate, thetas, ctrl, delay, r, u, y = _case_data(case, seconds)
@@ -90,7 +90,7 @@ for v in ("OPENBLAS_NUM_THREADS", "OMP_NUM_THREADS", "MKL_NUM_THREADS"):
 import numpy as np
 from additive_rsrivc_ros.core.controller import DiscreteController
 from additive_rsrivc_ros.core.model import SubmodelStructure
-from additive_rsrivc_ros.core.recursive import RecursiveAdditiveSRIVC
+from additive_rsrivc_ros.core.estimation.recursive import RecursiveAdditiveSRIVC
 pid = DiscreteController((0.02329, -0.02058, 0.00454), (1.0, -1.0, 0.0))
 th = [np.array([0.25, 0.25, 3.0]), np.array([0.01, 0.04, 0.5]), np.array([0.01, 0.0025, 1.0])]
 est = RecursiveAdditiveSRIVC([SubmodelStructure()] * 3, th, 20.0, forgetting=0.999, controller=pid)
@@ -128,7 +128,7 @@ import numpy as np
 from additive_rsrivc_ros.config import load_config
 from additive_rsrivc_ros.sim.scenarios import build, config_dir
 from additive_rsrivc_ros.warmup import load_kernels
-from additive_rsrivc_ros.core.pipeline import MonitorPipeline
+from additive_rsrivc_ros.core.monitor.pipeline import MonitorPipeline
 cfg = load_config(config_dir() / "beam_fault.yaml")
 sc = build("beam_fault", duration_s=cfg.init_duration_s + 2.0, seed=1)
 load_kernels()                                     # as the node does while configuring, before any data
@@ -225,7 +225,7 @@ def autostart_figure(seconds: float = 20.0) -> dict[str, float]:
     count differs)."""
     from ..config import MonitorConfig, validate_params
     from ..core.model import modal_from_theta
-    from ..core.pipeline import MonitorPipeline
+    from ..core.monitor.pipeline import MonitorPipeline
 
     rate, thetas, ctrl, delay, r, u, y = _case_data("k4", seconds)
     cfg = MonitorConfig.from_params(validate_params({

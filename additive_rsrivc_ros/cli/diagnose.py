@@ -40,11 +40,11 @@ from .progress import ProgressBar
 from .timerange import add_range_arguments, anchor_pipeline, range_of, range_text, verdict_in_range
 
 if TYPE_CHECKING:
-    from ..bagio import Signals
-    from ..core.estimator import MonitorSettings
-    from ..core.faults import FaultEvent
-    from ..core.pipeline import MonitorPipeline, Report
-    from ..report import DiagnosisSeries, ReportInput
+    from ..core.diagnosis.faults import FaultEvent
+    from ..core.estimation.estimator import MonitorSettings
+    from ..core.monitor.pipeline import MonitorPipeline, Report
+    from ..io.bagio import Signals
+    from ..outputs.report import DiagnosisSeries, ReportInput
 
 PROG = "rsrivc_diagnose"
 
@@ -93,13 +93,14 @@ def _print_notices(reports: Sequence[Report], stderr: TextIO) -> None:
 def run_pipeline(sig: Signals, cfg: MonitorSettings, *, chunk_s: float = 1.0, progress: ProgressBar | None = None,
                  pipeline: MonitorPipeline | None = None) -> tuple[list[Report], list[FaultEvent]]:
     """Feed the bag's samples through a fresh :class:`MonitorPipeline` (or ``pipeline``); return
-    ``(reports, events)``. Without mode guesses the pipeline finds the modes first (``core/autostart.py``);
+    ``(reports, events)``. Without mode guesses the pipeline finds the modes first
+    (``core/identification/autostart.py``);
     ``pipeline.cfg`` then holds the modes found.
 
     Events are collected from the reports' ``events_opened``/``events_closed`` (as the node sees them),
     keyed by (mode, quantity, alarm time), in order of onset.
     """
-    from ..core.pipeline import MonitorPipeline
+    from ..core.monitor.pipeline import MonitorPipeline
     from .atomic import raise_if_interrupted
 
     pipe = pipeline if pipeline is not None else MonitorPipeline(cfg)
@@ -199,7 +200,7 @@ def _warn_bad_samples(sig: Signals, stderr: TextIO) -> None:
     if sig.nonfinite:
         by = ", ".join(f"{k}: {v}" for k, v in sig.nonfinite_by_signal.items() if v)
         print(f"{PROG}: warning: {sig.nonfinite} non-finite samples ({by}); the estimator skips them", file=stderr)
-    from ..core.screening import ABSURD_ABS, ABSURD_REL, absurd_mask
+    from ..core.input.screening import ABSURD_ABS, ABSURD_REL, absurd_mask
 
     absurd = {name: absurd_mask(x) for name, x in (("reference", sig.r), ("input", sig.u), ("output", sig.y))
               if x is not None}
@@ -219,7 +220,7 @@ def _warn_bad_samples(sig: Signals, stderr: TextIO) -> None:
 
 def _frf_estimates(inp: ReportInput, sig: Signals, cfg: MonitorSettings) -> None:
     """Nonparametric FRFs of the first and last data windows for the report (None where too short)."""
-    from .. import report as rp
+    from ..outputs import report as rp
 
     w0, w1 = rp.frf_windows(sig.t.size, cfg.loop_rate_hz, cfg.init_duration_s)
     for attr, w in (("frf_start", w0), ("frf_end", w1)):
@@ -268,11 +269,11 @@ def diagnose(args: argparse.Namespace, stdout: TextIO, stderr: TextIO, state: di
     """
     import numpy as np
 
-    from .. import report as rp
-    from ..bagio import read_signals
     from ..config import DEFAULT_NODE_NAME, load_config, param_table
-    from ..core.pipeline import MonitorPipeline
-    from ..verdict import assess
+    from ..core.monitor.pipeline import MonitorPipeline
+    from ..io.bagio import read_signals
+    from ..outputs import report as rp
+    from ..outputs.verdict import assess
     from .atomic import AtomicDir, check_replaceable
 
     state = {} if state is None else state
@@ -407,7 +408,8 @@ def diagnose_bag(bag: str | Path, params_file: str | Path, out_dir: str | Path, 
 
 
 def identifiability_timeline(reports: list[Report]) -> list[dict[str, Any]]:
-    """summary.json ``identifiability``: every joint check (core/joint_check.py) once: its time, whether it armed
+    """summary.json ``identifiability``: every joint check (core/diagnosis/joint_check.py) once: its time, whether it
+    armed
     the joint confirmation, what the excitation did not identify jointly and the resonance-peak changes it saw."""
     out: list[dict[str, Any]] = []
     for rep in reports:
@@ -439,7 +441,8 @@ def identifiability_info(timeline: list[dict[str, Any]]) -> dict[str, str]:
 
 
 def _alignment_summary(last: Report | None) -> dict[str, Any]:
-    """summary.json ``alignment``: what the pipeline's stream aligner verified and corrected (core/alignment.py)."""
+    """summary.json ``alignment``: what the pipeline's stream aligner verified and corrected
+    (core/input/alignment.py)."""
     al = (last.health.get("alignment") if last is not None else None) or {"mode": "off"}
     if al.get("mode") != "invariant":
         return {"mode": al.get("mode", "off")}
@@ -500,9 +503,9 @@ def _diagnose_or_interrupt(args: argparse.Namespace, state: dict[str, Any]) -> i
 
 
 def _diagnose_or_error(args: argparse.Namespace, state: dict[str, Any]) -> int:
-    from ..bagio import BagError
     from ..config import ParamError
-    from ..core.pipeline import PipelineError
+    from ..core.monitor.pipeline import PipelineError
+    from ..io.bagio import BagError
 
     try:
         return _diagnose_or_interrupt(args, state)

@@ -1,4 +1,4 @@
-"""``rsrivc_evaluate``: score the fault diagnosis (core/pipeline.py) on simulated scenarios with known truth.
+"""``rsrivc_evaluate``: score the fault diagnosis (core/monitor/pipeline.py) on simulated scenarios with known truth.
 
 For every case the scenario is simulated (core/scenarios.py), streamed through :class:`MonitorPipeline`
 in 0.1 s blocks (as the node does) and scored against the injected faults:
@@ -23,8 +23,8 @@ from typing import Any
 
 import numpy as np
 
-from ..core.faults import FaultEvent
-from ..core.pipeline import MonitorPipeline
+from ..core.diagnosis.faults import FaultEvent
+from ..core.monitor.pipeline import MonitorPipeline
 from ..core.vocabulary import quantity_of, sim_quantity_of
 from ..process_exit import console_entry
 from .parser import OneLineParser

@@ -250,9 +250,9 @@ def settled_mask(t: Any, blind: Sequence[dict[str, Any]]) -> Any:
 
 def _bag_result(summary: dict[str, Any], out_dir: Path) -> dict[str, Any]:
     """What the fleet needs of one diagnosed bag: verdict, events, first sample time, levels per mode."""
-    from ..core.faults import FaultSettings
+    from ..core.diagnosis.faults import FaultSettings
+    from ..core.diagnosis.trend import bag_level
     from ..core.params import settings_from_params
-    from ..core.trend import bag_level
 
     k = int(summary["K"])
     params = summary.get("parameters", {})
@@ -423,7 +423,7 @@ def machine_trend(bags: Sequence[dict[str, Any]], alpha: float) -> dict[str, Any
     """The drift tests of one machine's diagnosed bags (in recording order) and the bags' use in them."""
     import numpy as np
 
-    from ..core.trend import BagLevel, fleet_drift
+    from ..core.diagnosis.trend import BagLevel, fleet_drift
 
     k = _group_k(bags)
     levels: list[BagLevel | None] = []
@@ -486,7 +486,7 @@ def _json_text(obj: Any) -> str:
 
 def write_outputs(out: Path, results: Sequence[dict[str, Any]], summary: dict[str, Any]) -> None:
     """fleet.csv, fleet.json, fleet_trend.json, fleet_failures.json and fleet.html (each written atomically)."""
-    from ..fleet_report import render_fleet_html
+    from ..outputs.fleet_report import render_fleet_html
     from .atomic import atomic_write_text
 
     out.mkdir(parents=True, exist_ok=True)
@@ -572,7 +572,7 @@ def _compute(args: argparse.Namespace, todo: Sequence[BagTask], keys: dict[str, 
 
 def fleet(args: argparse.Namespace, stdout: TextIO, stderr: TextIO, state: dict[str, Any]) -> int:
     """The work behind :func:`main`; raises :class:`ArgError` for bad arguments."""
-    from ..core.trend import DEFAULT_ALPHA
+    from ..core.diagnosis.trend import DEFAULT_ALPHA
 
     alpha = DEFAULT_ALPHA if args.alpha is None else float(args.alpha)
     if not 0.0 < alpha < 1.0:

@@ -4,10 +4,11 @@
 delay and ``closed_loop`` come from the params file; the JSON object (``method``, ``converged``, ``iterations``,
 ``modes`` with ``theta`` in [RA-SRIVC] eq. 7 order and the modal values with their std, ``residual_variance``, ...) is
 described in docs/INTERFACE.md. Exit status 0 on success (also when not converged), 2 with one line on bad input.
-``--modes K|auto`` (or a params file without guesses) first finds the modes from the data (``core/modefind.py``; the
+``--modes K|auto`` (or a params file without guesses) first finds the modes from the data
+(``core/identification/modefind.py``; the
 JSON gains ``frf``, ``order_selection``, ``mode_finding``); ``--out-params FILE.yaml`` writes a complete params file for
 the node (``--baseline`` adds ``faults.baseline.*``). In closed loop the record first goes through the stream aligner
-(``core/alignment.py``), then the screening (``core/screening.py``).
+(``core/input/alignment.py``), then the screening (``core/input/screening.py``).
 """
 
 from __future__ import annotations
@@ -29,14 +30,14 @@ from .timerange import add_range_arguments, range_of
 if TYPE_CHECKING:   # the numerical modules are imported inside the functions: SIGINT/SIGTERM handling comes first
     import numpy as np
 
-    from ..bagio import Signals
     from ..config import MonitorConfig
-    from ..core.faults import FaultSettings
-    from ..core.screening import Screening
+    from ..core.diagnosis.faults import FaultSettings
+    from ..core.input.screening import Screening
+    from ..io.bagio import Signals
 
 
 def _cli_methods() -> tuple[str, ...]:
-    from ..core.offline import METHODS
+    from ..core.identification.offline import METHODS
 
     return tuple(m for m in METHODS if not m.endswith("-monic"))
 
@@ -98,7 +99,7 @@ def screen_record(sig: Signals, cfg: MonitorConfig, settings: FaultSettings, war
     raise ``ValueError`` (one line) when no clean stretch long enough for a fit is left."""
     import numpy as np
 
-    from ..core.screening import ABSURD_ABS, ABSURD_REL, screen
+    from ..core.input.screening import ABSURD_ABS, ABSURD_REL, screen
 
     signals = {"reference": sig.r if cfg.closed_loop else None, "input": sig.u, "output": sig.y}
     sc = screen(sig.t, signals, cfg.loop_rate_hz, settings.health_gap_tolerance,
@@ -170,9 +171,9 @@ def run(bag: str, params_file: str, out: str, method: str = "auto", max_iteratio
     """Identify the bag and write the JSON (strict: non-finite numbers as null, written all-or-nothing); returns
     the JSON object. Raises ``ValueError`` on bad input. Bad samples are excluded, each category with one
     warning line (``warn``, default stderr), never fitted over."""
-    from ..bagio import read_signals
     from ..config import load_config
-    from ..core.faults import FaultSettings
+    from ..core.diagnosis.faults import FaultSettings
+    from ..io.bagio import read_signals
     from .stationary_fit import add_stationarity, fit_record
 
     warn = warn or (lambda m: print(f"rsrivc_identify: warning: {m}", file=sys.stderr))
@@ -219,12 +220,12 @@ def run(bag: str, params_file: str, out: str, method: str = "auto", max_iteratio
 
 
 def align_record_signals(sig: Signals, cfg: MonitorConfig, warn: Callable[[str], None]) -> Signals:
-    """Closed loop: the record through the pipeline's stream aligner (``core/alignment.py``), one warning line
+    """Closed loop: the record through the pipeline's stream aligner (``core/input/alignment.py``), one warning line
     when it re-aligned or refilled anything; the pairing is then what the live pipeline would have used."""
     import dataclasses
 
-    from ..core.alignment import align_record
-    from ..core.pipeline import _make_aligner
+    from ..core.input.alignment import align_record
+    from ..core.monitor.pipeline import _make_aligner
 
     if _make_aligner(cfg) is None or sig.n < 2 or cfg.controller is None or sig.r is None:
         return sig
@@ -248,8 +249,8 @@ def _add_mode_finding(doc: dict, found, cfg: MonitorConfig, r, u, y) -> None:
         doc["mode_finding"] = {"K": found.K, "message": found.message, "identifiable": found.identifiable,
                                "candidates": [c.to_dict() for c in found.candidates]}
         return
-    from ..core.frf import estimate_frf
-    from ..core.modefind import find_candidates
+    from ..core.identification.frf import estimate_frf
+    from ..core.identification.modefind import find_candidates
 
     try:
         frf = estimate_frf(u, y, cfg.loop_rate_hz, r if cfg.closed_loop else None)
@@ -268,7 +269,7 @@ def _order_figure(doc: dict, found, cfg: MonitorConfig, out_path: Path) -> tuple
     ``order_selection_figure``)."""
     if found is None:
         return None
-    from ..stabilization_plot import figure_path, order_svg
+    from ..outputs.stabilization_plot import figure_path, order_svg
 
     path = figure_path(out_path)
     doc["order_selection_figure"] = str(path)
@@ -276,13 +277,14 @@ def _order_figure(doc: dict, found, cfg: MonitorConfig, out_path: Path) -> tuple
 
 
 def _model_order(res, cfg: MonitorConfig, r, u, y) -> dict:
-    """The node's model-order check (core/adequacy.py) on the identified model and the same record: does an
+    """The node's model-order check (core/identification/adequacy.py) on the identified model and the same record:
+    does an
     unmodelled resonance move the identified modes? (``{"state": "off"}`` with estimator.order_check_memory_lengths
     0.)"""
     import numpy as np
 
-    from ..core.adequacy import check_model_order
-    from ..core.faults import FaultSettings
+    from ..core.diagnosis.faults import FaultSettings
+    from ..core.identification.adequacy import check_model_order
 
     if cfg.estimator.order_check_memory_lengths <= 0 or not all(np.all(np.isfinite(t)) for t in res.thetas):
         return {"state": "off" if cfg.estimator.order_check_memory_lengths <= 0 else "skipped",

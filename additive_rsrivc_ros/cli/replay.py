@@ -267,8 +267,8 @@ def plan_blocks(plan: BagPlan, topics: list[str] | None) -> BlockPlan:
 
     ``topics``: ``[reference,] input, output`` topics (default ``/reference`` when the bag has it, ``/plant_input``,
     ``/plant_output``)."""
-    from ..bagio import FLOAT64, BagError, mean_sample_spacing, read_signals
     from ..config import SignalConfig
+    from ..io.bagio import FLOAT64, BagError, mean_sample_spacing, read_signals
 
     names = list(topics) if topics else [t for t in BLOCK_SIGNAL_TOPICS if t in plan.topics or t != "/reference"]
     if len(names) not in (2, 3):

@@ -14,10 +14,10 @@ from typing import TYPE_CHECKING, Any
 if TYPE_CHECKING:
     import numpy as np
 
-    from ..bagio import Signals
     from ..config import MonitorConfig
-    from ..core.offline import IdentificationResult
-    from ..core.stationarity import Stationarity
+    from ..core.identification.offline import IdentificationResult
+    from ..core.identification.stationarity import Stationarity
+    from ..io.bagio import Signals
 
 
 @dataclass
@@ -40,8 +40,8 @@ def _find_modes(sig: Signals, k: np.ndarray, cfg: MonitorConfig, modes: int | No
     """The modes found on the record's first :data:`MODE_FINDING_S` (at least its first segment) when it is long
     enough to be tested for stationarity, else on all of it: a plant that changed later does not enter them.
     Found one mode split in two (the window held a change), they are found again on the window's first half."""
-    from ..core.modefind import autostart_config
-    from ..core.stationarity import MAX_SEGMENTS, MIN_SEGMENT_S, split_pairs
+    from ..core.identification.modefind import autostart_config
+    from ..core.identification.stationarity import MAX_SEGMENTS, MIN_SEGMENT_S, split_pairs
 
     rate = cfg.loop_rate_hz
     r = sig.r if cfg.closed_loop else None
@@ -60,9 +60,9 @@ def fit_record(sig: Signals, k: np.ndarray, cfg: MonitorConfig, modes: int | Non
                tol: float) -> RecordFit:
     """Find the modes if asked, test the screened samples ``sig[k]`` (contiguous) for stationarity and fit the
     whole of them or their longest stationary part."""
-    from ..core.faults import FaultSettings
-    from ..core.offline import identify
-    from ..core.stationarity import identify_segments, split_pairs
+    from ..core.diagnosis.faults import FaultSettings
+    from ..core.identification.offline import identify
+    from ..core.identification.stationarity import identify_segments, split_pairs
     from .atomic import raise_if_interrupted
 
     closed = cfg.closed_loop

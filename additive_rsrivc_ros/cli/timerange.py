@@ -5,12 +5,12 @@ from __future__ import annotations
 import argparse
 from typing import TYPE_CHECKING, Any
 
-from ..timerange import ABSOLUTE_FROM_S, TimeRange
+from ..io.timerange import ABSOLUTE_FROM_S, TimeRange
 
 if TYPE_CHECKING:
-    from ..bagio import Signals
-    from ..core.pipeline import MonitorPipeline
-    from ..verdict import Verdict
+    from ..core.monitor.pipeline import MonitorPipeline
+    from ..io.bagio import Signals
+    from ..outputs.verdict import Verdict
 
 RANGE_HELP = ("seconds from the record's first sample, or an absolute time stamp in Unix seconds when the value is "
               f"{ABSOLUTE_FROM_S:.0f} or more; the samples outside [start, end) are not read")

@@ -87,7 +87,7 @@ def guess_theta(natural_frequency_hz: float, damping_ratio: float, gain: float) 
 def second_order_modal(a1: Any, a2: Any) -> tuple[Any, Any]:
     """``(f_hz, zeta)`` of the denominator ``a2 p^2 + a1 p + 1`` (``a2 > 0``): ``omega = 1/sqrt(a2)`` rad/s, ``zeta =
     a1 / (2 sqrt(a2))`` ([RA-SRIVC] eqs. 16-17). The one home of this arithmetic: scalars or arrays, and numba
-    compiles it into the report kernel (core/report_numbers.py)."""
+    compiles it into the report kernel (core/estimation/report_numbers.py)."""
     sq = np.sqrt(a2)
     return 1.0 / (TWO_PI * sq), a1 / (2.0 * sq)
 

@@ -76,7 +76,8 @@ ESTIMATOR_PARAMS: list[Param] = [
           "joint covariance), so the guesses are kept where the initialization data do not inform (a mode the "
           "excitation does not reach). 0: no prior (the fit replaces the guesses when it explains the data better). "
           "Modes found from the data carry no prior.", 0.0, 10.0, True),
-    Param("estimator.order_check_memory_lengths", "double", 4.0, "Model-order check (core/adequacy.py): on this many "
+    Param("estimator.order_check_memory_lengths", "double", 4.0, "Model-order check "
+          "(core/identification/adequacy.py): on this many "
           "(longest) memory lengths of contiguous data after the initialization, once per run, the modelled modes "
           "are refitted offline with the strongest unmodelled resonance of the FRF misfit added; if that moves a "
           "modelled quantity relevantly, health warns 'model order too low' (never a structural fault). 0: off.",
@@ -86,7 +87,8 @@ ESTIMATOR_PARAMS: list[Param] = [
           "faults.min_change.* (and by more than 3 standard deviations).", 0.0, 100.0, True),
 ]
 
-# Fault diagnosis and estimator health (core/faults.py, core/health.py): fill core.fault_settings.FaultSettings.
+# Fault diagnosis and estimator health (core/diagnosis/faults.py, core/diagnosis/health.py): fill
+# core.fault_settings.FaultSettings.
 FAULT_PARAMS: list[Param] = [
     Param("faults.enabled", "bool", True, "Run the structural fault tests (estimation and health run regardless)."),
     Param("faults.settle_memory_lengths", "double", 3.0, "Wait this many (longest) memory lengths after the "

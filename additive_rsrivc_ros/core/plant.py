@@ -15,10 +15,10 @@ from collections.abc import Sequence
 
 import numpy as np
 
-from .compiled import kernel
 from .controller import DiscreteController
+from .estimation.compiled import kernel
+from .estimation.zoh import integrator_chain_zoh, second_order_zoh
 from .model import TWO_PI, SubmodelStructure, parallel_state_space
-from .zoh import integrator_chain_zoh, second_order_zoh
 
 _KIND_SECOND, _KIND_CHAIN, _KIND_GENERAL = 0, 1, 2
 

@@ -13,7 +13,7 @@ from typing import Any
 
 import numpy as np
 
-from ..core.alignment import invariant_residual
+from ..core.input.alignment import invariant_residual
 
 INVARIANT_EVERY_S = 0.1      # the invariant is evaluated on the block that completes this much data since the last
 INVARIANT_WARN = 1e-6        # relative invariant residual above which the block rows do not fit the controller

@@ -25,7 +25,7 @@ if TYPE_CHECKING:   # annotations only: the host's (rclpy's) and the pipeline's 
     from rclpy.impl.rcutils_logger import RcutilsLogger
 
     from ..config import MonitorConfig
-    from ..core.pipeline import MonitorPipeline, Report
+    from ..core.monitor.pipeline import MonitorPipeline, Report
     from .input_stage import InputStage
 
 MODES_QUEUE = 10_000        # ~/modes messages the publisher may fall behind before the oldest are coalesced (counted)

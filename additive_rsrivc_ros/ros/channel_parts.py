@@ -14,7 +14,7 @@ from collections.abc import Callable, Mapping
 from typing import Any
 
 from ..config import MonitorConfig, Param
-from ..core.pipeline import MonitorPipeline
+from ..core.monitor.pipeline import MonitorPipeline
 from .channel import ChannelContext, ChannelCore, ChannelSettings, ChannelStats, Outbox
 from .inputs import Inputs, signal_names
 from .params import RuntimeChanges

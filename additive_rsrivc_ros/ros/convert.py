@@ -14,7 +14,7 @@ from std_msgs.msg import Float64MultiArray, MultiArrayDimension
 
 from ..config import Param
 from ..core.vocabulary import BASELINE_FIELDS, FLAG_FIELDS, MODE_FIELDS, MODE_KEYS, num  # noqa: F401 (cv.* in ros/)
-from ..status import StatusRecord
+from ..outputs.status import StatusRecord
 from .blocks import BLOCK_COLUMNS, block_rows  # noqa: F401 (cv.block_rows; ROS-free, offline too)
 
 PARAM_TYPE = {

@@ -30,7 +30,7 @@ from std_msgs.msg import Float64MultiArray
 
 from .. import joint_params as jp
 from ..config import MonitorConfig, ParamError, all_params, param_table
-from ..core.pipeline import PipelineError
+from ..core.monitor.pipeline import PipelineError
 from ..warmup import is_warm, load_kernels
 from . import convert as cv
 from . import joint_cdr

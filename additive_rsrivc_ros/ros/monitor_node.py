@@ -26,7 +26,7 @@ from std_msgs.msg import Float64MultiArray
 from std_srvs.srv import Trigger
 
 from ..config import DEFAULT_NODE_NAME, ParamError, param_table
-from ..core.pipeline import MonitorPipeline, PipelineError
+from ..core.monitor.pipeline import MonitorPipeline, PipelineError
 from ..signal_stop import StopFlag
 from ..warmup import is_warm, load_kernels
 from .channel import Activity, ChannelContext

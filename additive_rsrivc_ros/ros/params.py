@@ -18,8 +18,8 @@ from rclpy.node import Node
 from rclpy.parameter import Parameter
 
 from ..config import MonitorConfig, Param, ParamError, all_params, validate_params
-from ..core.faults import FaultSettings
-from ..core.pipeline import PipelineError
+from ..core.diagnosis.faults import FaultSettings
+from ..core.monitor.pipeline import PipelineError
 from . import convert as cv
 from . import sync as input_sync
 from .channel import ChannelContext, ChannelCore, ChannelSettings

@@ -23,10 +23,10 @@ from typing import TYPE_CHECKING, Any
 import numpy as np
 from diagnostic_msgs.msg import DiagnosticArray
 
-from ..core.faults import Level
-from ..core.pipeline import Report
-from ..core.report_assembly import fault_fields
-from ..status import Finding, StatusRecord, estimator_summary, mode_summary
+from ..core.diagnosis.faults import Level
+from ..core.monitor.pipeline import Report
+from ..core.monitor.report_assembly import fault_fields
+from ..outputs.status import Finding, StatusRecord, estimator_summary, mode_summary
 from . import convert as cv
 from .channel import MODES_QUEUE, ChannelContext, ChannelCore, ChannelSettings, ChannelStats, Outbox, RingStats
 from .input_stage import InputStage
@@ -40,7 +40,7 @@ QUANTITIES = ("natural_frequency", "damping", "gain")   # the fault flags' quant
 
 
 def alignment_values(al: Mapping[str, Any]) -> dict[str, Any]:
-    """Estimator-status values of the stream aligner (controller invariant; core/alignment.py)."""
+    """Estimator-status values of the stream aligner (controller invariant; core/input/alignment.py)."""
     if al.get("mode") != "invariant":
         return {"alignment": al.get("mode", "off")}
     return {"alignment": "verified" if al.get("verified") else "approximate",
@@ -53,7 +53,7 @@ def alignment_values(al: Mapping[str, Any]) -> dict[str, Any]:
 
 def mode_message(rep: Report, i: int) -> str:
     """``fault: natural_frequency down, ...`` for a mode with fault flags, ``blind: <why>`` for a mode whose tests
-    are held (its decision state, core/decision.py), else the pipeline's phase."""
+    are held (its decision state, core/diagnosis/decision.py), else the pipeline's phase."""
     faults = [f"{QUANTITIES[j]} {rep.directions[i][j]}".strip() for j in range(3) if rep.flags[i, j]]
     if faults:
         return "fault: " + ", ".join(faults)
@@ -209,7 +209,7 @@ class Publisher:
             if rep is not None and rep.K == n_modes:
                 md = rep.mode_dict(i)
                 vals.update({k: md[k] for k in (*cv.BASELINE_FIELDS, *cv.FLAG_FIELDS)})
-                if i < len(rep.decisions):      # the mode's decision state and why (core/decision.py)
+                if i < len(rep.decisions):      # the mode's decision state and why (core/diagnosis/decision.py)
                     vals.update(decision_state=rep.decisions[i].state.value, decision_reason=rep.decisions[i].reason)
                 found = Finding(Level(int(rep.mode_levels[i])), mode_message(rep, i))
             level, msg = mode_summary(found, silent=silent_text, estimating=rep is not None and rep.estimating,
@@ -254,7 +254,7 @@ class Publisher:
         sync, pipe = self.core.configured_sync(), self.core.configured_pipeline()
         stats, outbox = self.stats, self.outbox
         sc = sync.counters
-        est = rep.estimator_health if rep is not None else None     # core/estimator.py EstimatorHealth
+        est = rep.estimator_health if rep is not None else None     # core/estimation/estimator.py EstimatorHealth
         cond = [c for c in (est.cond if est is not None else ()) if c is not None]
         rtf = stats.data_s / stats.busy_s if stats.busy_s > 0 else math.nan
         d50, d95, dmax = self._delays()

@@ -16,7 +16,7 @@ import numpy as np
 from std_srvs.srv import Trigger
 
 from ..config import MonitorConfig
-from ..core.pipeline import MonitorPipeline, PipelineError
+from ..core.monitor.pipeline import MonitorPipeline, PipelineError
 from .channel import ChannelContext, ChannelCore
 
 

@@ -10,8 +10,8 @@ from __future__ import annotations
 import numpy as np
 
 from ..core.controller import DiscreteController
+from ..core.estimation.recursive import RecursiveAdditiveSRIVC
 from ..core.model import SubmodelStructure, second_order_modal, theta_from_modal
-from ..core.recursive import RecursiveAdditiveSRIVC
 from .plants import BEAM_MODES, PAPER_MODES, PAPER_PID, beam_controller
 from .simulate import ModalChange, PlantMode, SimulationResult, simulate_modes, square_wave, time_vector, white_noise
 
@@ -117,7 +117,8 @@ def run_beam(seed: int, *, duration: float = 130.0, change_start: float = 40.0, 
 
 
 #: A 4 kHz closed loop with a close pair of modes (62 / 71 Hz): the non-stationary record of ``rsrivc_identify``'s
-#: stationarity test (``core/stationarity.py``). PI controller (kp 0.5, ki 2), input delay 2, 0.5 Hz square-wave
+#: stationarity test (``core/identification/stationarity.py``). PI controller (kp 0.5, ki 2), input delay 2, 0.5 Hz
+# square-wave
 #: setpoint with white dither.
 CLOSE_PAIR_RATE_HZ = 4000.0
 CLOSE_PAIR_MODES = (PlantMode(8.0, 0.05, 1.0), PlantMode(62.0, 0.02, 0.1), PlantMode(71.0, 0.02, 0.08))

@@ -91,7 +91,7 @@ def write_recording(path: str | Path, index: int, *, drift_per_recording: float 
                     duration_s: float = 10.0, seed: int = 0, interval_s: float = 86400.0, spread: float = 0.0,
                     machine: Machine = DEFAULT_MACHINE) -> Path:
     """Simulate recording ``index`` of the machine and write it as an MCAP rosbag2 with its truth topics."""
-    from ..bagio import write_bag
+    from ..io.bagio import write_bag
     from .simulate import PlantMode, multisine, simulate_modes, time_vector, white_noise
 
     rng = np.random.default_rng([int(seed), int(index)])

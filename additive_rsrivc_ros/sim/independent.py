@@ -1,5 +1,6 @@
 """An independent simulator for validating the offline estimators: ZOH-exact plant via scipy.signal.cont2discrete
-(independent of core/filters.py and core/plant.py) in an explicit causal closed loop, the [A-SRIVC] §5.2 reference
+(independent of core/estimation/filters.py and core/plant.py) in an explicit causal closed loop, the [A-SRIVC] §5.2
+reference
 figures and the asymptotic covariance of the experiment. Used by test/test_offline*.py and scripts/validate_offline.py,
 never by the product; and ``simulate_modal``, a plain reference plant for the recursive engine's tests (modes
 ``b0/(a2 p^2 + a1 p + 1)`` or a rigid body ``b0/p^l`` in physical coordinates, ZOH input, optional input delay and
@@ -11,9 +12,9 @@ import numpy as np
 from numba import njit
 from scipy import signal
 
-from ..core.compiled import ensure_jit
+from ..core.estimation.compiled import ensure_jit
+from ..core.estimation.zoh import integrator_chain_zoh, second_order_zoh
 from ..core.model import SubmodelStructure, total_transfer_function
-from ..core.zoh import integrator_chain_zoh, second_order_zoh
 from .plants import CL52_THETAS, PAPER_PID, PAPER_PID_DEN, PAPER_PID_NUM
 from .plants import PAPER_THETAS as PAPER5_THETAS
 

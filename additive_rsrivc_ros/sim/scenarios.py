@@ -82,7 +82,7 @@ class ScenarioData:
 
     def write_bag(self, path: str | Path, storage: str = "mcap", truth_rate_hz: float = 10.0) -> Path:
         """Write the scenario as a rosbag2 (bagio.write_bag) with its truth topics."""
-        from ..bagio import write_bag
+        from ..io.bagio import write_bag
 
         custom = {"additive_rsrivc.scenario": self.name, "additive_rsrivc.seed": str(self.seed),
                   "additive_rsrivc.params_file": self.config_path.name,

@@ -16,7 +16,7 @@ from decimal import Decimal as Dec
 
 import numpy as np
 
-from ..core.zoh import second_order_zoh
+from ..core.estimation.zoh import second_order_zoh
 
 PREC = 90
 

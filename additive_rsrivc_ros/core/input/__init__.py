@@ -1,0 +1,1 @@
+"""What the data are before the estimator sees them: stamps, values, gaps, stuck sensors, stream alignment."""

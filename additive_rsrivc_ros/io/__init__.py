@@ -1,0 +1,1 @@
+"""Records in and out: rosbag2 reading and writing, block-topic bags, time ranges."""

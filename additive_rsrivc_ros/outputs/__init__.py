@@ -1,0 +1,1 @@
+"""What users read: reports, figures, verdicts, fleet reports and the status text."""
