@@ -74,9 +74,7 @@ class JointConfirmation:
         not. A natural frequency under stress keeps the recursion's faster confirmation, unless another mode's fault
         was confirmed in the same stress episode: the recursion's split between the modes is then re-converging
         too, and a second mode's deviation needs the joint fit's support."""
-        if self.armed_modes[i] or self.reference_pending or self.coupled_pending[i]:
-            return True
-        if self._second_quantity(i, q) or (q > 0 and self.peak_pending[i]):
+        if self.armed_modes[i] or self.reference_pending or self._split_open(i, q):
             return True
         since = self.stress.anomaly_since
         if since is None or self.reference is None or not self.reference.converged:
@@ -129,6 +127,17 @@ class JointConfirmation:
         return np.array([any(tst.state == "suspect" and self._second_quantity(i, q) for q, tst in enumerate(row))
                          for i, row in enumerate(self.tests)], dtype=bool)
 
+    def _split_open(self, i: int, q: int) -> bool:
+        """The recursion's split is open for (mode ``i``, quantity ``q``) whatever the excitation: the mode deviates
+        beside a coupled mode, its damping and gain deviate together, or another of its quantities is at fault."""
+        return bool(self.coupled_pending[i]) or (q > 0 and bool(self.peak_pending[i])) or self._second_quantity(i, q)
+
+    def _beyond_armed(self) -> bool:
+        """A joint check is needed beyond the armed modes and the stress: a split is open somewhere, or a joint
+        event is open (the checks hold and clear it)."""
+        return bool(self.coupled_pending.any() or self.peak_pending.any() or self._second_pending().any()) or \
+            self._joint_events_open()
+
     def _joint_events_open(self) -> bool:
         return any(tst.state == "fault" and tst.by_joint for row in self.tests for tst in row)
 
@@ -164,8 +173,7 @@ class JointConfirmation:
         """Whether a joint check is due: every half memory while a test deviates or a joint event is open, else every
         two memory lengths."""
         needed = self.armed or (self.stress.anomaly_since is not None and self.reference is not None) or \
-            bool(self.coupled_pending.any() or self.peak_pending.any()) or self._joint_events_open() or \
-            bool(self._second_pending().any())
+            self._beyond_armed()
         if not needed or self.phases.phase != "monitoring":
             return False
         busy = any(tst.state != "ok" for row in self.tests for tst in row) or bool(np.any(self.streak))
@@ -177,9 +185,7 @@ class JointConfirmation:
         two no longer support. An unconverged fit judges nothing (streaks and events are kept)."""
         out = FaultUpdate()
         self.latest = verdict
-        needed = self.armed or self.stress.anomaly_since is not None or \
-            bool(self.coupled_pending.any() or self.peak_pending.any()) or self._joint_events_open() or \
-            bool(self._second_pending().any())
+        needed = self.armed or self.stress.anomaly_since is not None or self._beyond_armed()
         if not (needed and verdict.converged) or self.phases.baseline is None or held:
             return out
         if self.reference_pending:
@@ -213,8 +219,7 @@ class JointConfirmation:
             return
         if test.state == "fault" or abs(self.streak[i, q]) < 2 or not self.setup.applicable(i, q) \
                 or not (self.armed_modes[i] or self.stress.anomaly_since is not None
-                        or self.coupled_pending[i] or self._second_quantity(i, q)
-                        or (q > 0 and self.peak_pending[i])):   # the recursion alone decides
+                        or self._split_open(i, q)):   # the recursion alone decides
             return
         ref_value, ref_std = self.basis()
         sigma = math.hypot(float(verdict.std[i, q]), float(ref_std[i, q]))
