@@ -62,6 +62,11 @@ class JointConfirmation:
         return bool(self.armed_modes.any())
 
     @property
+    def reference_identified(self) -> bool:
+        """The joint fit of the baseline converged: the data identify the joint model, and its coupling is known."""
+        return self.reference is not None and self.reference.converged
+
+    @property
     def reference_pending(self) -> bool:
         """The joint fit of the baseline did not converge: the data do not identify the joint model (yet)."""
         return self.reference is not None and not self.reference.converged
@@ -89,38 +94,35 @@ class JointConfirmation:
                 if tst.state == "suspect" and (self.stress.several_modes or self.needed(i, q))
                 and self.streak[i, q] == 0]
 
-    def judge_coupled(self, deviating: np.ndarray) -> np.ndarray:
+    def judge_coupled(self, deviating: np.ndarray) -> None:
         """Mark the modes whose deviation coexists with one of a coupled mode (``deviating``, (K,) bool: a relevant
         deviation or an open event). Coupling is the reference fit's (|correlation| of two modes' quantities at
         least :data:`.joint_check.COUPLING`): overlapping resonances share the data, and after a change of one the
         recursion moves the other until its split re-converges (a damping change of one mode read as a frequency
-        change of its neighbour), where a joint fit of the window after the change does not. Returns the marks."""
+        change of its neighbour), where a joint fit of the window after the change does not."""
         ref = self.reference
         self.coupled_pending[:] = False
-        if ref is None or not ref.converged or ref.coupling is None:
-            return self.coupled_pending
+        if ref is None or not self.reference_identified or ref.coupling is None:
+            return
         coupled = np.asarray(ref.coupling, float) >= COUPLING
         np.fill_diagonal(coupled, False)
         dev = np.asarray(deviating, bool)
         self.coupled_pending[:] = dev & np.any(coupled[:, dev], axis=1)
-        return self.coupled_pending
 
     def judge_peaks(self, relevant: np.ndarray) -> None:
         """Mark the modes whose damping and gain deviate together (``relevant``: (K, 3) bool, relevant deviations):
         the resonance peak ``b0/(2 zeta)`` moved, and while the recursion re-converges it splits that move between
         the two (a gain drop read as a damping rise); with an identified reference, only a joint fit of the data
         after the change says which of them changed."""
-        ref = self.reference
         rel = np.asarray(relevant, bool)
-        self.peak_pending[:] = (ref is not None and ref.converged) & rel[:, 1] & rel[:, 2]
+        self.peak_pending[:] = self.reference_identified & rel[:, 1] & rel[:, 2]
 
     def _second_quantity(self, i: int, q: int) -> bool:
         """(mode ``i``, quantity ``q``) deviates beside a fault of another quantity of the same mode: the recursion's
         split between the mode's quantities re-converges after the change (a gain drop read as a damping rise: the
         resonance peak ``b0/(2 zeta)`` moves first), so only a joint fit of the data after it can name a second one."""
-        ref = self.reference
-        return ref is not None and ref.converged and any(e.mode == i + 1 and e.quantity != QUANTITIES[q]
-                                                         for e in self.tests.open_events)
+        return self.reference_identified and any(e.mode == i + 1 and e.quantity != QUANTITIES[q]
+                                                 for e in self.tests.open_events)
 
     def _second_pending(self) -> np.ndarray:
         """(K,) bool: modes with a suspected deviation beside a fault of another of their quantities."""
