@@ -33,7 +33,6 @@ class PipelineHost(Protocol):
     settings: FaultSettings
     counters: Counters
     health: HealthMonitor
-    notices: list[str]
     order_check: ModelOrderCheck
     search: ModeSearch | None
     est: RecursiveEstimator | None
@@ -42,6 +41,9 @@ class PipelineHost(Protocol):
     model_max_pole: float
     marked_gaps: int
     memory_s: np.ndarray
+
+    @property
+    def notices(self) -> list[str]: ...
 
     @property
     def estimator(self) -> RecursiveEstimator: ...

@@ -8,9 +8,10 @@ The one object the node, ``rsrivc_diagnose`` and ``rsrivc_fleet`` drive: 0. **Al
 1b. **Automatic start** without guesses (:mod:`.autostart`): reports have K = 0 until modes are found.
 2. **Start** (:mod:`.model_start`): initialization on ``init_duration_s`` ([A-SRIVC] eq. 29), then recursion; a
    model is published only if it is finite and ``C_d`` stabilizes it (checked at every report), else NaN.
-3. **Diagnosis** at ``publish_rate_hz``: health, baseline and tests (:mod:`.faults`), each mode's decision state
-   (:mod:`.decision`) in a :class:`.report_record.Report` (health: :mod:`.report_assembly`).
-Reports give ``time_s`` since the first sample ever pushed (kept across :meth:`get_state`/:meth:`set_state`).
+3. **Diagnosis** at ``publish_rate_hz`` (:mod:`.reporter`): health, baseline and tests (:mod:`.faults`), each
+   mode's decision state (:mod:`.decision`) in a :class:`.report_record.Report` (health: :mod:`.report_assembly`).
+Runtime changes are checked by :mod:`.param_changes`, saved states by :mod:`.pipeline_state`. Reports give
+``time_s`` since the first sample ever pushed (kept across :meth:`get_state`/:meth:`set_state`).
 """
 
 from __future__ import annotations
@@ -21,24 +22,24 @@ from typing import Any
 
 import numpy as np
 
-from ..diagnosis.faults import FaultEvent, FaultMonitor, FaultSettings, HealthMonitor, HealthStatus, Level
+from ..diagnosis.faults import FaultEvent, FaultMonitor, FaultSettings, HealthMonitor
 from ..diagnosis.joint_check import JointChecker
-from ..estimation.estimator import EstimatorHealth, MonitorSettings, RecursiveEstimator
+from ..estimation.estimator import MonitorSettings, RecursiveEstimator
 from ..identification.adequacy import ModelOrderCheck
-from ..identification.autostart import FoundModes, ModeSearch
+from ..identification.autostart import ModeSearch
 from ..input.alignment import AlignedBlock, InvariantAligner
 from ..input.input_screen import ABSOLUTE_BOUND, InputScreen, MagnitudeGuard, Screened
 from ..params import DEFAULT_MEMORY_S
-from ..vocabulary import plain
-from . import report_assembly
+from . import param_changes
 from .model_start import ModelStart
-from .report_assembly import AlignmentNotes, BlindTime
+from .pipeline_state import STATE_VERSION, restore_target, state_record
+from .report_assembly import AlignmentNotes
 from .report_record import Counters, PipelineError, Report
-from .saved_model import check_model_record, model_record
+from .reporter import Reporter
 
-STATE_VERSION = 1
 FLOAT64_TYPE = "std_msgs/msg/Float64"
-__all__ = ["ABSOLUTE_BOUND", "Counters", "MagnitudeGuard", "MonitorPipeline", "PipelineError", "Report"]
+__all__ = ["ABSOLUTE_BOUND", "STATE_VERSION", "Counters", "MagnitudeGuard", "MonitorPipeline", "PipelineError",
+           "Report"]
 
 
 EstimatorFactory = Callable[[MonitorSettings], RecursiveEstimator]
@@ -89,7 +90,7 @@ class MonitorPipeline:
         of a mode (S7, variable forgetting; never below 50 samples)."""
         return np.minimum(self.memory_s, np.maximum(self.memory_s * faults.memory_scale(), 50.0 / self.rate))
 
-    def _apply_memory(self) -> None:
+    def apply_memory(self) -> None:
         """Give the estimator :meth:`_wanted_memory` when it changed (applied here only)."""
         if self.est is None or self.faults is None:
             return
@@ -164,24 +165,19 @@ class MonitorPipeline:
         self.search = ModeSearch(self.cfg_given) if self.cfg_given.auto_modes else None
         self._set_modes(self.cfg_given)
         self.counters = Counters()
-        self.notices: list[str] = []
         self.screen = InputScreen(self.rate, self.counters)    # stamps, values, gaps, stuck sensor
         self.start = ModelStart(self, self.init_samples)       # initialization and starts from the data
-        self.next_publish = 0.0               # time (since t0) of the next report
         self.initialized = False
-        self._win_n = 0                       # samples / repeated outputs since the last report
-        self._win_rep = 0
-        self.pending_opened: list[FaultEvent] = []
-        self.pending_closed: list[FaultEvent] = []
-        self.last_report: Report | None = None
         self.aligner = _make_aligner(self.cfg)
         self.alignment_notes = AlignmentNotes()
         self.no_model: str | None = None      # why there is no valid model (None: valid, or not tried yet)
         self.model_max_pole = math.nan        # closed-loop spectral radius of the current model with C_d
         self.marked_gaps = 0                  # re-primes the pipeline asked for (others: non-finite filter states)
-        self.blind_time = BlindTime()
         opts = self.cfg_given.estimator
         self.order_check = ModelOrderCheck(self.rate, opts.order_check_memory_lengths, opts.order_check_relevance)
+        self.reporter = Reporter(self, counters=self.counters, screen=self.screen, start=self.start,
+                                 order_check=self.order_check, aligner=self.aligner,
+                                 alignment_notes=self.alignment_notes)
 
     def reset(self) -> None:
         """Start over: new estimator (initialized from the next data), no baseline, counters zeroed; without
@@ -194,8 +190,18 @@ class MonitorPipeline:
             return []
         t = self.rel(self.t_last) if self.t_last is not None else 0.0
         closed = self.faults.rebaseline(t)
-        self.pending_closed += closed
+        self.reporter.pending_closed += closed
         return closed
+
+    @property
+    def notices(self) -> list[str]:
+        """One-line news for the next report (:attr:`.report_record.Report.notices`)."""
+        return self.reporter.notices
+
+    @property
+    def last_report(self) -> Report | None:
+        """The latest report of this run (None before it)."""
+        return self.reporter.last_report
 
     @property
     def phase(self) -> str:
@@ -205,51 +211,28 @@ class MonitorPipeline:
 
     # ------------------------------------------------------------------------------------------- runtime params
     def update_params(self, params: Mapping[str, Any]) -> None:
-        """Apply runtime-changeable parameters: ``modes.memory_s``, ``publish_rate_hz``, ``faults.*``.
-
-        Raises :class:`PipelineError` (nothing changed) on a bad value.
+        """Apply runtime-changeable parameters: ``modes.memory_s``, ``publish_rate_hz``, ``faults.*``
+        (:mod:`.param_changes`). Raises :class:`PipelineError` (nothing changed) on a bad value.
         """
         fp = {k: v for k, v in params.items() if k.startswith("faults.")}
         if fp:
-            try:
-                if self.faults is None:       # modes not found yet: the settings the fault monitor will start with
-                    new = FaultSettings.from_params({**self.cfg_given.params, **self._fault_changes, **fp})
-                    new.check(self.cfg_given.mode_count or None)
-                    self.settings = new
-                else:
-                    self.faults.update_settings(fp)
-                    self.settings = self.faults.settings
-            except ValueError as exc:
-                raise PipelineError(str(exc)) from None
+            self.settings = param_changes.fault_settings(fp, self.faults, self.cfg_given, self._fault_changes)
             self._fault_changes.update(fp)
             self.health.settings = self.settings
         if "modes.memory_s" in params and self.K == 0:
-            self._set_memory_param(params["modes.memory_s"])
+            self.cfg_given = self.cfg_given.with_memory(param_changes.given_memories(params["modes.memory_s"],
+                                                                                     self.rate))
+            if self.search is not None:
+                self.search.cfg = self.cfg_given
         elif "modes.memory_s" in params:
-            mem = np.asarray(params["modes.memory_s"], dtype=float).ravel()
-            if mem.size == 1:                 # one value for all modes, as in the params file
-                mem = np.full(self.K, float(mem[0]))
-            if mem.shape != (self.K,) or not np.all(mem * self.rate >= 2.0):
-                raise PipelineError(f"modes.memory_s must list {self.K} memories of at least two samples")
+            mem = param_changes.mode_memories(params["modes.memory_s"], self.K, self.rate)
             self.memory_s = mem
             self.fault_monitor.set_memory(mem)
             self.health.memory_s = mem
             self._est_memory = np.full(self.K, math.nan)
-            self._apply_memory()
+            self.apply_memory()
         if "publish_rate_hz" in params:
-            rate = float(params["publish_rate_hz"])
-            if not (rate > 0 and math.isfinite(rate)):
-                raise PipelineError("publish_rate_hz must be > 0")
-            self.publish_period = 1.0 / rate
-
-    def _set_memory_param(self, value: Any) -> None:
-        """``modes.memory_s`` changed before the modes are known: the memories the found modes will get."""
-        mem = [float(v) for v in np.atleast_1d(np.asarray(value, dtype=float))]
-        if not mem or not all(m * self.rate >= 2.0 for m in mem):
-            raise PipelineError("modes.memory_s must list memories of at least two samples")
-        self.cfg_given = self.cfg_given.with_memory(mem)
-        if self.search is not None:
-            self.search.cfg = self.cfg_given
+            self.publish_period = param_changes.publish_period(params["publish_rate_hz"])
 
     # ------------------------------------------------------------------------------------------- data path
     @property
@@ -376,24 +359,25 @@ class MonitorPipeline:
         """
         assert self.t0 is not None          # set by the first accepted sample, before any is advanced
         while a < b:
-            t_next = self.t0 + self.next_publish
+            t_next = self.t0 + self.reporter.next_publish
             j = a + int(np.searchsorted(scr.t[a:b], t_next, side="left"))
             if feed and not self.initialized:
                 j = min(j, a + (self.mode_search.need() if self.finding_modes else self.start.missing()))
             if j > a:
                 if feed:
                     self._consume(scr.r[a:j], scr.u[a:j], scr.y[a:j], scr.valid[a:j], float(scr.t[j - 1]))
-                    self._win_rep += int(scr.repeated[a:j].sum())   # counted in the report window they belong to
+                    # counted in the report window they belong to
+                    self.reporter.window_repeated += int(scr.repeated[a:j].sum())
                 a = j
                 continue
-            self._report(reports, self.rel(float(scr.t[a])))
+            self.reporter.report(reports, self.rel(float(scr.t[a])), self.publish_period)
 
     def _consume(self, r: np.ndarray, u: np.ndarray, y: np.ndarray, valid: np.ndarray, t_end: float) -> None:
         c = self.counters
         n = u.size
         c.samples_processed += n
         c.samples_skipped += int((~valid).sum())
-        self._win_n += n
+        self.reporter.window_n += n
         if self.finding_modes:
             self.start.search_modes(r, u, y, valid, t_end)
         else:
@@ -418,146 +402,25 @@ class MonitorPipeline:
             return np.full((self.K, 6), np.nan)   # was rejected / diverged): NaN, never the guesses
         return np.asarray(self.estimator.modal(), dtype=float).reshape(self.K, 6)
 
-    def _report(self, reports: list[Report], t_now: float) -> None:
-        """One report at the latest due instant ``<= t_now`` (s since the first sample)."""
-        period = self.publish_period
-        t_rep = self.next_publish
-        if t_now >= t_rep + period:      # a gap swallowed several instants: report only the latest
-            t_rep = t_rep + math.floor((t_now - t_rep) / period) * period
-        self.next_publish = t_rep + period
-        s = self.settings
-        if self._win_n > 0 and self._win_rep > s.health_max_repeated_fraction * self._win_n:
-            self.health.note("repeated_output", t_rep, f"output repeats its previous value in {self._win_rep} of "
-                             f"{self._win_n} samples (dropped or held sensor samples)")
-        self._win_n = self._win_rep = 0
-        modal = self.modal()
-        if self.initialized and self.cfg.closed_loop:    # every report (~0.25 ms for K = 2, delay 4)
-            problem = self.start.model_problem("current model", modal)
-            if problem is not None:
-                self.counters.invalid_models += 1
-                self.counters.reinitializations += 1
-                self.start.no_valid_model(t_rep, problem)
-                modal = self.modal()     # NaN: no model
-        est_health = self.estimator.health if self.initialized else None
-        status = self._health_status(t_rep, modal, est_health)
-        if self.initialized:
-            self._decide(t_rep, modal, status)
-        health = self._health_dict(status, est_health, t_rep)
-        decisions = report_assembly.decisions(self.faults, status, self.initialized, self.K, self.no_model)
-        health["modes"] = [d.to_dict() for d in decisions]
-        self.order_check.apply(health, Level.WARN)
-        health.update(self.counters.to_dict())
-        health["estimator"] = {} if est_health is None else est_health.to_dict()
-        health["stuck"] = self.screen.stuck
-        health["baseline_source"] = None if self.faults is None or self.faults.baseline is None else \
-            self.faults.baseline.source
-        if self.screen.spacing.error:           # the model's time scale contradicts the stamps: no number
-            modal = np.full_like(modal, np.nan)
-        health["time_scale"] = self.screen.spacing.error or None
-        rep = Report(time_s=t_rep, modal=modal, **report_assembly.fault_fields(self.faults),
-                     events_opened=self.pending_opened, events_closed=self.pending_closed, health=health,
-                     phase=self.phase, estimating=self.initialized, notices=self.notices, estimator_health=est_health,
-                     decisions=decisions)
-        reports.append(rep)
-        self.last_report = rep
-        self.pending_opened, self.pending_closed, self.notices = [], [], []
-        if self.initialized and "divergence" in status.values.get("new_issues", []):
-            self.start.reinitialize(t_rep)
-
-    def _health_status(self, t_rep: float, modal: np.ndarray, est_health: EstimatorHealth | None) -> HealthStatus:
-        """The health monitor's status at this report: assessed on the estimate, or what the start is doing."""
-        if est_health is not None:
-            if est_health.hold_remaining > 0:
-                auto = est_health.reprimes > self.marked_gaps
-                self.health.note("repriming", t_rep, "estimator filters re-priming after non-finite filter states"
-                                 if auto else "estimator filters re-priming after a data break")
-            return self.health.assess(t_rep, modal, est_health)
-        if self.finding_modes:
-            self.health.note("initializing", t_rep, self.mode_search.status_line())
-            status = self.health.status(t_rep)
-            if set(status.values["issues"]) <= {"initializing"}:
-                status.level = Level.STALE    # no model yet, nothing wrong: as a status without data
-            return status
-        if self.no_model is not None:
-            self.health.note("no_valid_model", t_rep, self.no_model)
-        self.health.note("initializing", t_rep, f"initializing: collecting {self.cfg.init_duration_s:g} s of "
-                         "valid data for the offline initialization")
-        return self.health.status(t_rep)
-
-    def _decide(self, t_rep: float, modal: np.ndarray, status: HealthStatus) -> None:
-        """The fault tests and the joint check on this report's estimate; the estimator's memory follows them."""
-        upd = self.fault_monitor.update(t_rep, modal, hold=status.hold,
-                                        suspect_since=status.values.get("advisory_since"),
-                                        mode_hold=status.mode_hold(self.K))
-        self.pending_opened += upd.opened
-        self.pending_closed += upd.closed
-        self._apply_memory()
-        joint = None if status.hold else self.joint_checker.step(t_rep, self.faults)
-        if joint is not None:
-            self.pending_opened += joint.opened
-            self.pending_closed += joint.closed
-
-    def _health_dict(self, status: HealthStatus, est_health: EstimatorHealth | None, t_rep: float) -> dict[str, Any]:
-        """The report's health (docs/INTERFACE.md): the status, then what the start, the aligner and the fault
-        monitor add (:mod:`.report_assembly`)."""
-        health = status.to_dict()
-        if self.search is not None:
-            health["autostart"] = self.search.info()
-        report_assembly.anomaly_reason(health, self.faults, self.K, t_rep)
-        self.alignment_notes.to_health(health, self.aligner, t_rep)
-        health["anomaly_since"] = None if self.faults is None else self.faults.anomaly_since
-        health["model_valid"] = self.initialized
-        health["no_model_reason"] = None if self.initialized else (
-            "finding modes (no guesses)" if self.finding_modes else (self.no_model or "not initialized yet"))
-        health["closed_loop_max_pole"] = self.model_max_pole if self.initialized else math.nan
-        if self.faults is None:
-            health["blind_since"], health["baseline_trusted"], health["baseline_note"] = None, False, ""
-            return health
-        self.blind_time.to_health(health, self.faults, self.initialized, status.hold, t_rep)
-        report_assembly.identifiability_health(health, self.faults, self.cfg.structures)
-        report_assembly.baseline_health(health, self.faults)
-        return health
-
     # ------------------------------------------------------------------------------------------- state
     def get_state(self) -> dict[str, Any]:
-        """Estimator, baseline, fault tests, health and clock as JSON-serializable data.
+        """Estimator, baseline, fault tests, health and clock as JSON-serializable data (:mod:`.pipeline_state`).
 
         A partially filled initialization buffer (or search window) is not saved (initialization restarts on new
         data); a restored running estimator re-primes on the first samples (they follow a gap). Modes found by the
         automatic start are saved (``found_modes``) and restored into a pipeline configured without guesses.
         """
-        est = None
-        if self.initialized:
-            est = {k: plain(v) for k, v in self.estimator.get_state().items()}
-        found = self.search.found if self.search is not None else None
-        scr = self.screen.get_state()
-        return {
-            "version": STATE_VERSION, "K": self.K, "loop_rate_hz": self.rate,
-            "model": model_record(self.cfg, self.rate),
-            "estimator": est, "found_modes": None if found is None else found.to_dict(),
-            "faults": None if self.faults is None else self.faults.get_state(), "health": self.health.get_state(),
-            "pipeline": {"t0": scr["t0"], "t_last": scr["t_last"], "next_publish": self.next_publish,
-                         "counters": self.counters.to_dict(), "memory_s": self.memory_s.tolist(),
-                         **{k: scr[k] for k in ("stuck", "last_y", "run_len", "run_start_t", "t_stamp_last",
-                                                "clock_offset")},
-                         "aligner": None if self.aligner is None else self.aligner.get_state(),
-                         "magnitude": scr["magnitude"], "no_model": self.no_model},
-        }
+        return state_record(cfg=self.cfg, rate=self.rate, estimator=self.estimator if self.initialized else None,
+                            found=self.search.found if self.search is not None else None, faults=self.faults,
+                            health=self.health, screen=self.screen, next_publish=self.reporter.next_publish,
+                            counters=self.counters, memory_s=self.memory_s, aligner=self.aligner,
+                            no_model=self.no_model)
 
     def set_state(self, state: Mapping[str, Any]) -> None:
         """Restore :meth:`get_state` output (same K, rate, controller, input delay, loop and mode structures);
         raises :class:`PipelineError` with a one-line reason otherwise (never a silent restore)."""
         try:
-            if int(state["version"]) != STATE_VERSION:
-                raise PipelineError(f"saved state version {state['version']} is not {STATE_VERSION}")
-            found = FoundModes.from_dict(state["found_modes"]) if state.get("found_modes") else None
-            target = self.cfg_given   # modes found by an earlier run's automatic start count as guesses
-            if found is not None and self.cfg_given.auto_modes:
-                target = self.cfg_given.with_modes(found.modal, found.integrators)
-            if int(state["K"]) != target.K or float(state["loop_rate_hz"]) != self.rate:
-                raise PipelineError(f"saved state is for K={state['K']} at {state['loop_rate_hz']} Hz, the "
-                                    f"configuration has K={target.K or 'from the data'} at {self.rate} Hz")
-            check_model_record(state.get("model"), model_record(target, self.rate))
+            found, target = restore_target(state, self.cfg_given, self.rate)
             p = state["pipeline"]
             self._new_run()
             if target is not self.cfg_given:
@@ -575,7 +438,7 @@ class MonitorPipeline:
                 # the estimator's saved forgetting already holds a shortened memory (S7): only record it
                 self._est_memory = self._wanted_memory(self.faults)
             self.health.set_state(state["health"])
-            self.next_publish = float(p["next_publish"])
+            self.reporter.next_publish = float(p["next_publish"])
             vars(self.counters).update(vars(Counters(**p["counters"])))    # the screen counts into the same object
             self.screen.set_state(p)
             if self.aligner is not None and p.get("aligner") is not None:
