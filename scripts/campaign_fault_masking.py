@@ -14,8 +14,9 @@ dropped and restored from its state, 1 s of data lost) | ``weak_mode`` (the plan
 and weakly excited, from the start).
 
 Invariant per run (the monitor's promise): no event on a quantity that did not change, and the change flagged on
-the right mode, quantity and direction within ``--bound`` memory lengths after max(change, end of the problem); or
-the verdict is not OK and the changed mode's blind time (global or its own) covers part of that interval.
+the right mode, quantity and direction within ``--bound`` memory lengths of testable time after max(change, end of
+the problem) (time the verdict lists as blind for that mode, e.g. a re-initialization, does not count); or the
+verdict is not OK and the changed mode's blind time (global or its own) covers part of that interval.
 
 Prints one row per run, the violations with their reason, the detection delays in memory lengths (median, worst
 five) and the counts. Usage::
@@ -166,6 +167,17 @@ def monitor(run: Run, cfg: MonitorConfig, t, r, u, y) -> list:
     return reps + pipe.flush()
 
 
+def _covered_s(intervals: list, a: float, b: float) -> float:
+    """Seconds of ``[a, b]`` covered by the union of ``intervals`` (each with ``start_s``, ``end_s``)."""
+    spans = sorted((max(i.start_s, a), min(i.end_s, b)) for i in intervals if i.end_s > a and i.start_s < b)
+    total, end = 0.0, a
+    for lo, hi in spans:
+        lo = max(lo, end)
+        if hi > lo:
+            total, end = total + hi - lo, hi
+    return total
+
+
 def judge(run: Run, reps: list, bound: float) -> tuple[str, float | None, str]:
     """(result, delay in memory lengths, why): result ``ok``, ``blind`` (not detected, honestly not OK) or
     ``VIOLATION``."""
@@ -176,18 +188,24 @@ def judge(run: Run, reps: list, bound: float) -> tuple[str, float | None, str]:
         e = wrong[0]
         return "VIOLATION", None, f"event on mode {e.mode} {e.quantity} {e.direction} at {e.alarm_time_s:.1f} s"
     hits = [e for e in events if e.direction == right_dir]
+    verdict = assess(reps, run.duration)
+    mode_blind = verdict.mode_blind.get(run.change.mode + 1, [])
+    blind = [b for b in [*verdict.blind_intervals, *mode_blind] if not b.startup]
     if hits:
         delay = (hits[0].alarm_time_s - run.t_ref) / run.memory_s
         if delay <= bound:
             return "ok", delay, ""
-        return "VIOLATION", delay, f"late: {delay:.1f} memory lengths"
+        # the bound counts testable time: the verdict lists the changed mode's blind time (e.g. a re-initialization
+        # after the change made the model invalid) and the alarm came within the bound of the time it was tested
+        held = _covered_s(blind, run.t_ref, hits[0].alarm_time_s) / run.memory_s
+        if delay - held <= bound:
+            why = max(blind, key=lambda b: _covered_s([b], run.t_ref, hits[0].alarm_time_s)).reason
+            return "ok", delay, f"{held:.1f} memory lengths of it blind ({why[:60]})"
+        return "VIOLATION", delay, f"late: {delay:.1f} memory lengths ({held:.1f} of them blind)"
     if [e for e in events if e.direction != right_dir]:
         return "VIOLATION", None, "event in the wrong direction"
-    verdict = assess(reps, run.duration)
     window = (run.t_ref, run.t_ref + bound * run.memory_s)
-    mode_blind = verdict.mode_blind.get(run.change.mode + 1, [])
-    covered = [b for b in [*verdict.blind_intervals, *mode_blind] if not b.startup and b.start_s < window[1]
-               and b.end_s > window[0]]
+    covered = [b for b in blind if b.start_s < window[1] and b.end_s > window[0]]
     if verdict.level != "OK" and covered:
         return "blind", None, f"{verdict.level}: {covered[0].reason[:80]}"
     return "VIOLATION", None, f"missed; verdict {verdict.level}: {verdict.text[:120]}"

@@ -155,21 +155,18 @@ class FaultMonitor:
 
     def update(self, t: float, modal: np.ndarray, *, hold: bool = False,
                suspect_since: float | None = None, mode_hold: Sequence[bool] | np.ndarray | None = None,
-               ) -> FaultUpdate:
+               model_flagged: bool = False) -> FaultUpdate:
         """Process one modal estimate (K, 6) at time ``t`` (s); see the class docstring.
 
-        ``suspect_since`` (S5, advisory health issues such as a residual-variance jump): the estimator has
-        been under stress since that time; a fault is then confirmed only if its deviation began no later than
-        two memory lengths after it (five for a natural frequency, measured from the deviation's onset: its
-        estimate can stay in a broadened fit for a while before it travels) -- the stress is explained by that
-        structural change -- and it is the mode's leading deviation: the natural frequency when it is relevant
-        (a frequency shift makes damping and gain swing while the estimate re-converges, not the converse),
-        else the most significant (largest ``|z|``); other tests stay at WARN. This isolation is bounded
-        (:meth:`restricted_until`): after it every persistent deviation is judged against the baseline again. At all
-        times damping and gain are confirmed only once they and the mode's frequency hold still (``moving``).
+        ``suspect_since`` (S5, advisory issues such as a residual-variance jump): under stress since then, a fault is
+        confirmed only if it is the mode's leading deviation (its natural frequency when relevant, else the largest
+        ``|z|``) and began within two memory lengths of the stress (five for a frequency, from its onset); several
+        modes that deviate or travel at once confirm nothing by themselves. The isolation is bounded
+        (:meth:`restricted_until`). Damping and gain are confirmed only once they and the frequency hold still.
 
-        ``mode_hold`` (K,) bool: holds scoped to single modes (:mod:`.decision`): a held mode's tests are reset and
-        do not step (an open event stays open); the other modes are judged on their own.
+        ``mode_hold`` (K,) bool: holds scoped to single modes (:mod:`.decision`): a held mode's tests are reset
+        (an open event stays open); the others are judged on their own. ``model_flagged``: the model-order check
+        flags the model; every deviation then needs the joint check's support (S6).
         """
         out = FaultUpdate()
         modal = np.asarray(modal, dtype=float)
@@ -178,6 +175,7 @@ class FaultMonitor:
         dt = 0.0 if math.isnan(self.t_last) else max(t - self.t_last, 0.0)
         self.t_last = t
         self.last_modal = modal.copy()
+        self.joint_confirmation.model_flagged = bool(model_flagged)
         finite = bool(np.all(np.isfinite(modal[:, :3])))
         self.held = hold or not finite
         if self.phases.step(t, modal, self.held, suspect_since, out):
@@ -189,14 +187,17 @@ class FaultMonitor:
         stress_since = self.stress.follow(t, suspect_since, self.phases.t_phase)
         held_mode = np.zeros(self.K, dtype=bool) if mode_hold is None else np.asarray(mode_hold, dtype=bool)
         deviating = np.any(relevant & (score >= 0), axis=1) & ~held_mode
-        self.stress.judge_modes(deviating, self.open_events)
+        memory_now = [self.effective_memory_s(i) for i in range(self.K)]
+        moving = self.recent.moving(t, modal, rho, memory_now)
+        # under stress a mode whose estimate still travels takes part in the change as much as one that deviates
+        # already: a lightly damped mode's frequency crosses its relevance long after a broad neighbour's
+        self.stress.judge_modes(t, deviating | (np.any(moving, axis=1) & ~held_mode), self.open_events)
+        self.joint_confirmation.forget_refusals()
         open_modes = np.zeros(self.K, dtype=bool)
         open_modes[[e.mode - 1 for e in self.open_events]] = True
         self.joint_confirmation.judge_coupled(deviating | (open_modes & ~held_mode))
         self.joint_confirmation.judge_peaks(relevant & (score >= 0) & ~held_mode[:, None])
         lead = self._leads(score)
-        memory_now = [self.effective_memory_s(i) for i in range(self.K)]
-        moving = self.recent.moving(t, modal, rho, memory_now)
         arriving = self.recent.moving(t, modal, rho, memory_now, lookback=0.5)
         for i in range(self.K):
             w = min(1.0, dt / (2.0 * self.effective_memory_s(i)))   # S1: weight per independent sample
@@ -278,8 +279,8 @@ class FaultMonitor:
 
     def _confirm_before(self, i: int, q: int, travelling: bool, stress_since: float | None, lead: int) -> float:
         """Latest onset of a deviation of (mode ``i``, quantity ``q``) that may still be confirmed (S4-S6)."""
-        if self.joint_needed(i, q) and self.joint_streak[i, q] == 0:
-            return -math.inf        # S6: the data do not support this deviation jointly
+        if self.model_flagged or (self.joint_needed(i, q) and self.joint_streak[i, q] == 0):
+            return -math.inf        # S6: a flagged model names nothing; the data do not support this deviation jointly
         if q > 0 and travelling:
             # damping and gain are confirmed once they, and the mode's frequency, hold still: while the
             # frequency travels they swing with it, and a swing is not a new level
@@ -399,6 +400,11 @@ class FaultMonitor:
         does not support (yet): the mode's test cannot conclude, so the decision shows the mode blind, never OK."""
         return self.joint_confirmation.awaiting()
 
+    @property
+    def model_flagged(self) -> bool:
+        """The model-order check flags the model: no deviation is confirmed (S6)."""
+        return self.joint_confirmation.model_flagged
+
     def joint_needed(self, i: int, q: int) -> bool:
         """A deviation of (mode ``i``, quantity ``q``) is confirmed only with the joint check's support (S6)."""
         return self.joint_confirmation.needed(i, q)
@@ -430,7 +436,7 @@ class FaultMonitor:
                 "baseline": None if ph.baseline is None else ph.baseline.to_dict(),
                 "learner": ph.learner.to_dict(), "tests": self.mode_tests.to_dicts(),
                 "history": self.recent.to_list(), "settle_forced": ph.settle_forced,
-                "anomaly_since": self.stress.anomaly_since,
+                "anomaly_since": self.stress.anomaly_since, "several_since": self.stress.several_since,
                 "break_t": ph.break_t, "events": [e.to_dict() for e in self.events],
                 **self.joint_confirmation.to_dict(), **self.fast.to_dict()}
 
@@ -440,7 +446,7 @@ class FaultMonitor:
             raise FaultConfigError(f"saved fault state has {state.get('K')} modes, configuration has {self.K}")
         self.t_last = float(state["t_last"])
         self.phases.load(state)
-        self.stress.load(state.get("anomaly_since"))
+        self.stress.load(state.get("anomaly_since"), state.get("several_since"))
         self.mode_tests.load(state["tests"], state["events"])
         self.joint_confirmation.load(state)
         self.fast.load(state)

@@ -47,6 +47,11 @@ class JointConfirmation:
         self.coupled_pending = np.zeros(setup.K, dtype=bool)
         # per mode: its damping and gain deviate together (the resonance peak moved; recomputed every update)
         self.peak_pending = np.zeros(setup.K, dtype=bool)
+        # the model-order check flags the model (a wrong optimum or too few modes; set every update)
+        self.model_flagged = False
+        # per mode and quantity: a joint check did not support the deviation under test; until that deviation ends
+        # only the joint check confirms it (a held timer does not overrule a fit of the data)
+        self.refused = np.zeros((setup.K, 3), dtype=bool)
 
     def reset(self) -> None:
         """Unarmed, no reference, no streak (a new baseline)."""
@@ -55,6 +60,7 @@ class JointConfirmation:
         self.streak[:] = 0
         self.coupled_pending[:] = False
         self.peak_pending[:] = False
+        self.refused[:] = False
 
     @property
     def armed(self) -> bool:
@@ -92,7 +98,7 @@ class JointConfirmation:
         does not support (yet)."""
         return [(i, q, tst.since) for i, row in enumerate(self.tests) for q, tst in enumerate(row)
                 if tst.state == "suspect" and (self.stress.several_modes or self.needed(i, q))
-                and self.streak[i, q] == 0]
+                and (self.model_flagged or self.streak[i, q] == 0)]
 
     def judge_coupled(self, deviating: np.ndarray) -> None:
         """Mark the modes whose deviation coexists with one of a coupled mode (``deviating``, (K,) bool: a relevant
@@ -130,15 +136,18 @@ class JointConfirmation:
                          for i, row in enumerate(self.tests)], dtype=bool)
 
     def _split_open(self, i: int, q: int) -> bool:
-        """The recursion's split is open for (mode ``i``, quantity ``q``) whatever the excitation: the mode deviates
-        beside a coupled mode, its damping and gain deviate together, or another of its quantities is at fault."""
-        return bool(self.coupled_pending[i]) or (q > 0 and bool(self.peak_pending[i])) or self._second_quantity(i, q)
+        """The recursion's split is open for (mode ``i``, quantity ``q``) whatever the excitation: a joint check
+        refused this deviation, the model-order check flags the model (a model that misfits the data moves a change
+        of one mode into another: a 51 Hz gain rise read as a 1.7 Hz frequency rise), the mode deviates beside a
+        coupled mode, its damping and gain deviate together, or another of its quantities is at fault."""
+        return (self.model_flagged or bool(self.refused[i, q]) or bool(self.coupled_pending[i])
+                or (q > 0 and bool(self.peak_pending[i])) or self._second_quantity(i, q))
 
     def _beyond_armed(self) -> bool:
         """A joint check is needed beyond the armed modes and the stress: a split is open somewhere, or a joint
         event is open (the checks hold and clear it)."""
-        return bool(self.coupled_pending.any() or self.peak_pending.any() or self._second_pending().any()) or \
-            self._joint_events_open()
+        return bool(self.model_flagged or self.refused.any() or self.coupled_pending.any() or self.peak_pending.any()
+                    or self._second_pending().any()) or self._joint_events_open()
 
     def _joint_events_open(self) -> bool:
         return any(tst.state == "fault" and tst.by_joint for row in self.tests for tst in row)
@@ -207,10 +216,25 @@ class JointConfirmation:
                 return out
         same = (sup != 0) & (np.sign(self.streak) == sup)
         self.streak = np.where(same, self.streak + sup, sup)
+        self._note_refusals(sup)
         for i in range(self.setup.K):
             for q in range(3):
                 self._judge(t, i, q, verdict, out)
         return out
+
+    def _note_refusals(self, support: np.ndarray) -> None:
+        """Mark the deviations under test that needed this converged joint check and that it does not support."""
+        for i, row in enumerate(self.tests):
+            for q, tst in enumerate(row):
+                if tst.state == "suspect" and support[i, q] != tst.direction and self.needed(i, q):
+                    self.refused[i, q] = True
+
+    def forget_refusals(self) -> None:
+        """A refusal lasts while its deviation is under test (it ends when the deviation does)."""
+        for i, row in enumerate(self.tests):
+            for q, tst in enumerate(row):
+                if tst.state != "suspect":
+                    self.refused[i, q] = False
 
     def _judge(self, t: float, i: int, q: int, verdict: JointVerdict, out: FaultUpdate) -> None:
         """Hold or clear the joint event of (mode ``i``, quantity ``q``), or open one its streak supports."""
@@ -218,6 +242,11 @@ class JointConfirmation:
         sup = verdict.supported
         if test.state == "fault" and test.by_joint:
             self._follow_event(t, test, int(sup[i, q]), float(verdict.value[i, q]), out)
+            return
+        if self.model_flagged:
+            # the joint fit has the flagged model's structure: it misfits the data as the recursion does, and its
+            # split between modes and quantities is no evidence either (a damping rise fitted as damping and gain
+            # drops); the deviation stays blind
             return
         if test.state == "fault" or abs(self.streak[i, q]) < 2 or not self.setup.applicable(i, q) \
                 or not (self.armed_modes[i] or self.stress.anomaly_since is not None
@@ -227,6 +256,8 @@ class JointConfirmation:
         sigma = math.hypot(float(verdict.std[i, q]), float(ref_std[i, q]))
         dev = float(verdict.value[i, q] - ref_value[i, q])
         onset = verdict.window_s[0] if math.isnan(test.since) else min(test.since, verdict.window_s[0])
+        if test.state == "suspect" and test.direction == int(sup[i, q]):
+            onset = min(onset, test.onset(test.direction))     # the recursion's estimate of when it began
         ev = test.open_joint(t, onset, int(sup[i, q]), float(ref_value[i, q]), float(verdict.value[i, q]),
                              dev / sigma if sigma > 0 else math.inf)
         out.opened.append(ev)
@@ -252,7 +283,7 @@ class JointConfirmation:
         return {"joint_armed_modes": self.armed_modes.tolist(),
                 "joint": None if self.latest is None else self.latest.to_dict(),
                 "joint_reference": None if self.reference is None else self.reference.to_dict(),
-                "joint_streak": self.streak.tolist()}
+                "joint_streak": self.streak.tolist(), "joint_refused": self.refused.tolist()}
 
     def load(self, state: Mapping[str, Any]) -> None:
         """Restore :meth:`to_dict`'s items of a saved monitor state (a state with one ``joint_armed`` flag arms every
@@ -264,3 +295,4 @@ class JointConfirmation:
         ref = state.get("joint_reference")
         self.reference = None if ref is None else JointVerdict.from_dict(ref)
         self.streak = np.asarray(state.get("joint_streak", np.zeros((K, 3))), dtype=int)
+        self.refused = np.asarray(state.get("joint_refused", np.zeros((K, 3))), dtype=bool).reshape(K, 3)

@@ -180,16 +180,21 @@ class SequentialTest:
         if self.state != "suspect" or cand != self.direction:
             self.state, self.direction, self.since = "suspect", cand, t
         gate_since = self.gate_up_since if cand > 0 else self.gate_down_since
-        zero_t = self.zero_up_t if cand > 0 else self.zero_down_t
-        small_t = self.small_up_t if cand > 0 else self.small_down_t
-        onset = np.nanmax([zero_t, small_t, -np.inf])
-        onset = min(float(onset), self.since) if math.isfinite(onset) else self.since
+        onset = self.onset(cand)
         began = min(onset, gate_since) if self.confirm_by_onset else gate_since
         if t - gate_since >= persist_s and began <= self.confirm_before:
             self.event = FaultEvent(self.mode, self.quantity, self.direction_name, onset, t, b, x, None, z)
             self.state, self.since = "fault", math.nan
             opened = self.event
         return opened, closed
+
+    def onset(self, direction: int) -> float:
+        """The suspected deviation's estimated start (S3): the last time its CUSUM was zero or the deviation small,
+        at the latest the suspect start."""
+        zero_t = self.zero_up_t if direction > 0 else self.zero_down_t
+        small_t = self.small_up_t if direction > 0 else self.small_down_t
+        onset = np.nanmax([zero_t, small_t, -np.inf])
+        return min(float(onset), self.since) if math.isfinite(onset) else self.since
 
     def to_dict(self) -> dict[str, Any]:
         d = asdict(self)

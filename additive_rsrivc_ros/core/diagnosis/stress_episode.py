@@ -24,6 +24,7 @@ class StressEpisode:
         self.setup = setup
         self.anomaly_since: float | None = None   # start of the advisory stress episode, see follow()
         self.several_modes = False                # under stress, several modes deviate at once (see judge_modes)
+        self.several_since: float | None = None   # the episode in which they did
 
     def window_s(self, i: int, q: int) -> float:
         """Length of the isolation window after a stress began: a lightly damped mode's frequency estimate can stay
@@ -50,20 +51,28 @@ class StressEpisode:
             self.anomaly_since = None
         return self.anomaly_since
 
-    def judge_modes(self, deviating: np.ndarray, open_events: Sequence[FaultEvent]) -> bool:
-        """Under stress, relevant deviations of several modes at once (``deviating``, (K,) bool) and no fault of this
-        episode that explains them are no single structural change (a sensor bias or drift refits every mode): the
-        recursion confirms none of them; only the joint check, mode by mode, can. Sets and returns
-        ``several_modes``."""
+    def judge_modes(self, t: float, deviating: np.ndarray, open_events: Sequence[FaultEvent]) -> bool:
+        """Under stress, several modes that deviate or travel at once (``deviating``, (K,) bool) and no fault of this
+        episode that explains them are no single structural change (a sensor bias refits every mode; a broad mode
+        absorbs its lightly damped neighbour's shift before that one's estimate arrives): until the episode's
+        isolation windows have passed (:meth:`restricted_until`) the recursion confirms none of them; only the joint
+        check, mode by mode, can. Sets and returns ``several_modes``."""
         since = self.anomaly_since
-        self.several_modes = bool(since is not None and int(deviating.sum()) >= 2 and not any(
-            e.alarm_time_s >= since for e in open_events))
+        isolating = since is not None and t < max(self.restricted_until(i) or t for i in range(self.setup.K))
+        if not isolating:
+            self.several_since = None
+        elif int(deviating.sum()) >= 2:
+            self.several_since = since
+        self.several_modes = bool(isolating and self.several_since == since and not any(
+            e.alarm_time_s >= (since or 0.0) for e in open_events))
         return self.several_modes
 
     def end(self) -> None:
         """No episode (a new baseline)."""
         self.anomaly_since = None
+        self.several_since = None
 
-    def load(self, anomaly_since: float | None) -> None:
+    def load(self, anomaly_since: float | None, several_since: float | None = None) -> None:
         self.anomaly_since = anomaly_since
+        self.several_since = several_since
 

@@ -542,6 +542,14 @@ class ModelOrderCheck:
     def pending(self) -> bool:
         return self.enabled and self.result is None
 
+    @property
+    def flagged(self) -> bool:
+        """The model is flagged now: by the check, or (until it runs) by the automatic start's check on its own
+        window."""
+        if self.result is not None:
+            return self.result.flagged
+        return self.start_result is not None and self.start_result.flagged
+
     def clear(self) -> None:
         self.blocks, self.n, self.t_start_s = [], 0, math.nan
 

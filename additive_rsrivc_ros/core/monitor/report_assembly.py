@@ -120,9 +120,11 @@ def decisions(faults: FaultMonitor | None, status: HealthStatus, initialized: bo
     holds = list(status.holds)
     if faults.phase == "learning" and not status.hold:
         holds = []          # holds scoped to one mode do not pause the baseline window (its spread shows them)
-    holds += [Hold("joint_check", f"a {QUANTITIES[q].replace('_', ' ')} deviation awaits the joint check's support "
-                   "(the excitation or an abrupt change leaves the recursion's split between quantities open)",
-                   since, math.inf, (i,)) for i, q, since in faults.awaiting_joint()]
+    why = ("cannot be named: the model-order check flags the model, and a model that misfits the data moves a change "
+           "between modes and quantities" if faults.model_flagged else "awaits the joint check's support (the "
+           "excitation or an abrupt change leaves the recursion's split between quantities open)")
+    holds += [Hold("joint_check", f"a {QUANTITIES[q].replace('_', ' ')} deviation {why}", since, math.inf, (i,))
+              for i, q, since in faults.awaiting_joint()]
     restricted = [faults.restricted_until(i) for i in range(K)]
     return decide(faults.phase, initialized, [[tst.state for tst in row] for row in faults.tests],
                   holds, restricted, no_model_reason=no_model or "initializing")

@@ -159,7 +159,7 @@ class Reporter:
         h = self.host
         upd = h.fault_monitor.update(t_rep, modal, hold=status.hold,
                                      suspect_since=status.values.get("advisory_since"),
-                                     mode_hold=status.mode_hold(h.K))
+                                     mode_hold=status.mode_hold(h.K), model_flagged=self.order_check.flagged)
         self.pending_opened += upd.opened
         self.pending_closed += upd.closed
         h.apply_memory()
