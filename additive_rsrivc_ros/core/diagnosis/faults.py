@@ -26,11 +26,12 @@ from ..model import SubmodelStructure
 from ..params import settings_as_params
 from .baseline import Baseline, BaselineLearner
 from .baseline_phases import BaselinePhases
+from .deviations import deviations, leads
 from .estimate_history import EstimateHistory
 from .fast_tracking import FAST_DECAY_TIMES, FastTracking
 from .fault_settings import FaultConfigError, FaultSettings, FaultSetup, Level
 from .health import MODE_SCOPE, HealthMonitor, HealthStatus
-from .joint_check import JointVerdict
+from .joint_check import JointVerdict, applicable_mask
 from .joint_confirmation import JointConfirmation
 from .sequential_test import FaultEvent, FaultUpdate, SequentialTest, SequentialTests, cusum_threshold
 from .stress_episode import StressEpisode
@@ -183,7 +184,8 @@ class FaultMonitor:
         base = self.baseline
         if not self.settings.enabled or base is None:
             return out
-        sigma, rho, relevant, score = self._deviations(modal, base)
+        app = applicable_mask(self.structures)
+        sigma, rho, relevant, score = deviations(modal, base, self.settings, app)
         stress_since = self.stress.follow(t, suspect_since, self.phases.t_phase)
         held_mode = np.zeros(self.K, dtype=bool) if mode_hold is None else np.asarray(mode_hold, dtype=bool)
         deviating = np.any(relevant & (score >= 0), axis=1) & ~held_mode
@@ -197,7 +199,7 @@ class FaultMonitor:
         open_modes[[e.mode - 1 for e in self.open_events]] = True
         self.joint_confirmation.judge_coupled(deviating | (open_modes & ~held_mode))
         self.joint_confirmation.judge_peaks(relevant & (score >= 0) & ~held_mode[:, None])
-        lead = self._leads(score)
+        lead = leads(score, app, np.array([[tst.state == "fault" for tst in row] for row in self.tests]))
         arriving = self.recent.moving(t, modal, rho, memory_now, lookback=0.5)
         for i in range(self.K):
             w = min(1.0, dt / (2.0 * self.effective_memory_s(i)))   # S1: weight per independent sample
@@ -209,42 +211,6 @@ class FaultMonitor:
             travelling = [bool(moving[i, 0] or arriving[i, q]) for q in range(3)]
             self._step_mode(i, t, w, modal, base, sigma[i], rho[i], travelling, stress_since, int(lead[i]), out)
         return out
-
-    def _deviations(self, modal: np.ndarray, base: Baseline) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
-        """(K, 3) each: the deviation's std ``sigma`` (S3), the relevant change ``rho`` (relative), whether the
-        deviation is relevant, and its significance score (``|dev| / sigma`` where relevant and applicable, else
-        -1)."""
-        s = self.settings
-        sx = np.fmax(modal[:, 3:6], base.spread)     # fmax: a NaN std (flagged covariance) falls back to the spread
-        sigma = np.maximum(np.sqrt(sx * sx + base.std ** 2), 1e-9 * np.abs(base.value))
-        with np.errstate(divide="ignore", invalid="ignore"):
-            # relevant change: the user's minimum, and well above the estimate's own healthy fluctuation (a mode
-            # that wanders by 1 % with the operating point must not alarm on a 2 % excursion)
-            rho = np.maximum(np.asarray(s.min_change)[None, :],
-                             s.relevance_spread_factor * base.spread / np.abs(base.value))
-            rho = np.where(np.isfinite(rho), rho, np.asarray(s.min_change)[None, :])
-            dev = modal[:, :3] - base.value
-            relevant = np.abs(dev) >= rho * np.abs(base.value)
-            score = np.where(relevant, np.abs(dev) / sigma, -1.0)
-        score = np.where(np.isfinite(score), score, -1.0)
-        for i in range(self.K):
-            for q in range(3):
-                if not self.applicable(i, q):
-                    score[i, q] = -1.0
-        return sigma, rho, relevant, score
-
-    def _leads(self, score: np.ndarray) -> np.ndarray:
-        """(K,) each mode's leading deviation: its confirmed fault, else a relevant natural-frequency shift (it
-        explains the damping and gain swings of the estimate while it re-converges: a lightly damped mode fitted at
-        the old frequency looks broader; the converse does not hold), else its most significant relevant one."""
-        lead = np.argmax(score, axis=1)
-        for i in range(self.K):
-            if self.applicable(i, 0) and score[i, 0] >= 0:
-                lead[i] = 0
-            faulted = [q for q in range(3) if self.tests[i][q].state == "fault"]
-            if faulted:
-                lead[i] = faulted[0]
-        return lead
 
     def _step_mode(self, i: int, t: float, w: float, modal: np.ndarray, base: Baseline, sigma: np.ndarray,
                    rho: np.ndarray, travelling: list[bool], stress_since: float | None, lead: int,
