@@ -54,3 +54,19 @@ def leads(score: np.ndarray, applicable: np.ndarray, faulted: np.ndarray) -> np.
         if faulted[i].any():
             lead[i] = int(np.argmax(faulted[i]))
     return lead
+
+
+PEAK_Z = 5.0   # a resonance-peak change this many (conservative, uncorrelated) stds from the baseline is significant
+
+
+def peak_moved(modal: np.ndarray, base: Baseline, sigma: np.ndarray, min_change: float,
+               applicable: np.ndarray) -> np.ndarray:
+    """(K,) relative change of each mode's resonance peak ``gain / (2 damping)`` where it is relevant (at least
+    ``min_change``, the gain's) and significant (``PEAK_Z`` stds, gain and damping stds ``sigma`` (K, 3) added in
+    quadrature: their correlation only narrows it), else NaN. The recursion can split a peak change between damping
+    and gain so that neither is relevant on its own (a -21 % gain step read as +18 % damping and -7 % gain)."""
+    with np.errstate(divide="ignore", invalid="ignore"):
+        change = (modal[:, 2] / modal[:, 1]) / (base.value[:, 2] / base.value[:, 1]) - 1.0
+        rel_std = np.hypot(sigma[:, 1] / np.abs(base.value[:, 1]), sigma[:, 2] / np.abs(base.value[:, 2]))
+        moved = applicable[:, 1] & (np.abs(change) >= min_change) & (np.abs(change) >= PEAK_Z * rel_std)
+    return np.where(moved & np.isfinite(change), change, np.nan)

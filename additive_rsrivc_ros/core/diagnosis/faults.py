@@ -26,7 +26,7 @@ from ..model import SubmodelStructure
 from ..params import settings_as_params
 from .baseline import Baseline, BaselineLearner
 from .baseline_phases import BaselinePhases
-from .deviations import deviations, leads
+from .deviations import deviations, leads, peak_moved
 from .estimate_history import EstimateHistory
 from .fast_tracking import FAST_DECAY_TIMES, FastTracking
 from .fault_settings import FaultConfigError, FaultSettings, FaultSetup, Level
@@ -198,7 +198,10 @@ class FaultMonitor:
         open_modes = np.zeros(self.K, dtype=bool)
         open_modes[[e.mode - 1 for e in self.open_events]] = True
         self.joint_confirmation.judge_coupled(deviating | (open_modes & ~held_mode))
-        self.joint_confirmation.judge_peaks(relevant & (score >= 0) & ~held_mode[:, None])
+        self.joint_confirmation.judge_together(relevant & (score >= 0) & ~held_mode[:, None])
+        quiet = np.array([all(tst.state == "ok" for tst in row[1:]) for row in self.tests]) & ~held_mode
+        peaks = peak_moved(modal, base, sigma, self.settings.min_change[2], app)
+        self.joint_confirmation.judge_peak(t, np.where(quiet, peaks, np.nan))
         lead = leads(score, app, np.array([[tst.state == "fault" for tst in row] for row in self.tests]))
         arriving = self.recent.moving(t, modal, rho, memory_now, lookback=0.5)
         for i in range(self.K):
@@ -370,6 +373,11 @@ class FaultMonitor:
     def model_flagged(self) -> bool:
         """The model-order check flags the model: no deviation is confirmed (S6)."""
         return self.joint_confirmation.model_flagged
+
+    def peak_unresolved(self) -> list[tuple[int, float, float]]:
+        """(mode, relative change, since) of each resonance peak that moved while neither its gain nor its damping
+        deviates enough: only the joint check can name the quantity; the decision shows the mode blind."""
+        return self.joint_confirmation.peak_unresolved()
 
     def joint_needed(self, i: int, q: int) -> bool:
         """A deviation of (mode ``i``, quantity ``q``) is confirmed only with the joint check's support (S6)."""

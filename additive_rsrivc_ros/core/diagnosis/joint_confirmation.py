@@ -45,8 +45,11 @@ class JointConfirmation:
         self.several_modes_t = math.nan   # last stressed joint check that moved several modes at once
         # per mode: it deviates together with a mode the reference shows coupled to it (recomputed every update)
         self.coupled_pending = np.zeros(setup.K, dtype=bool)
-        # per mode: its damping and gain deviate together (the resonance peak moved; recomputed every update)
-        self.peak_pending = np.zeros(setup.K, dtype=bool)
+        # per mode: the relative change of its resonance peak while gain and damping are quiet (NaN: none), since
+        self.peak_change = np.full(setup.K, np.nan)
+        self.peak_since = np.full(setup.K, np.nan)
+        # per mode and quantity: it deviates together with the mode's gain (recomputed every update)
+        self.together_pending = np.zeros((setup.K, 3), dtype=bool)
         # the model-order check flags the model (a wrong optimum or too few modes; set every update)
         self.model_flagged = False
         # per mode and quantity: a joint check did not support the deviation under test; until that deviation ends
@@ -59,8 +62,10 @@ class JointConfirmation:
         self.latest, self.reference = None, None
         self.streak[:] = 0
         self.coupled_pending[:] = False
-        self.peak_pending[:] = False
+        self.together_pending[:] = False
         self.refused[:] = False
+        self.peak_change[:] = np.nan
+        self.peak_since[:] = np.nan
 
     @property
     def armed(self) -> bool:
@@ -115,13 +120,29 @@ class JointConfirmation:
         dev = np.asarray(deviating, bool)
         self.coupled_pending[:] = dev & np.any(coupled[:, dev], axis=1)
 
-    def judge_peaks(self, relevant: np.ndarray) -> None:
-        """Mark the modes whose damping and gain deviate together (``relevant``: (K, 3) bool, relevant deviations):
-        the resonance peak ``b0/(2 zeta)`` moved, and while the recursion re-converges it splits that move between
-        the two (a gain drop read as a damping rise); with an identified reference, only a joint fit of the data
-        after the change says which of them changed."""
+    def judge_together(self, relevant: np.ndarray) -> None:
+        """Mark, per mode and quantity, the deviations that come together with the mode's gain deviation
+        (``relevant``: (K, 3) bool, relevant deviations): while the recursion re-converges after an abrupt change it
+        splits the move between them (a gain drop read as a damping rise: the resonance peak ``b0/(2 zeta)`` moves
+        first; on a few reference lines a gain change read as a frequency shift); with an identified reference, only
+        a joint fit of the data after the change says which of them changed. A frequency shift with a damping swing
+        alone keeps the recursion's confirmation (the swing is the shift's signature, not the converse)."""
         rel = np.asarray(relevant, bool)
-        self.peak_pending[:] = self.reference_identified & rel[:, 1] & rel[:, 2]
+        gain_and_other = rel[:, 2] & (rel[:, 0] | rel[:, 1])
+        self.together_pending[:] = (self.reference_identified & gain_and_other)[:, None] & rel
+
+    def judge_peak(self, t: float, change: np.ndarray) -> None:
+        """Follow each mode's resonance-peak change at ``t`` (``change`` (K,): relevant and significant while its gain
+        and damping tests are quiet, else NaN, :func:`.deviations.peak_moved`): such a mode's damping and gain need
+        the joint check, which names the one that changed."""
+        moved = np.isfinite(change)
+        self.peak_since = np.where(moved, np.where(np.isnan(self.peak_since), t, self.peak_since), np.nan)
+        self.peak_change = np.asarray(change, float).copy()
+
+    def peak_unresolved(self) -> list[tuple[int, float, float]]:
+        """(mode, relative change, since) of each peak change the joint check has not named."""
+        return [(i, float(self.peak_change[i]), float(self.peak_since[i])) for i in range(self.setup.K)
+                if np.isfinite(self.peak_change[i]) and not any(self.tests[i][q].state == "fault" for q in (1, 2))]
 
     def _second_quantity(self, i: int, q: int) -> bool:
         """(mode ``i``, quantity ``q``) deviates beside a fault of another quantity of the same mode: the recursion's
@@ -139,14 +160,16 @@ class JointConfirmation:
         """The recursion's split is open for (mode ``i``, quantity ``q``) whatever the excitation: a joint check
         refused this deviation, the model-order check flags the model (a model that misfits the data moves a change
         of one mode into another: a 51 Hz gain rise read as a 1.7 Hz frequency rise), the mode deviates beside a
-        coupled mode, its damping and gain deviate together, or another of its quantities is at fault."""
+        coupled mode, it deviates together with the mode's gain, or another of its quantities is at fault."""
         return (self.model_flagged or bool(self.refused[i, q]) or bool(self.coupled_pending[i])
-                or (q > 0 and bool(self.peak_pending[i])) or self._second_quantity(i, q))
+                or bool(self.together_pending[i, q]) or (q > 0 and math.isfinite(self.peak_change[i]))
+                or self._second_quantity(i, q))
 
     def _beyond_armed(self) -> bool:
         """A joint check is needed beyond the armed modes and the stress: a split is open somewhere, or a joint
         event is open (the checks hold and clear it)."""
-        return bool(self.model_flagged or self.refused.any() or self.coupled_pending.any() or self.peak_pending.any()
+        return bool(self.model_flagged or self.refused.any() or self.coupled_pending.any()
+                    or self.together_pending.any() or np.isfinite(self.peak_change).any()
                     or self._second_pending().any()) or self._joint_events_open()
 
     def _joint_events_open(self) -> bool:
