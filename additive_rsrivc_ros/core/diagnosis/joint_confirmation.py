@@ -306,7 +306,8 @@ class JointConfirmation:
         return {"joint_armed_modes": self.armed_modes.tolist(),
                 "joint": None if self.latest is None else self.latest.to_dict(),
                 "joint_reference": None if self.reference is None else self.reference.to_dict(),
-                "joint_streak": self.streak.tolist(), "joint_refused": self.refused.tolist()}
+                "joint_streak": self.streak.tolist(), "joint_refused": self.refused.tolist(),
+                "joint_peak_since": [None if math.isnan(v) else float(v) for v in self.peak_since]}
 
     def load(self, state: Mapping[str, Any]) -> None:
         """Restore :meth:`to_dict`'s items of a saved monitor state (a state with one ``joint_armed`` flag arms every
@@ -319,3 +320,5 @@ class JointConfirmation:
         self.reference = None if ref is None else JointVerdict.from_dict(ref)
         self.streak = np.asarray(state.get("joint_streak", np.zeros((K, 3))), dtype=int)
         self.refused = np.asarray(state.get("joint_refused", np.zeros((K, 3))), dtype=bool).reshape(K, 3)
+        since = state.get("joint_peak_since") or [None] * K
+        self.peak_since = np.array([math.nan if v is None else float(v) for v in since], dtype=float).reshape(K)
