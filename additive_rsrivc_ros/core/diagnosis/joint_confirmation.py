@@ -167,8 +167,8 @@ class JointConfirmation:
 
     def _beyond_armed(self) -> bool:
         """A joint check is needed beyond the armed modes and the stress: a split is open somewhere, or a joint
-        event is open (the checks hold and clear it)."""
-        return bool(self.model_flagged or self.refused.any() or self.coupled_pending.any()
+        event is open (the checks hold and clear it). A flagged model alone needs none: no fit confirms anything."""
+        return bool(self.refused.any() or self.coupled_pending.any()
                     or self.together_pending.any() or np.isfinite(self.peak_change).any()
                     or self._second_pending().any()) or self._joint_events_open()
 
