@@ -125,9 +125,11 @@ def decisions(faults: FaultMonitor | None, status: HealthStatus, initialized: bo
            "excitation or an abrupt change leaves the recursion's split between quantities open)")
     holds += [Hold("joint_check", f"a {QUANTITIES[q].replace('_', ' ')} deviation {why}", since, math.inf, (i,))
               for i, q, since in faults.awaiting_joint()]
+    namer = ("the model-order check flags the model, so neither can be named" if faults.model_flagged else
+             "the joint check names the one that changed")
     holds += [Hold("joint_check", f"the resonance peak gain/(2 damping) moved by {100 * change:+.1f} % while neither "
-                   "gain nor damping deviates enough on its own: the joint check names the one that changed", since,
-                   math.inf, (i,)) for i, change, since in faults.peak_unresolved()]
+                   f"gain nor damping deviates enough on its own: {namer}", since, math.inf, (i,))
+              for i, change, since in faults.peak_unresolved()]
     restricted = [faults.restricted_until(i) for i in range(K)]
     return decide(faults.phase, initialized, [[tst.state for tst in row] for row in faults.tests],
                   holds, restricted, no_model_reason=no_model or "initializing")
