@@ -365,6 +365,13 @@ def _verdict(t: float, window: tuple[float, float], value: np.ndarray, support: 
                         np.zeros(K), np.zeros(K), np.zeros(K, int), np.zeros(K), "converged", np.zeros((K, K)))
 
 
+def _arm_at_monitoring(mon: FaultMonitor, t: float) -> None:
+    """Once the monitor is monitoring, arm it with a converged reference fit of the truth that identifies every
+    quantity (as the pipeline does with the baseline window's joint fit)."""
+    if mon.phase == "monitoring" and mon.joint_reference is None:
+        mon.arm_joint(_verdict(t, (t - 4.0, t), TRUTH, np.zeros((mon.K, 3), int)))
+
+
 @pytest.mark.parametrize("q, factor, quantity", [(1, 1.6, "damping"), (0, 0.97, "natural_frequency")])
 def test_a_gain_change_split_into_another_quantity_is_named_by_the_joint_check(q, factor, quantity):
     """A gain drop lowers the resonance peak b0/(2 zeta) at once; while the recursion re-converges it splits that
@@ -380,12 +387,10 @@ def test_a_gain_change_split_into_another_quantity_is_named_by_the_joint_check(q
         return truth
 
     t, modal = stream(110.0, 45, change)
-    K = 2
     mon = FaultMonitor(MEMORY)
     events: list = []
     for k in range(t.size):
-        if mon.phase == "monitoring" and mon.joint_reference is None:
-            mon.arm_joint(_verdict(float(t[k]), (float(t[k]) - 4.0, float(t[k])), TRUTH, np.zeros((K, 3), int)))
+        _arm_at_monitoring(mon, float(t[k]))
         events += mon.update(float(t[k]), modal[k]).opened
     assert [(e.mode, e.quantity) for e in events] == [(1, "gain")]
     assert events[0].alarm_time_s >= t0 + 12.0
@@ -410,8 +415,7 @@ def _leak_run(t0: float, *, joint_at: tuple[float, ...] = (), support_at: tuple[
     events: list = []
     for k in range(t.size):
         tk = float(t[k])
-        if mon.phase == "monitoring" and mon.joint_reference is None:
-            mon.arm_joint(_verdict(tk, (tk - 4.0, tk), TRUTH, np.zeros((K, 3), int)))
+        _arm_at_monitoring(mon, tk)
         stressed = t0 <= tk < t0 + stress_s
         events += mon.update(tk, modal[k], suspect_since=t0 if stressed else None).opened
         for tj in (*joint_at, *support_at):
@@ -463,8 +467,7 @@ def test_a_flagged_model_names_no_quantity():
     events: list = []
     for k in range(t.size):
         tk = float(t[k])
-        if mon.phase == "monitoring" and mon.joint_reference is None:
-            mon.arm_joint(_verdict(tk, (tk - 4.0, tk), TRUTH, np.zeros((K, 3), int)))
+        _arm_at_monitoring(mon, tk)
         events += mon.update(tk, modal[k], model_flagged=True).opened
         if tk in (70.0, 71.0) or abs(tk - 70.0) < 1e-9 or abs(tk - 71.0) < 1e-9:
             value = TRUTH.copy()
@@ -524,8 +527,7 @@ def test_a_peak_change_split_below_both_relevances_is_blind_until_the_joint_chec
         events: list = []
         for k in range(t.size):
             tk = float(t[k])
-            if mon.phase == "monitoring" and mon.joint_reference is None:
-                mon.arm_joint(_verdict(tk, (tk - 4.0, tk), TRUTH, np.zeros((K, 3), int)))
+            _arm_at_monitoring(mon, tk)
             events += mon.update(tk, modal[k]).opened
             if support and (abs(tk - 80.0) < 1e-9 or abs(tk - 81.0) < 1e-9):   # the joint fit: the gain fell 21 %
                 value = TRUTH.copy()
