@@ -542,3 +542,62 @@ def test_a_peak_change_split_below_both_relevances_is_blind_until_the_joint_chec
             assert events == []
             unresolved = mon.peak_unresolved()
             assert [i for i, _, _ in unresolved] == [0] and unresolved[0][1] == pytest.approx(0.93 / 1.15 - 1, abs=0.03)
+
+
+@pytest.mark.parametrize("joint_direction", [-1, 1])
+def test_the_joint_support_names_the_direction_too(joint_direction):
+    """After a lightly damped mode's damping rise, the re-converging recursion can read it as a drop for seconds (a
+    +59 % rise of a zeta 0.008 mode was confirmed as a drop while the joint fit of the window after the change gave
+    the rise). Under stress a damping deviation needs the joint check's support, and that support is for one
+    direction: a check that supports the rise lets no drop be confirmed, and names the rise itself; a check that
+    supports the drop lets the recursion confirm it (the control: the direction is what stops it)."""
+    t0, K = 60.0, 2
+
+    def change(t: np.ndarray, truth: np.ndarray) -> np.ndarray:
+        truth[t >= t0, 0, 1] *= 0.6        # the recursion's transient: the real rise read as a drop
+        return truth
+
+    t, modal = stream(t0 + 16.0, 49, change)
+    mon = FaultMonitor(MEMORY)
+    events: list = []
+    for k in range(t.size):
+        tk = float(t[k])
+        _arm_at_monitoring(mon, tk)
+        events += mon.update(tk, modal[k], suspect_since=t0 if tk >= t0 else None).opened
+        if abs(tk - 69.0) < 1e-9 or abs(tk - 74.0) < 1e-9:      # the drop is suspected from 68.5 s
+            value = TRUTH.copy()
+            value[0, 1] *= 1.6 if joint_direction > 0 else 0.6
+            sup = np.zeros((K, 3), int)
+            sup[0, 1] = joint_direction
+            events += mon.apply_joint(tk, _verdict(tk, (t0, tk), value, sup)).opened
+    named = [(e.mode, e.quantity, e.direction) for e in events]
+    if joint_direction > 0:
+        assert named == [(1, "damping", "up")] and events[0].alarm_time_s == pytest.approx(74.0)
+    else:
+        assert named == [(1, "damping", "down")] and 69.0 < events[0].alarm_time_s < 74.0
+
+
+@pytest.mark.parametrize("blended", [False, True])
+def test_a_blended_joint_fit_neither_supports_nor_refuses(blended):
+    """A joint window that straddles the change fits a blend of two plants (its output error is many times the
+    reference's): it is no evidence either way. A converged fit that supports nothing refuses the deviation under
+    test (only the joint check may then confirm it); a blended one leaves it as it was."""
+    t0, K = 60.0, 2
+
+    def change(t: np.ndarray, truth: np.ndarray) -> np.ndarray:
+        truth[t >= t0, 0, 1] *= 0.6
+        return truth
+
+    t, modal = stream(t0 + 12.0, 49, change)
+    mon = FaultMonitor(MEMORY)
+    for k in range(t.size):
+        tk = float(t[k])
+        _arm_at_monitoring(mon, tk)
+        mon.update(tk, modal[k], suspect_since=t0 if tk >= t0 else None)
+        if abs(tk - 69.0) < 1e-9:       # the damping drop is suspected from 68.5 s
+            quiet = replace(_verdict(tk, (t0 - 5.0, tk), TRUTH, np.zeros((K, 3), int)),
+                            misfit_ratio=5.0 if blended else 1.0)
+            assert quiet.blended == blended
+            mon.apply_joint(tk, quiet)
+    assert mon.tests[0][1].state == "suspect"
+    assert bool(mon.joint_confirmation.refused[0, 1]) == (not blended)

@@ -230,6 +230,9 @@ class FaultMonitor:
             if test.by_joint:
                 continue        # S6: the joint check holds and clears its own events
             test.confirm_by_onset = q == 0
+            # S6: where the joint check is needed, its support names the direction too (a lightly damped mode's
+            # damping rise read by the re-converging recursion as a drop)
+            test.confirm_direction = int(np.sign(self.joint_streak[i, q])) if self.joint_needed(i, q) else 0
             test.confirm_before = -math.inf if self.stress.several_modes else self._confirm_before(
                 i, q, travelling[q], stress_since, lead)
             opened, closed = test.step(

@@ -10,6 +10,8 @@ from a window's data: the offline fit of all modes in one IV solve ([A-SRIVC] eq
 * **Supported**: identifiable in the reference (end of the baseline window) and now, relevant, and 4 joint stds away.
 * **Coupling**: the largest correlation between two modes' quantities; a weak mode holds the modes coupled to it.
 * Where gain and damping are not separable, the resonance peak ``g / (2 zeta)`` may be; its change is reported.
+* **Blend**: a fit whose output error ([BCD-SRIVC] eq. 8) is ``MISFIT_RATIO`` times the reference's holds a change
+  (two plants fitted as one: a frequency jump read as a damping rise) or a changed noise; it supports nothing.
 """
 
 from __future__ import annotations
@@ -30,6 +32,9 @@ COUPLING = 0.5         # |correlation| between two modes' quantities from which 
 Z_SUPPORT = 4.0        # a change is this many stds from the reference: supported. Checks repeat every half memory on
                        # overlapping windows for up to 3K quantities (measured at 3: 2 wrong events in 20 runs of
                        # scripts/study_narrow_excitation.py, a mode-3 frequency at -2.5 % late in the run)
+MISFIT_RATIO = 1.2     # output-error variance of a window's fit over the reference's from which the window is a blend
+                       # (measured: 1.36 for a window straddling a 6.6 % frequency jump of a zeta 0.03 mode, 1.18
+                       # with a tenth of it before the jump, 1.00 after it; white noise, 250 000 samples)
 
 
 @dataclass(frozen=True)
@@ -49,6 +54,13 @@ class JointVerdict:
     peak_own_std: np.ndarray      # (K,) relative std of this fit's own gain / (2 damping)
     message: str = ""
     coupling: np.ndarray | None = None   # (K, K) largest |correlation| between two modes' quantities in this fit
+    residual_variance: float = math.nan  # output-error variance of the fit
+    misfit_ratio: float = math.nan       # residual_variance over the reference's (NaN: no reference)
+
+    @property
+    def blended(self) -> bool:
+        """The window's fit misfits the data ``MISFIT_RATIO`` times more than the reference's: it supports nothing."""
+        return bool(self.misfit_ratio > MISFIT_RATIO)
 
     def armed_modes(self, applicable: np.ndarray, threshold: float = COUPLING) -> np.ndarray:
         """(K,) bool: modes whose deviations need this fit's support: a mode with a quantity the window does not
@@ -91,7 +103,9 @@ class JointVerdict:
                 "supported": self.supported.tolist(), "peak_change": clean(self.peak_change),
                 "peak_std": clean(self.peak_std), "peak_supported": self.peak_supported.tolist(),
                 "peak_own_std": clean(self.peak_own_std),
-                "message": self.message, "coupling": None if self.coupling is None else clean(self.coupling)}
+                "message": self.message, "coupling": None if self.coupling is None else clean(self.coupling),
+                "residual_variance": _finite_or_none(self.residual_variance),
+                "misfit_ratio": _finite_or_none(self.misfit_ratio)}
 
     @classmethod
     def from_dict(cls, d: dict) -> JointVerdict:
@@ -100,7 +114,16 @@ class JointVerdict:
         return cls(float(d["t"]), tuple(d["window_s"]), bool(d["converged"]), arr("value"), arr("std"),
                    arr("identifiable", bool), arr("supported", int), arr("peak_change"), arr("peak_std"),
                    arr("peak_supported", int), arr("peak_own_std"), str(d.get("message", "")),
-                   None if d.get("coupling") is None else arr("coupling"))
+                   None if d.get("coupling") is None else arr("coupling"),
+                   _float_or_nan(d.get("residual_variance")), _float_or_nan(d.get("misfit_ratio")))
+
+
+def _finite_or_none(x: float) -> float | None:
+    return float(x) if math.isfinite(x) else None
+
+
+def _float_or_nan(x: Any) -> float:
+    return math.nan if x is None else float(x)
 
 
 def applicable_mask(structures: Sequence[SubmodelStructure]) -> np.ndarray:
@@ -124,9 +147,10 @@ def verdict_from_fit(t: float, window_s: tuple[float, float], converged: bool, m
                      cov_modal: np.ndarray, base_value: np.ndarray, base_std: np.ndarray,
                      structures: Sequence[SubmodelStructure], min_change: Sequence[float], *,
                      base_peak_std: np.ndarray | None = None, base_identifiable: np.ndarray | None = None,
-                     z: float = Z_SUPPORT,
-                     z_identifiable: float = Z_IDENTIFIABLE, message: str = "") -> JointVerdict:
-    """Identifiable and supported quantities of a joint fit against the baseline (module docstring)."""
+                     z: float = Z_SUPPORT, z_identifiable: float = Z_IDENTIFIABLE, message: str = "",
+                     residual_variance: float = math.nan, base_residual_variance: float = math.nan) -> JointVerdict:
+    """Identifiable and supported quantities of a joint fit against the baseline (module docstring); a blend
+    (``residual_variance`` over the reference's ``base_residual_variance`` above ``MISFIT_RATIO``) supports nothing."""
     K = len(structures)
     app = applicable_mask(structures)
     var = np.diag(cov_modal).reshape(K, 3)
@@ -159,9 +183,14 @@ def verdict_from_fit(t: float, window_s: tuple[float, float], converged: bool, m
         if not named and not separable and abs(peak_change[i]) >= min(min_change[1], min_change[2]) and \
                 abs(peak_change[i]) >= z * peak_std[i]:
             peak_supported[i] = int(np.sign(peak_change[i]))
+    ratio = residual_variance / base_residual_variance if base_residual_variance > 0 else math.nan
+    if ratio > MISFIT_RATIO:
+        supported[:], peak_supported[:] = 0, 0
+        message += (f"; output error x{ratio:.2f} the reference's: the window holds a change (or the noise "
+                    "changed), its fit is a blend and supports nothing")
     return JointVerdict(float(t), (float(window_s[0]), float(window_s[1])), bool(converged), value, std,
                         identifiable, supported, peak_change, peak_std, peak_supported, peak_own, message,
-                        mode_coupling(cov_modal, K))
+                        mode_coupling(cov_modal, K), float(residual_variance), float(ratio))
 
 
 def mode_coupling(cov_modal: np.ndarray, K: int) -> np.ndarray:
@@ -177,8 +206,9 @@ def mode_coupling(cov_modal: np.ndarray, K: int) -> np.ndarray:
 
 def joint_fit(r: np.ndarray | None, u: np.ndarray, y: np.ndarray, rate_hz: float,
               structures: Sequence[SubmodelStructure], thetas0: Sequence[np.ndarray], *, controller=None,
-              input_delay: int = 0) -> tuple[bool, np.ndarray, np.ndarray, str]:
-    """Offline additive (CL)SRIVC of the window from ``thetas0``: (converged, modal (K, 3), modal covariance, msg).
+              input_delay: int = 0) -> tuple[bool, np.ndarray, np.ndarray, str, float]:
+    """Offline additive (CL)SRIVC of the window from ``thetas0``, its free response projected out (the window starts
+    with the plant in motion): (converged, modal (K, 3), modal covariance, msg, output-error variance).
 
     Never raises: a failed fit is returned as not converged with the reason (the caller then judges nothing)."""
     from ..identification.offline import identify
@@ -187,13 +217,14 @@ def joint_fit(r: np.ndarray | None, u: np.ndarray, y: np.ndarray, rate_hz: float
     nan = (False, np.full((K, 3), np.nan), np.full((3 * K, 3 * K), np.nan))
     try:
         res = identify(u, y, rate_hz, list(structures), [np.asarray(t, float) for t in thetas0], r=r,
-                       controller=controller, input_delay=input_delay, warmup_s=None)
+                       controller=controller, input_delay=input_delay, warmup_s=None, in_motion=True)
     except (ValueError, np.linalg.LinAlgError, FloatingPointError) as exc:
-        return (*nan, f"joint fit failed: {str(exc).splitlines()[0][:100] if str(exc) else type(exc).__name__}")
+        return (*nan, f"joint fit failed: {str(exc).splitlines()[0][:100] if str(exc) else type(exc).__name__}",
+                math.nan)
     if not res.converged or not np.all(np.isfinite(res.covariance)):
-        return (*nan, f"joint fit did not converge ({res.message})")
+        return (*nan, f"joint fit did not converge ({res.message})", math.nan)
     cov = joint_modal_covariance(res.thetas, structures, res.covariance)
-    return True, np.asarray(res.modal, dtype=float)[:, :3], cov, "converged"
+    return True, np.asarray(res.modal, dtype=float)[:, :3], cov, "converged", float(res.cost)
 
 
 class RecentSamples:
@@ -311,10 +342,11 @@ class JointChecker:
         ref = faults.joint_reference
         value, std = faults.joint_basis()
         peak_std, ident = (None, None) if ref is None or not ref.converged else (ref.peak_own_std, ref.identifiable)
+        base_var = math.nan if ref is None or not ref.converged else ref.residual_variance
         thetas0 = [guess_theta(0.0 if s.n == 0 else float(b[0]), float(b[1]), float(b[2]))
                    for b, s in zip(value, self.structures, strict=True)]
-        ok, modal, cov, msg = joint_fit(r if self.closed_loop else None, u, y, self.rate, self.structures, thetas0,
+        ok, modal, cov, msg, var = joint_fit(r if self.closed_loop else None, u, y, self.rate, self.structures, thetas0,
                                         controller=self.controller, input_delay=self.delay)
         return verdict_from_fit(t, (t - n / self.rate, t), ok, modal, cov, value, std, self.structures,
                                 faults.settings.min_change, base_peak_std=peak_std, base_identifiable=ident,
-                                message=msg)
+                                message=msg, residual_variance=var, base_residual_variance=base_var)

@@ -100,10 +100,10 @@ class JointConfirmation:
 
     def awaiting(self) -> list[tuple[int, int, float]]:
         """(mode, quantity, since) of each suspected deviation that only the joint check can confirm and that it
-        does not support (yet)."""
+        does not support (yet) in the suspected direction."""
         return [(i, q, tst.since) for i, row in enumerate(self.tests) for q, tst in enumerate(row)
                 if tst.state == "suspect" and (self.stress.several_modes or self.needed(i, q))
-                and (self.model_flagged or self.streak[i, q] == 0)]
+                and (self.model_flagged or np.sign(self.streak[i, q]) != tst.direction)]
 
     def judge_coupled(self, deviating: np.ndarray) -> None:
         """Mark the modes whose deviation coexists with one of a coupled mode (``deviating``, (K,) bool: a relevant
@@ -221,6 +221,11 @@ class JointConfirmation:
         self.latest = verdict
         needed = self.armed or self.stress.anomaly_since is not None or self._beyond_armed()
         if not (needed and verdict.converged) or self.phases.baseline is None or held:
+            return out
+        if verdict.blended:
+            # the window holds a change (or the noise changed): its fit is a blend of two plants and neither
+            # supports nor refuses anything; consecutive support starts again
+            self.streak[:] = 0
             return out
         if self.reference_pending:
             # the baseline window did not identify the joint model: a later fit that converges on the changed

@@ -91,6 +91,7 @@ class SequentialTest:
     h: float = math.nan               # threshold used at the last step
     confirm_before: float = math.inf  # a relevant deviation starting later is not confirmed (advisory health)
     confirm_by_onset: bool = False    # compare the deviation's onset (not its relevance crossing) with it
+    confirm_direction: int = 0        # non-zero: only a deviation in this direction is confirmed (the joint support)
     by_joint: bool = False            # the open event was confirmed by the joint check (S6), which also clears it
     joint_miss: int = 0               # consecutive joint checks that no longer support that event
 
@@ -182,7 +183,7 @@ class SequentialTest:
         gate_since = self.gate_up_since if cand > 0 else self.gate_down_since
         onset = self.onset(cand)
         began = min(onset, gate_since) if self.confirm_by_onset else gate_since
-        if t - gate_since >= persist_s and began <= self.confirm_before:
+        if t - gate_since >= persist_s and began <= self.confirm_before and self.confirm_direction in (0, cand):
             self.event = FaultEvent(self.mode, self.quantity, self.direction_name, onset, t, b, x, None, z)
             self.state, self.since = "fault", math.nan
             opened = self.event

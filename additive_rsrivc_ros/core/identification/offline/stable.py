@@ -856,7 +856,7 @@ def _refit_if_started_in_motion(res: IdentificationResult, data: OfflineData, st
 
 def identify(u, y, rate_hz: float, structures, thetas0, *, r=None, controller: DiscreteController | None = None,
              input_delay: int = 0, method: str = "auto", max_iterations: int = 50, tol: float = 1e-7,
-             projection: bool = True, warmup_s: float | None = None,
+             projection: bool = True, warmup_s: float | None = None, in_motion: bool = False,
              settle_tol: float | None = None, settle_floor: float = 0.0) -> IdentificationResult:
     """Identify the additive continuous-time model ``sum_i B_i/(p^l_i A_i)`` from sampled data.
 
@@ -868,7 +868,8 @@ def identify(u, y, rate_hz: float, structures, thetas0, *, r=None, controller: D
     the filters (:func:`warmup_samples`; 0 uses every sample). Default ``None``: every sample, unless the
     fit's output error starts with the plant's free response (:func:`initial_transient_test`, the record starts
     in motion); then it is refitted with that free response projected out (:func:`_refit_if_started_in_motion`).
-    The unstable-plant methods (``*-uns``, ``*-monic``) use every sample by default. ``settle_tol``,
+    ``in_motion``: the record starts in motion, so that projection starts at the first fit (a fit biased by the
+    transient can pass the test). The unstable-plant methods (``*-uns``, ``*-monic``) use every sample. ``settle_tol``,
     ``settle_floor``: the additive methods also stop when the output error has settled above the floor
     (:func:`additive_iv`; for quick fits that are judged by their output error, e.g. the order scan).
     """
@@ -909,6 +910,14 @@ def identify(u, y, rate_hz: float, structures, thetas0, *, r=None, controller: D
             return bcd_srivc(data, structures, start, max_iterations=max_iterations, tol=tol, projection=projection)
         return lssvf(data, structures, start)
 
+    if in_motion and auto_warmup:
+        data.free_response = True
+        res = run(thetas)
+        if fit_usable(res):
+            res.message += "; the record starts in motion: the free response of the model's modes projected out"
+            res.extra["free_response"] = True
+            return res
+        data.free_response = False      # the projected fit failed: the test and its fallbacks below
     res = run(thetas)
     if auto_warmup:
         res = _refit_if_started_in_motion(res, data, structures, thetas, run)
