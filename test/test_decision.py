@@ -544,17 +544,14 @@ def test_a_peak_change_split_below_both_relevances_is_blind_until_the_joint_chec
             assert [i for i, _, _ in unresolved] == [0] and unresolved[0][1] == pytest.approx(0.93 / 1.15 - 1, abs=0.03)
 
 
-@pytest.mark.parametrize("joint_direction", [-1, 1])
-def test_the_joint_support_names_the_direction_too(joint_direction):
-    """After a lightly damped mode's damping rise, the re-converging recursion can read it as a drop for seconds (a
-    +59 % rise of a zeta 0.008 mode was confirmed as a drop while the joint fit of the window after the change gave
-    the rise). Under stress a damping deviation needs the joint check's support, and that support is for one
-    direction: a check that supports the rise lets no drop be confirmed, and names the rise itself; a check that
-    supports the drop lets the recursion confirm it (the control: the direction is what stops it)."""
+def _damping_read_as_drop(checks: dict) -> tuple[FaultMonitor, list]:
+    """Mode 1's damping estimate reads a drop of 40 % from 60 s on (the re-converging recursion, under stress; the
+    drop is suspected from 68.5 s); at each time of ``checks`` a joint check: +1 / -1 a fit that supports a damping
+    rise / drop, a :class:`JointVerdict` that one as it is."""
     t0, K = 60.0, 2
 
     def change(t: np.ndarray, truth: np.ndarray) -> np.ndarray:
-        truth[t >= t0, 0, 1] *= 0.6        # the recursion's transient: the real rise read as a drop
+        truth[t >= t0, 0, 1] *= 0.6
         return truth
 
     t, modal = stream(t0 + 16.0, 49, change)
@@ -564,12 +561,26 @@ def test_the_joint_support_names_the_direction_too(joint_direction):
         tk = float(t[k])
         _arm_at_monitoring(mon, tk)
         events += mon.update(tk, modal[k], suspect_since=t0 if tk >= t0 else None).opened
-        if abs(tk - 69.0) < 1e-9 or abs(tk - 74.0) < 1e-9:      # the drop is suspected from 68.5 s
-            value = TRUTH.copy()
-            value[0, 1] *= 1.6 if joint_direction > 0 else 0.6
-            sup = np.zeros((K, 3), int)
-            sup[0, 1] = joint_direction
-            events += mon.apply_joint(tk, _verdict(tk, (t0, tk), value, sup)).opened
+        for tc, check in checks.items():
+            if abs(tk - tc) < 1e-9:
+                if isinstance(check, int):
+                    value = TRUTH.copy()
+                    value[0, 1] *= 1.6 if check > 0 else 0.6
+                    sup = np.zeros((K, 3), int)
+                    sup[0, 1] = check
+                    check = _verdict(tk, (t0, tk), value, sup)
+                events += mon.apply_joint(tk, check).opened
+    return mon, events
+
+
+@pytest.mark.parametrize("joint_direction", [-1, 1])
+def test_the_joint_support_names_the_direction_too(joint_direction):
+    """After a lightly damped mode's damping rise, the re-converging recursion can read it as a drop for seconds (a
+    +59 % rise of a zeta 0.008 mode was confirmed as a drop while the joint fit of the window after the change gave
+    the rise). Under stress a damping deviation needs the joint check's support, and that support is for one
+    direction: a check that supports the rise lets no drop be confirmed, and names the rise itself; a check that
+    supports the drop lets the recursion confirm it (the control: the direction is what stops it)."""
+    _, events = _damping_read_as_drop({69.0: joint_direction, 74.0: joint_direction})
     named = [(e.mode, e.quantity, e.direction) for e in events]
     if joint_direction > 0:
         assert named == [(1, "damping", "up")] and events[0].alarm_time_s == pytest.approx(74.0)
@@ -582,22 +593,54 @@ def test_a_blended_joint_fit_neither_supports_nor_refuses(blended):
     """A joint window that straddles the change fits a blend of two plants (its output error is many times the
     reference's): it is no evidence either way. A converged fit that supports nothing refuses the deviation under
     test (only the joint check may then confirm it); a blended one leaves it as it was."""
-    t0, K = 60.0, 2
-
-    def change(t: np.ndarray, truth: np.ndarray) -> np.ndarray:
-        truth[t >= t0, 0, 1] *= 0.6
-        return truth
-
-    t, modal = stream(t0 + 12.0, 49, change)
-    mon = FaultMonitor(MEMORY)
-    for k in range(t.size):
-        tk = float(t[k])
-        _arm_at_monitoring(mon, tk)
-        mon.update(tk, modal[k], suspect_since=t0 if tk >= t0 else None)
-        if abs(tk - 69.0) < 1e-9:       # the damping drop is suspected from 68.5 s
-            quiet = replace(_verdict(tk, (t0 - 5.0, tk), TRUTH, np.zeros((K, 3), int)),
-                            misfit_ratio=5.0 if blended else 1.0)
-            assert quiet.blended == blended
-            mon.apply_joint(tk, quiet)
+    quiet = replace(_verdict(69.0, (55.0, 69.0), TRUTH, np.zeros((2, 3), int)), misfit_ratio=5.0 if blended else 1.0)
+    assert quiet.blended == blended
+    mon, _ = _damping_read_as_drop({69.0: quiet})
     assert mon.tests[0][1].state == "suspect"
     assert bool(mon.joint_confirmation.refused[0, 1]) == (not blended)
+
+
+def test_a_check_without_a_fit_breaks_the_joint_support():
+    """Joint fits of a window that does not identify one mode can alternate between two optima, with checks that find
+    no fit in between; each optimum 'supports' what it moved in the other modes. Confirmation needs two consecutive
+    checks that support the deviation, and a check without a fit is one of them: two supporting fits with a failed
+    check between them confirm nothing (the control, without it: the joint check names the rise at 74 s)."""
+    from additive_rsrivc_ros.core.diagnosis.joint_check import JointVerdict
+
+    K, nan = 2, np.full((2, 3), np.nan)
+    failed = JointVerdict(71.5, (60.0, 71.5), False, nan, nan, np.zeros((K, 3), bool), np.zeros((K, 3), int),
+                          np.full(K, np.nan), np.full(K, np.nan), np.zeros(K, int), np.full(K, np.nan),
+                          "joint fit did not converge")
+    for with_failed in (False, True):
+        checks: dict = {69.0: 1, 71.5: failed, 74.0: 1} if with_failed else {69.0: 1, 74.0: 1}
+        named = [(e.mode, e.quantity, e.direction) for e in _damping_read_as_drop(checks)[1]]
+        assert named == ([] if with_failed else [(1, "damping", "up")])
+
+
+def test_the_shortest_joint_window_follows_what_the_reference_identifies():
+    """A check window may be shorter than two memory lengths where the reference fit identifies every quantity with
+    room to spare (6 of its stds, scaled to the shorter window as 1/sqrt(length), within the relevant change): half
+    a memory at the least; on a reference that does not identify a quantity, or did not converge, two memory
+    lengths."""
+    from types import SimpleNamespace
+
+    from additive_rsrivc_ros.core.diagnosis.joint_check import JointChecker
+    from additive_rsrivc_ros.core.model import SubmodelStructure
+
+    cfg = SimpleNamespace(loop_rate_hz=1000.0, structures=[SubmodelStructure()], controller=None, closed_loop=False,
+                          input_delay_samples=0)
+    checker = JointChecker(cfg)
+    value = np.array([[10.0, 0.05, 1.0]])
+    rho = np.array([0.02, 0.20, 0.10]) * np.abs(value)
+
+    def faults(std: np.ndarray, converged: bool = True) -> SimpleNamespace:
+        ref = _verdict(40.0, (0.0, 40.0), value, np.zeros((1, 3), int))      # a 40 s reference = 4 memories
+        ref = replace(ref, std=std, converged=converged)
+        return SimpleNamespace(joint_reference=ref, memory_s=np.array([10.0]),
+                               settings=SimpleNamespace(min_change=(0.02, 0.20, 0.10)))
+
+    assert checker.min_window(faults(rho / 1000)) == 0.5
+    # the damping's std 1/12 of its relevant change: 6 stds fill it after 40 s x (1/2)^2 = 10 s = one memory
+    assert checker.min_window(faults(np.array([1e-6, rho[0, 1] / 12, 1e-6])[None, :])) == pytest.approx(1.0)
+    assert checker.min_window(faults(rho / 3)) == JointChecker.MIN_WINDOW
+    assert checker.min_window(faults(rho / 1000, converged=False)) == JointChecker.MIN_WINDOW

@@ -201,7 +201,9 @@ def test_a_window_that_straddles_a_change_supports_nothing():
     """A joint window that straddles a change fits one plant to two: a +6.6 % frequency jump of a zeta 0.03 mode
     (two half-power bandwidths) is fitted as a frequency between the two and a damping rise of about 45 %, with
     stds that make both 'supported'. Its output error is many times the reference's, so the verdict supports
-    nothing; a window after the change fits as well as the reference and supports the frequency alone."""
+    nothing. The window is therefore cut where the reference model's output error leaves its noise level for good;
+    a window after the change fits its last three quarters as well as the reference and supports the frequency
+    alone."""
     from additive_rsrivc_ros.core.diagnosis.joint_check import MISFIT_RATIO, joint_fit
     from additive_rsrivc_ros.core.model import guess_theta
     from additive_rsrivc_ros.sim.simulate import ModalChange
@@ -212,22 +214,51 @@ def test_a_window_that_straddles_a_change_supports_nothing():
     def fit(a: float, b: float):
         return joint_fit(None, u[int(a * rate):int(b * rate)], y[int(a * rate):int(b * rate)], rate, [MODE], th0)
 
-    ok, base, base_cov, _, base_var = fit(10.0, 40.0)
-    assert ok
-    base_std = np.sqrt(np.diag(base_cov)).reshape(1, 3)
+    ref = fit(10.0, 40.0)
+    assert ref.converged
+    base_std = np.sqrt(np.diag(ref.covariance)).reshape(1, 3)
 
     def verdict(a: float, b: float, with_reference_misfit: bool = True):
-        ok, modal, cov, msg, var = fit(a, b)
-        assert ok
-        return verdict_from_fit(b, (a, b), ok, modal, cov, base, base_std, [MODE], MIN_CHANGE, message=msg,
-                                residual_variance=var,
-                                base_residual_variance=base_var if with_reference_misfit else float("nan"))
+        now = fit(a, b)
+        assert now.converged
+        return verdict_from_fit(b, (a, b), True, now.modal, now.covariance, ref.modal, base_std, [MODE], MIN_CHANGE,
+                                message=now.message, residual_variance=now.cost, tail_variance=now.tail_cost,
+                                base_residual_variance=ref.cost if with_reference_misfit else float("nan"))
 
     straddle = verdict(35.0, 65.0)
     assert straddle.misfit_ratio > 10 * MISFIT_RATIO and straddle.blended
     assert not straddle.supported.any() and "blend" in straddle.message
     # the control: without the misfit comparison the same fit supports a damping rise that did not happen
     assert verdict(35.0, 65.0, with_reference_misfit=False).supported[0, 1] == 1
-    after = verdict(55.0, 85.0)
-    assert not after.blended and after.misfit_ratio < 1.05      # 30 000 white-noise samples: ratio std ~1 %
-    assert after.supported.tolist() == [[1, 0, 0]]
+    # where the window should start: after the block in which the reference model's output error leaves its noise
+    # level for good, after one where it does not (blocks of 3.75 s); None while less than the minimum window (20 s
+    # here) follows the change
+    from additive_rsrivc_ros.core.diagnosis.joint_check import change_start
+
+    def start(a: float, b: float) -> float | None:
+        i = change_start(u[int(a * rate):int(b * rate)], y[int(a * rate):int(b * rate)], rate, [MODE], th0, 0,
+                         ref.cost, int(20.0 * rate))
+        return None if i is None else a + i / rate
+
+    assert start(10.0, 40.0) == 10.0 and start(38.0, 68.0) == pytest.approx(45.5) and start(35.0, 65.0) is None
+    # the change inside the first block: every block misfits, the window stays whole and the blend check judges it
+    assert start(43.0, 73.0) == 43.0 and verdict(43.0, 73.0).blended
+    for a in (55.0, start(38.0, 68.0)):      # after the change, and from where change_start cut a window over it
+        assert a is not None
+        after = verdict(a, a + 30.0)
+        assert not after.blended and after.misfit_ratio < 1.05      # 7 500 white-noise samples a quarter: std ~2 %
+        assert after.supported.tolist() == [[1, 0, 0]]
+
+
+def test_a_window_too_short_for_its_blocks_is_judged_without_a_cut():
+    """The change search and the blend check judge blocks of the window as records of their own; blocks shorter than
+    the model order allows (four modes, 12 parameters, in 25-sample blocks) place no change and judge no blend
+    instead of failing the check."""
+    from additive_rsrivc_ros.core.diagnosis.joint_check import _tail_cost, change_start
+    from additive_rsrivc_ros.core.model import guess_theta
+
+    rng = np.random.default_rng(5)
+    u, y = rng.standard_normal(200), rng.standard_normal(200)
+    thetas = [guess_theta(f, 0.02, 1.0) for f in (10.0, 20.0, 40.0, 80.0)]
+    assert change_start(u, y, 1000.0, [MODE] * 4, thetas, 0, 1e-6, 100) == 0
+    assert np.isnan(_tail_cost(u, y, 1000.0, [MODE] * 4, thetas, 0))

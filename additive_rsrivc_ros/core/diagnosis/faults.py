@@ -396,7 +396,7 @@ class FaultMonitor:
 
     def apply_joint(self, t: float, verdict: JointVerdict) -> FaultUpdate:
         """One joint check while monitoring (S6): confirm what two consecutive checks support, clear what two no
-        longer support. An unconverged fit judges nothing (streaks and events are kept)."""
+        longer support. An unconverged fit judges nothing but breaks the streaks (open events are kept)."""
         return self.joint_confirmation.apply(t, verdict, self.held)
 
     def joint_due(self, t: float, last_check: float) -> bool:

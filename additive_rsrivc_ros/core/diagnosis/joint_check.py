@@ -10,8 +10,8 @@ from a window's data: the offline fit of all modes in one IV solve ([A-SRIVC] eq
 * **Supported**: identifiable in the reference (end of the baseline window) and now, relevant, and 4 joint stds away.
 * **Coupling**: the largest correlation between two modes' quantities; a weak mode holds the modes coupled to it.
 * Where gain and damping are not separable, the resonance peak ``g / (2 zeta)`` may be; its change is reported.
-* **Blend**: a fit whose output error ([BCD-SRIVC] eq. 8) is ``MISFIT_RATIO`` times the reference's holds a change
-  (two plants fitted as one: a frequency jump read as a damping rise) or a changed noise; it supports nothing.
+* **Blend**: a fit whose output error ([BCD-SRIVC] eq. 8) in a quarter after the window's first is ``MISFIT_RATIO``
+  times the reference's holds a change (a frequency jump fitted as a damping rise) or a changed noise: no support.
 """
 
 from __future__ import annotations
@@ -20,7 +20,7 @@ import math
 from collections import deque
 from collections.abc import Sequence
 from dataclasses import dataclass
-from typing import Any
+from typing import Any, NamedTuple
 
 import numpy as np
 
@@ -32,9 +32,10 @@ COUPLING = 0.5         # |correlation| between two modes' quantities from which 
 Z_SUPPORT = 4.0        # a change is this many stds from the reference: supported. Checks repeat every half memory on
                        # overlapping windows for up to 3K quantities (measured at 3: 2 wrong events in 20 runs of
                        # scripts/study_narrow_excitation.py, a mode-3 frequency at -2.5 % late in the run)
-MISFIT_RATIO = 1.2     # output-error variance of a window's fit over the reference's from which the window is a blend
-                       # (measured: 1.36 for a window straddling a 6.6 % frequency jump of a zeta 0.03 mode, 1.18
-                       # with a tenth of it before the jump, 1.00 after it; white noise, 250 000 samples)
+MISFIT_RATIO = 1.2     # output-error variance of a window's fit over the reference's from which the window is a blend,
+                       # in the worst of its last three quarters (a 62 s window over a 6.6 % frequency jump of a zeta
+                       # 0.03 mode: 1.47 with the jump at 36 % of it, 1.62 at 61 %; 1.02 at 11 %, where the fit is
+                       # the plant after the jump; white noise, 250 000 samples)
 
 
 @dataclass(frozen=True)
@@ -148,9 +149,11 @@ def verdict_from_fit(t: float, window_s: tuple[float, float], converged: bool, m
                      structures: Sequence[SubmodelStructure], min_change: Sequence[float], *,
                      base_peak_std: np.ndarray | None = None, base_identifiable: np.ndarray | None = None,
                      z: float = Z_SUPPORT, z_identifiable: float = Z_IDENTIFIABLE, message: str = "",
-                     residual_variance: float = math.nan, base_residual_variance: float = math.nan) -> JointVerdict:
+                     residual_variance: float = math.nan, tail_variance: float = math.nan,
+                     base_residual_variance: float = math.nan) -> JointVerdict:
     """Identifiable and supported quantities of a joint fit against the baseline (module docstring); a blend
-    (``residual_variance`` over the reference's ``base_residual_variance`` above ``MISFIT_RATIO``) supports nothing."""
+    (``tail_variance``, :attr:`JointFit.tail_cost`, over the reference's ``base_residual_variance`` above
+    ``MISFIT_RATIO``) supports nothing."""
     K = len(structures)
     app = applicable_mask(structures)
     var = np.diag(cov_modal).reshape(K, 3)
@@ -183,7 +186,7 @@ def verdict_from_fit(t: float, window_s: tuple[float, float], converged: bool, m
         if not named and not separable and abs(peak_change[i]) >= min(min_change[1], min_change[2]) and \
                 abs(peak_change[i]) >= z * peak_std[i]:
             peak_supported[i] = int(np.sign(peak_change[i]))
-    ratio = residual_variance / base_residual_variance if base_residual_variance > 0 else math.nan
+    ratio = tail_variance / base_residual_variance if base_residual_variance > 0 else math.nan
     if ratio > MISFIT_RATIO:
         supported[:], peak_supported[:] = 0, 0
         message += (f"; output error x{ratio:.2f} the reference's: the window holds a change (or the noise "
@@ -204,27 +207,83 @@ def mode_coupling(cov_modal: np.ndarray, K: int) -> np.ndarray:
     return corr
 
 
+class JointFit(NamedTuple):
+    """One joint fit of a window (:func:`joint_fit`)."""
+
+    converged: bool
+    modal: np.ndarray             # (K, 3)
+    covariance: np.ndarray        # (3K, 3K) of every mode's (f, zeta, gain)
+    message: str
+    cost: float                   # output-error variance over the window
+    tail_cost: float              # the largest over the window's last three quarters (a change early in it is allowed)
+
+
 def joint_fit(r: np.ndarray | None, u: np.ndarray, y: np.ndarray, rate_hz: float,
               structures: Sequence[SubmodelStructure], thetas0: Sequence[np.ndarray], *, controller=None,
-              input_delay: int = 0) -> tuple[bool, np.ndarray, np.ndarray, str, float]:
+              input_delay: int = 0) -> JointFit:
     """Offline additive (CL)SRIVC of the window from ``thetas0``, its free response projected out (the window starts
-    with the plant in motion): (converged, modal (K, 3), modal covariance, msg, output-error variance).
-
-    Never raises: a failed fit is returned as not converged with the reason (the caller then judges nothing)."""
+    with the plant in motion). Never raises: a failed fit is returned as not converged with the reason (the caller
+    then judges nothing)."""
     from ..identification.offline import identify
 
     K = len(structures)
-    nan = (False, np.full((K, 3), np.nan), np.full((3 * K, 3 * K), np.nan))
+
+    def failed(why: str) -> JointFit:
+        return JointFit(False, np.full((K, 3), np.nan), np.full((3 * K, 3 * K), np.nan), why, math.nan, math.nan)
+
     try:
         res = identify(u, y, rate_hz, list(structures), [np.asarray(t, float) for t in thetas0], r=r,
                        controller=controller, input_delay=input_delay, warmup_s=None, in_motion=True)
     except (ValueError, np.linalg.LinAlgError, FloatingPointError) as exc:
-        return (*nan, f"joint fit failed: {str(exc).splitlines()[0][:100] if str(exc) else type(exc).__name__}",
-                math.nan)
+        return failed(f"joint fit failed: {str(exc).splitlines()[0][:100] if str(exc) else type(exc).__name__}")
     if not res.converged or not np.all(np.isfinite(res.covariance)):
-        return (*nan, f"joint fit did not converge ({res.message})", math.nan)
+        return failed(f"joint fit did not converge ({res.message})")
     cov = joint_modal_covariance(res.thetas, structures, res.covariance)
-    return True, np.asarray(res.modal, dtype=float)[:, :3], cov, "converged", float(res.cost)
+    return JointFit(True, np.asarray(res.modal, dtype=float)[:, :3], cov, "converged", float(res.cost),
+                    _tail_cost(u, y, rate_hz, structures, res.thetas, input_delay))
+
+
+def _tail_cost(u: np.ndarray, y: np.ndarray, rate_hz: float, structures: Sequence[SubmodelStructure],
+               thetas: Sequence[np.ndarray], input_delay: int) -> float:
+    """The largest output-error variance of the fitted model over the window's last three quarters, each judged as a
+    record in motion (a change early in the first quarter leaves them alone); NaN when they are too short."""
+    from ..identification.offline import output_error_variance
+
+    n = u.size // 4
+    try:
+        return max(output_error_variance(u[a:a + n], y[a:a + n], rate_hz, structures, thetas, input_delay=input_delay)
+                   for a in (u.size - 3 * n, u.size - 2 * n, u.size - n))
+    except (ValueError, np.linalg.LinAlgError):     # quarters too short for the model order: no blend judged
+        return math.nan
+
+
+CHANGE_BLOCKS = 8   # a joint window is searched for a change in this many blocks
+
+
+def change_start(u: np.ndarray, y: np.ndarray, rate_hz: float, structures: Sequence[SubmodelStructure],
+                 thetas: Sequence[np.ndarray], input_delay: int, base_variance: float, min_samples: int) -> int | None:
+    """Index where a joint window should start so that it holds no data of the reference plant before a change: the
+    end of the first of ``CHANGE_BLOCKS`` blocks from which on the reference model's output error
+    (:func:`.offline.output_error_variance`) exceeds ``MISFIT_RATIO`` x ``base_variance`` for good, after one that
+    does not. 0: no lasting change, or every block misfits (the window is after the change, or the change lies in
+    its first block: the blend check judges). None: fewer than ``min_samples`` follow the change (wait)."""
+    from ..identification.offline import output_error_variance
+
+    n = u.size // CHANGE_BLOCKS
+    if not base_variance > 0 or n < 2:
+        return 0
+    edges = u.size - n * np.arange(CHANGE_BLOCKS, 0, -1)      # block starts, the last block ending with the window
+    try:
+        misfit = np.array([output_error_variance(u[a:a + n], y[a:a + n], rate_hz, structures, thetas,
+                                                 input_delay=input_delay) > MISFIT_RATIO * base_variance
+                           for a in edges])
+    except (ValueError, np.linalg.LinAlgError):     # blocks too short for the model order: no change can be placed
+        return 0
+    if not misfit[-1] or misfit.all():
+        return 0                    # no lasting change, or the window is all after it (or it lies in the first block)
+    first = int(np.flatnonzero(~misfit)[-1]) + 1
+    start = u.size - (CHANGE_BLOCKS - first - 1) * n      # the end of the first misfit block of the last run
+    return start if u.size - start >= min_samples else None
 
 
 class RecentSamples:
@@ -260,11 +319,13 @@ class JointChecker:
     After the baseline is learned, one fit of the last ``MAX_WINDOW`` memory lengths (``MIN_WINDOW`` when fewer
     are held) is the reference and arms S6 or not; while armed,
     checks run at :meth:`FaultMonitor.joint_due` on a window that starts at the earliest deviation of a test (at
-    least ``MIN_WINDOW``, at most ``MAX_WINDOW`` longest memory lengths: a joint fit of one memory length does not
-    converge reliably on narrow excitation)."""
+    least :meth:`min_window` (``MIN_WINDOW`` on narrow excitation, where a joint fit of one memory length does not
+    converge reliably), at most ``MAX_WINDOW`` longest memory lengths), cut after a change found in it
+    (:func:`change_start`)."""
 
     MIN_WINDOW = 2.0
     MAX_WINDOW = 4.0
+    SHORTEST_WINDOW = 0.5   # memory lengths: the shortest check window where the reference identifies with room
     MAX_SAMPLES = 200_000   # a longer window is cut (to MIN_WINDOW at least): ~1 s per fit on this machine
 
     def __init__(self, cfg: Any) -> None:
@@ -303,19 +364,35 @@ class JointChecker:
         if not faults.joint_due(t, self.last_t):
             return None
         since = [tst.since for row in faults.tests for tst in row if tst.state == "suspect"]
-        age = t - min(since) if since else self.MIN_WINDOW * mem
-        window = min(max(age, self.MIN_WINDOW * mem), self.MAX_WINDOW * mem)
+        least = self.min_window(faults)
+        age = t - min(since) if since else least * mem
+        window = min(max(age, least * mem), self.MAX_WINDOW * mem)
         if faults.anomaly_since is not None:
             # an abrupt change (the stress's start): a window that straddles it fits a blend of two plants; only the
             # data after it say what changed
             window = min(window, t - faults.anomaly_since)
-            if window < self.MIN_WINDOW * mem:
+            if window < least * mem:
                 return None
         verdict = self.verdict(t, window, faults)
         if verdict is None:
             return None
         self.last_t = t
         return faults.apply_joint(t, verdict)
+
+    def min_window(self, faults: Any) -> float:
+        """Shortest check window in memory lengths: ``MIN_WINDOW``, or less where the reference fit identifies every
+        applicable quantity with room to spare: the length in which 2 x ``Z_IDENTIFIABLE`` of its stds (std ~
+        1/sqrt(length)) stay within the relevant change, at least ``SHORTEST_WINDOW``."""
+        ref = faults.joint_reference
+        if ref is None or not ref.converged:
+            return self.MIN_WINDOW
+        rho = np.asarray(faults.settings.min_change, float)[None, :] * np.abs(ref.value)
+        with np.errstate(divide="ignore", invalid="ignore"):
+            need = (ref.window_s[1] - ref.window_s[0]) * (2.0 * Z_IDENTIFIABLE * ref.std / rho) ** 2
+        need = need[applicable_mask(self.structures)]
+        if need.size == 0 or not np.all(np.isfinite(need)):
+            return self.MIN_WINDOW
+        return float(min(max(need.max() / float(faults.memory_s.max()), self.SHORTEST_WINDOW), self.MIN_WINDOW))
 
     @staticmethod
     def _quiet(faults: Any) -> bool:
@@ -327,7 +404,8 @@ class JointChecker:
     def verdict(self, t: float, window_s: float, faults: Any) -> JointVerdict | None:
         """The joint fit of the last ``window_s`` seconds from the baseline model; None without enough data."""
         mem = float(faults.memory_s.max())
-        n = int(round(min(window_s, max(self.MIN_WINDOW * mem, self.MAX_SAMPLES / self.rate)) * self.rate))
+        least = self.min_window(faults)
+        n = int(round(min(window_s, max(least * mem, self.MAX_SAMPLES / self.rate)) * self.rate))
         data = self.recent.last(n)
         if data is None:
             return None
@@ -335,7 +413,7 @@ class JointChecker:
         bad = np.flatnonzero(~(np.isfinite(u) & np.isfinite(y) & (np.isfinite(r) if self.closed_loop else True)))
         if bad.size:                # invalid samples (held, non-finite): only the clean stretch after the last one
             start = int(bad[-1]) + 1
-            if u.size - start < int(round(self.MIN_WINDOW * mem * self.rate)):
+            if u.size - start < int(round(least * mem * self.rate)):
                 return None
             r, u, y = r[start:], u[start:], y[start:]
             n = u.size
@@ -345,8 +423,15 @@ class JointChecker:
         base_var = math.nan if ref is None or not ref.converged else ref.residual_variance
         thetas0 = [guess_theta(0.0 if s.n == 0 else float(b[0]), float(b[1]), float(b[2]))
                    for b, s in zip(value, self.structures, strict=True)]
-        ok, modal, cov, msg, var = joint_fit(r if self.closed_loop else None, u, y, self.rate, self.structures, thetas0,
-                                        controller=self.controller, input_delay=self.delay)
-        return verdict_from_fit(t, (t - n / self.rate, t), ok, modal, cov, value, std, self.structures,
-                                faults.settings.min_change, base_peak_std=peak_std, base_identifiable=ident,
-                                message=msg, residual_variance=var, base_residual_variance=base_var)
+        after = change_start(u, y, self.rate, self.structures, thetas0, self.delay, base_var,
+                             int(round(least * mem * self.rate)))
+        if after is None:
+            return None             # the window after the change is still too short to fit
+        r, u, y = r[after:], u[after:], y[after:]
+        n = u.size
+        fit = joint_fit(r if self.closed_loop else None, u, y, self.rate, self.structures, thetas0,
+                        controller=self.controller, input_delay=self.delay)
+        return verdict_from_fit(t, (t - n / self.rate, t), fit.converged, fit.modal, fit.covariance, value, std,
+                                self.structures, faults.settings.min_change, base_peak_std=peak_std,
+                                base_identifiable=ident, message=fit.message, residual_variance=fit.cost,
+                                tail_variance=fit.tail_cost, base_residual_variance=base_var)

@@ -204,22 +204,26 @@ class JointConfirmation:
         return base.value, base.std
 
     def due(self, t: float, last_check: float) -> bool:
-        """Whether a joint check is due: every half memory while a test deviates or a joint event is open, else every
-        two memory lengths."""
+        """Whether a joint check is due: every quarter memory while a test deviates or a joint event is open, else
+        every two memory lengths."""
         needed = self.armed or (self.stress.anomaly_since is not None and self.reference is not None) or \
             self._beyond_armed()
         if not needed or self.phases.phase != "monitoring":
             return False
         busy = any(tst.state != "ok" for row in self.tests for tst in row) or bool(np.any(self.streak))
-        period = (0.5 if busy else 2.0) * float(self.setup.memory_s.max())
+        period = (0.25 if busy else 2.0) * float(self.setup.memory_s.max())
         return math.isnan(last_check) or t - last_check >= period
 
     def apply(self, t: float, verdict: JointVerdict, held: bool) -> FaultUpdate:
         """One joint check while monitoring (not ``held``): confirm what two consecutive checks support, clear what
-        two no longer support. An unconverged fit judges nothing (streaks and events are kept)."""
+        two no longer support. An unconverged fit judges nothing but breaks the streaks (open events are kept)."""
         out = FaultUpdate()
         self.latest = verdict
         needed = self.armed or self.stress.anomaly_since is not None or self._beyond_armed()
+        if needed and not verdict.converged and not held:
+            # a check that found no fit breaks the chain of consecutive support: fits that alternate between two
+            # optima (a mode the window does not identify jumping between them) support what the other optimum moved
+            self.streak[:] = 0
         if not (needed and verdict.converged) or self.phases.baseline is None or held:
             return out
         if verdict.blended:

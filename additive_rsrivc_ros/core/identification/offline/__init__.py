@@ -15,6 +15,7 @@ from .stable import (
     match_order,
     min_cost_assignment,
     model_frf,
+    output_error_variance,
     relative_change,
     split_additive,
     to_unfactored,
@@ -25,5 +26,5 @@ from .types import METHODS, IdentificationResult, OfflineData
 
 __all__ = ["METHODS", "TRANSIENT_FALSE_ALARM", "WARMUP_DECAY_TIMES", "IdentificationResult", "OfflineData",
            "TransientTest", "identify", "initial_transient_test",
-           "integrator_free_response", "match_order", "min_cost_assignment", "model_frf",
+           "integrator_free_response", "match_order", "min_cost_assignment", "model_frf", "output_error_variance",
            "relative_change", "split_additive", "to_unfactored", "unfactored_structure", "warmup_samples"]

@@ -483,6 +483,16 @@ def _cost(data: OfflineData, xhat_sum: np.ndarray, thetas=None, structures=None)
     return float(e @ e) / e.size
 
 
+def output_error_variance(u, y, rate_hz: float, structures, thetas, *, input_delay: int = 0) -> float:
+    """Mean squared output error ([BCD-SRIVC] eq. 8) of the model ``thetas`` on a record that starts in motion: the
+    submodels simulated from ``u`` ([A-SRIVC] eq. 23), the free response of their modes projected out
+    (:func:`_free_response_space`). Judges a model on data it was not fitted to (e.g. the later part of a window)."""
+    data, thetas = _check_inputs(u, y, rate_hz, structures, thetas, None, None, input_delay)
+    data.free_response, data.skip = True, 0
+    _, xhat = _submodel_outputs(data, thetas, list(structures))
+    return _cost(data, np.sum(xhat, axis=0), thetas, list(structures))
+
+
 def bcd_srivc(data: OfflineData, structures, thetas0, *, max_iterations: int = 50, tol: float = 1e-7,
               inner_iterations: int = 20, projection: bool = True, closed_loop: bool = False) -> IdentificationResult:
     """Block-coordinate descent SRIVC ([BCD-SRIVC] Algorithm 2): per block, SRIVC iterations ([BCD-SRIVC] eq. 12) on the
