@@ -271,6 +271,12 @@ def main() -> None:
         print("detection delay after max(change, end of problem), memory lengths: median "
               f"{np.median([x[0] for x in d]):.2f}; worst: "
               + ", ".join(f"{x:.2f} (seed {s}, {p})" for x, s, p in d[-5:][::-1]))
+    by_problem: dict[str, list[float]] = {}
+    for x, _, p in delays:
+        by_problem.setdefault(p, []).append(x)
+    if by_problem:
+        print("median / worst delay per data problem: " + ", ".join(
+            f"{p} {np.median(v):.2f} / {max(v):.2f} ({len(v)})" for p, v in sorted(by_problem.items())))
     print(f"violations: {counts.get('VIOLATION', 0)} of {n}")
 
 
