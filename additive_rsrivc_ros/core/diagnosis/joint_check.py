@@ -243,18 +243,30 @@ def joint_fit(r: np.ndarray | None, u: np.ndarray, y: np.ndarray, rate_hz: float
                     _tail_cost(u, y, rate_hz, structures, res.thetas, input_delay))
 
 
-def _tail_cost(u: np.ndarray, y: np.ndarray, rate_hz: float, structures: Sequence[SubmodelStructure],
-               thetas: Sequence[np.ndarray], input_delay: int) -> float:
-    """The largest output-error variance of the fitted model over the window's last three quarters, each judged as a
-    record in motion (a change early in the first quarter leaves them alone); NaN when they are too short."""
+def _block_costs(u: np.ndarray, y: np.ndarray, rate_hz: float, structures: Sequence[SubmodelStructure],
+                 thetas: Sequence[np.ndarray], input_delay: int, blocks: int, first: int = 0) -> np.ndarray | None:
+    """Output-error variance of the model ``thetas`` on blocks ``first..blocks-1`` of ``blocks`` equal blocks that end
+    with the window, each judged as a record in motion (:func:`.offline.output_error_variance`); None when the
+    blocks are too short for the model order."""
     from ..identification.offline import output_error_variance
 
-    n = u.size // 4
+    n = u.size // blocks
+    if n < 2:
+        return None
+    starts = u.size - n * np.arange(blocks - first, 0, -1)
     try:
-        return max(output_error_variance(u[a:a + n], y[a:a + n], rate_hz, structures, thetas, input_delay=input_delay)
-                   for a in (u.size - 3 * n, u.size - 2 * n, u.size - n))
-    except (ValueError, np.linalg.LinAlgError):     # quarters too short for the model order: no blend judged
-        return math.nan
+        return np.array([output_error_variance(u[a:a + n], y[a:a + n], rate_hz, structures, thetas,
+                                               input_delay=input_delay) for a in starts])
+    except (ValueError, np.linalg.LinAlgError):
+        return None
+
+
+def _tail_cost(u: np.ndarray, y: np.ndarray, rate_hz: float, structures: Sequence[SubmodelStructure],
+               thetas: Sequence[np.ndarray], input_delay: int) -> float:
+    """The largest output-error variance of the fitted model over the window's last three quarters (a change early in
+    the first quarter leaves them alone); NaN when they are too short to judge."""
+    costs = _block_costs(u, y, rate_hz, structures, thetas, input_delay, 4, first=1)
+    return math.nan if costs is None else float(costs.max())
 
 
 CHANGE_BLOCKS = 8   # a joint window is searched for a change in this many blocks
@@ -267,18 +279,13 @@ def change_start(u: np.ndarray, y: np.ndarray, rate_hz: float, structures: Seque
     (:func:`.offline.output_error_variance`) exceeds ``MISFIT_RATIO`` x ``base_variance`` for good, after one that
     does not. 0: no lasting change, or every block misfits (the window is after the change, or the change lies in
     its first block: the blend check judges). None: fewer than ``min_samples`` follow the change (wait)."""
-    from ..identification.offline import output_error_variance
-
+    if not base_variance > 0:
+        return 0
+    costs = _block_costs(u, y, rate_hz, structures, thetas, input_delay, CHANGE_BLOCKS)
+    if costs is None:
+        return 0                    # blocks too short for the model order: no change can be placed
+    misfit = costs > MISFIT_RATIO * base_variance
     n = u.size // CHANGE_BLOCKS
-    if not base_variance > 0 or n < 2:
-        return 0
-    edges = u.size - n * np.arange(CHANGE_BLOCKS, 0, -1)      # block starts, the last block ending with the window
-    try:
-        misfit = np.array([output_error_variance(u[a:a + n], y[a:a + n], rate_hz, structures, thetas,
-                                                 input_delay=input_delay) > MISFIT_RATIO * base_variance
-                           for a in edges])
-    except (ValueError, np.linalg.LinAlgError):     # blocks too short for the model order: no change can be placed
-        return 0
     if not misfit[-1] or misfit.all():
         return 0                    # no lasting change, or the window is all after it (or it lies in the first block)
     first = int(np.flatnonzero(~misfit)[-1]) + 1
