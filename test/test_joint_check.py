@@ -250,6 +250,29 @@ def test_a_window_that_straddles_a_change_supports_nothing():
         assert after.supported.tolist() == [[1, 0, 0]]
 
 
+def test_a_reference_window_that_ends_after_a_change_is_not_a_reference():
+    """A baseline window completed just after a change (a break pushed its end past it): the reference candidate's
+    fit misfits its own last quarter. Judged against its own output error it is a blend, so the checker does not
+    take it as the reference; a window before the change is not."""
+    from additive_rsrivc_ros.core.diagnosis.joint_check import MISFIT_RATIO, joint_fit
+    from additive_rsrivc_ros.core.model import guess_theta
+    from additive_rsrivc_ros.sim.simulate import ModalChange
+
+    rate, u, y = _lightly_damped_record(ModalChange(0, "frequency", 0.066, 45.0), "white", 4, 90.0, 12.0, 0.03, 1.0)
+    th0 = [guess_theta(12.0, 0.03, 1.0)]
+    no_base = np.full((1, 3), np.nan)
+
+    def candidate(a: float, b: float):
+        f = joint_fit(None, u[int(a * rate):int(b * rate)], y[int(a * rate):int(b * rate)], rate, [MODE], th0)
+        assert f.converged
+        return verdict_from_fit(b, (a, b), True, f.modal, f.covariance, np.asarray(f.modal)[:, :3], no_base,
+                                [MODE], MIN_CHANGE, residual_variance=f.cost, tail_variance=f.tail_cost,
+                                base_residual_variance=f.cost)
+
+    assert candidate(17.0, 47.0).misfit_ratio > 2 * MISFIT_RATIO       # 2 s of the changed plant at its end
+    assert not candidate(10.0, 40.0).blended
+
+
 def test_a_window_too_short_for_its_blocks_is_judged_without_a_cut():
     """The change search and the blend check judge blocks of the window as records of their own; blocks shorter than
     the model order allows (four modes, 12 parameters, in 25-sample blocks) place no change and judge no blend

@@ -3,6 +3,7 @@ import numpy as np
 import pytest
 
 from additive_rsrivc_ros.config import MonitorConfig
+from additive_rsrivc_ros.core.estimation.free_response_restart import settle_length
 from additive_rsrivc_ros.core.estimation.recursive import RecursiveAdditiveSRIVC
 from additive_rsrivc_ros.core.model import SubmodelStructure, modal_from_theta
 from additive_rsrivc_ros.sim.independent import PAPER_THETA, PID, paper_reference, simulate_modal
@@ -170,19 +171,24 @@ def test_bad_samples_never_corrupt_theta_or_p():
         assert np.all(np.abs(th - th_c) < 0.5 * np.sqrt(np.diag(cov)))
 
 
-def test_gap_reprimes_and_holds_updates():
+@pytest.mark.parametrize("fit", [False, True])
+def test_gap_reprimes_and_holds_updates(fit):
+    """Updates wait for the re-prime hold, or (``fit_free_response``) for the collection of the free-response fit,
+    which ends the hold early."""
     n = 6000
     r, u, y = _data(n, True, noise_std=0.1)
-    est = _est([th * 1.02 for th in PAPER_THETA], True)
+    est = _est([th * 1.02 for th in PAPER_THETA], True, fit_free_response=fit)
     est.update(r[:3000], u[:3000], y[:3000])
     before = [th.copy() for th in est.thetas]
     est.mark_gap()
     hold = est.health.hold_remaining
     assert hold >= 10 and est.health.reprimes == 1
-    est.update(r[3500:3500 + hold], u[3500:3500 + hold], y[3500:3500 + hold])  # data resume after a gap
+    held = settle_length(est.get_state()["thf"], est.get_state()["kind"], 20.0, 1) if fit else hold
+    assert 0 < held <= hold
+    est.update(r[3500:3500 + held], u[3500:3500 + held], y[3500:3500 + held])  # data resume after a gap
     assert all(np.array_equal(a, b) for a, b in zip(before, est.thetas, strict=True))
-    est.update(r[3500 + hold:], u[3500 + hold:], y[3500 + hold:])
-    assert est.health.held_samples == hold and est.health.hold_remaining == 0
+    est.update(r[3500 + held:], u[3500 + held:], y[3500 + held:])
+    assert est.health.held_samples == held and est.health.hold_remaining == 0
     for th, th0 in zip(est.thetas, PAPER_THETA, strict=True):
         assert np.all(np.isfinite(th)) and np.max(np.abs(th / th0 - 1)) < 0.2
 

@@ -19,7 +19,7 @@ from __future__ import annotations
 import math
 from collections import deque
 from collections.abc import Sequence
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 from typing import Any, NamedTuple
 
 import numpy as np
@@ -293,6 +293,25 @@ def change_start(u: np.ndarray, y: np.ndarray, rate_hz: float, structures: Seque
     return start if u.size - start >= min_samples else None
 
 
+def clean_end(u: np.ndarray, y: np.ndarray, rate_hz: float, structures: Sequence[SubmodelStructure], fit: JointFit,
+              input_delay: int) -> int | None:
+    """Where a window whose fit misfits its later part (``fit.tail_cost`` above ``MISFIT_RATIO`` x ``fit.cost``)
+    stops holding one plant: the start of the last run of ``CHANGE_BLOCKS`` blocks whose output error under the fit
+    exceeds ``MISFIT_RATIO`` x the median block's. None: no such run at the end (or every block misfits)."""
+    if not fit.tail_cost > MISFIT_RATIO * fit.cost:
+        return None
+    thetas = [guess_theta(0.0 if s.n == 0 else float(m[0]), float(m[1]), float(m[2]))
+              for m, s in zip(fit.modal, structures, strict=True)]
+    costs = _block_costs(u, y, rate_hz, structures, thetas, input_delay, CHANGE_BLOCKS)
+    if costs is None:
+        return None
+    misfit = costs > MISFIT_RATIO * float(np.median(costs))
+    if not misfit[-1] or misfit.all():
+        return None
+    last_good = int(np.flatnonzero(~misfit)[-1])
+    return u.size - (CHANGE_BLOCKS - last_good - 1) * (u.size // CHANGE_BLOCKS)
+
+
 class RecentSamples:
     """The last samples fed to the estimator, contiguous (a data break clears them); ``y`` is NaN where invalid."""
 
@@ -363,6 +382,10 @@ class JointChecker:
             if verdict is None:
                 return None
             self.last_t = t
+            if verdict.converged and verdict.blended:
+                # the window's later part misfits the fit 1.2x its own level: it holds a change (a baseline
+                # completed just after one), and a blend of two plants must not become the reference
+                verdict = replace(verdict, converged=False, message=verdict.message + "; not a reference")
             if ref is None or verdict.converged:
                 faults.arm_joint(verdict)
             return None
@@ -428,6 +451,7 @@ class JointChecker:
         value, std = faults.joint_basis()
         peak_std, ident = (None, None) if ref is None or not ref.converged else (ref.peak_own_std, ref.identifiable)
         base_var = math.nan if ref is None or not ref.converged else ref.residual_variance
+        blend_var = base_var
         thetas0 = [guess_theta(0.0 if s.n == 0 else float(b[0]), float(b[1]), float(b[2]))
                    for b, s in zip(value, self.structures, strict=True)]
         after = change_start(u, y, self.rate, self.structures, thetas0, self.delay, base_var,
@@ -438,7 +462,18 @@ class JointChecker:
         n = u.size
         fit = joint_fit(r if self.closed_loop else None, u, y, self.rate, self.structures, thetas0,
                         controller=self.controller, input_delay=self.delay)
-        return verdict_from_fit(t, (t - n / self.rate, t), fit.converged, fit.modal, fit.covariance, value, std,
+        end = t
+        if ref is None or not ref.converged:
+            # a reference candidate is judged against its own output error; one whose end holds a change (a
+            # baseline completed just after it) is refitted on the data before that change, if half of it is
+            cut = clean_end(u, y, self.rate, self.structures, fit, self.delay) if fit.converged else None
+            if cut is not None and cut >= max(n / 2, self.SHORTEST_WINDOW * mem * self.rate):
+                r, u, y, end = r[:cut], u[:cut], y[:cut], t - (n - cut) / self.rate
+                n = cut
+                fit = joint_fit(r if self.closed_loop else None, u, y, self.rate, self.structures, thetas0,
+                                controller=self.controller, input_delay=self.delay)
+            blend_var = fit.cost
+        return verdict_from_fit(t, (end - n / self.rate, end), fit.converged, fit.modal, fit.covariance, value, std,
                                 self.structures, faults.settings.min_change, base_peak_std=peak_std,
                                 base_identifiable=ident, message=fit.message, residual_variance=fit.cost,
-                                tail_variance=fit.tail_cost, base_residual_variance=base_var)
+                                tail_variance=fit.tail_cost, base_residual_variance=blend_var)

@@ -25,6 +25,8 @@ from ..params import EstimatorOptions, core_param
 from . import kernel as kn
 from . import recursive_state as rs
 from .estimator import EstimatorHealth, MonitorSettings
+from .free_response_restart import EXTEND, FreeResponseRestart
+from .free_response_restart import STATE_KEY as RESTART_KEY
 from .recursive_report import (  # noqa: F401 - re-exported: the estimator's public names
     COVARIANCE_REL_TOL,
     ReportCache,
@@ -77,7 +79,7 @@ class RecursiveAdditiveSRIVC:
     model ``a_f <- mu_f a_f + (1 - mu_f) a`` that builds the prefilters (0: Algorithm 2 as printed; ``None``:
     ``FILTER_PERIODS`` periods of the mode, needed when a memory is below the mode's decay time; ``inf``: fixed
     prefilters); ``reprime_s``: seconds without updates after a gap or a filter reset (default: 5 slowest time
-    constants).
+    constants), cut short by ``fit_free_response`` after a gap (:mod:`.free_response_restart`).
     """
 
     def __init__(self, structures: Sequence[SubmodelStructure], theta0: Sequence[np.ndarray], rate_hz: float, *,
@@ -88,7 +90,7 @@ class RecursiveAdditiveSRIVC:
                  p0_relative: tuple[float, float] = (DEFAULTS.p0_relative_a, DEFAULTS.p0_relative_b),
                  max_step: float = 0.0, p_cap: float = math.inf, filter_memory_s: float | Sequence[float] | None = 0.0,
                  filter_policy: str | None = None,
-                 reprime_s: float | None = None,
+                 reprime_s: float | None = None, fit_free_response: bool = True,
                  init_method: str = DEFAULTS.init_method, init_max_iterations: int = DEFAULTS.init_max_iterations,
                  init_samples: int | None = None, init_warmup_s: float | None = None,
                  p0_policy: str = DEFAULTS.p0_policy, guess_spread: float = DEFAULTS.guess_spread) -> None:
@@ -124,6 +126,8 @@ class RecursiveAdditiveSRIVC:
         self._report = ReportCache()
         self._filter_policy: str | None = None
         self._filter_memory_auto = False
+        self._restart: FreeResponseRestart | None = None    # a collection after a break (free_response_restart)
+        self.fit_free_response = bool(fit_free_response)
         theta = rs.initial_thetas(structures, theta0, kind)
         hold_len = rs.hold_length(theta, kind, self.rate_hz, reprime_s)
         self._s = rs.new_state(kind, theta, self.rate_hz, controller, input_delay=int(input_delay),
@@ -378,8 +382,22 @@ class RecursiveAdditiveSRIVC:
         """
         r, u, y, v = rs.sample_arrays(r, u, y, valid, self.closed_loop)
         tr = np.empty((u.size if trace else 0, self.K, kn.NT))
-        self._run(r, u, y, v, True, tr)
+        a = 0
+        while self._restart is not None and a < u.size:   # the first samples after a break: collected, no updates
+            b = a + min(self._restart.missing, u.size - a)
+            self._run(r[a:b], u[a:b], y[a:b], v[a:b], True, tr[a:b])
+            self._collect(r[a:b], u[a:b], y[a:b], v[a:b])
+            a = b
+        self._run(r[a:], u[a:], y[a:], v[a:], True, tr[a:])
         return tr if trace else None
+
+    def _collect(self, r: np.ndarray, u: np.ndarray, y: np.ndarray, v: np.ndarray) -> None:
+        restart = self._restart
+        assert restart is not None
+        restart.add(r, u, y, v)
+        restart.keep_residual_level(self._s)   # the free response is no residual noise (health reads this level)
+        if restart.missing == 0 and restart.apply(self._s) != EXTEND:
+            self._restart = None        # applied, or the full hold runs on
 
     def prime(self, r: Any, u: Any, y: Any, valid: Any = None) -> None:
         """[RA-SRIVC] Algorithm 2 step 1: filters from rest over the data with the current model, no updates."""
@@ -390,13 +408,17 @@ class RecursiveAdditiveSRIVC:
     def _reset_filters(self) -> None:
         """Filters, delay line and controller memory from rest (:func:`.recursive_state.reset_filters`)."""
         rs.reset_filters(self._s)
+        self._restart = None
 
     def mark_gap(self) -> None:
-        """Data are missing: restart the filters from rest and hold updates for the re-prime length."""
+        """Data are missing: restart the filters from rest and hold updates for the re-prime length, or until the
+        plant's free response is fitted (``fit_free_response``: :mod:`.free_response_restart`)."""
         self._reset_filters()
         s = self._s
         s["ist"][kn.I_HOLD] = max(int(s["ist"][kn.I_HOLD]), int(s["cfg_i"][kn.C_HOLDLEN]))
         s["ist"][kn.I_REPRIMES] += 1
+        if self.fit_free_response:
+            self._restart = FreeResponseRestart.begin(s, self.rate_hz)
 
     def reset(self, theta0: Sequence[np.ndarray] | None = None) -> None:
         """Restart the recursion: theta (given or current), P(0), filters from rest; counters kept."""
@@ -437,7 +459,9 @@ class RecursiveAdditiveSRIVC:
     # ------------------------------------------------------------------ snapshot / restore (recursive_state.py)
     def get_state(self) -> dict[str, np.ndarray]:
         """Complete state as a dict of numpy arrays (copies); see :meth:`set_state`."""
-        return rs.snapshot(self._s)
+        state = rs.snapshot(self._s)
+        state[RESTART_KEY] = np.zeros(0) if self._restart is None else self._restart.to_array()
+        return state
 
     def set_state(self, state: Mapping[str, np.ndarray]) -> None:
         """Restore a :meth:`get_state` snapshot; continuation is bit-identical. Shapes must match.
@@ -445,6 +469,7 @@ class RecursiveAdditiveSRIVC:
         Version-1 snapshots (before the filter model) load with ``theta_f = theta`` and ``mu_f = 0``.
         """
         rs.restore(self._s, state)
+        self._restart = FreeResponseRestart.from_array(np.asarray(state.get(RESTART_KEY, np.zeros(0))))
 
     def save(self, path: str | Path) -> None:
         """Write the state to an ``.npz`` file."""

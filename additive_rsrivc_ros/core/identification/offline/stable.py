@@ -483,12 +483,18 @@ def _cost(data: OfflineData, xhat_sum: np.ndarray, thetas=None, structures=None)
     return float(e @ e) / e.size
 
 
+def in_motion_skip(data: OfflineData) -> int:
+    """Samples left out at the start of a record in motion: the first ``input_delay`` outputs still answer inputs
+    sent before the record (in the delay line), which no initial condition of the modes reproduces."""
+    return min(int(data.delay), max(data.n - 1, 0))
+
+
 def output_error_variance(u, y, rate_hz: float, structures, thetas, *, input_delay: int = 0) -> float:
     """Mean squared output error ([BCD-SRIVC] eq. 8) of the model ``thetas`` on a record that starts in motion: the
     submodels simulated from ``u`` ([A-SRIVC] eq. 23), the free response of their modes projected out
     (:func:`_free_response_space`). Judges a model on data it was not fitted to (e.g. the later part of a window)."""
     data, thetas = _check_inputs(u, y, rate_hz, structures, thetas, None, None, input_delay)
-    data.free_response, data.skip = True, 0
+    data.free_response, data.skip = True, in_motion_skip(data)
     _, xhat = _submodel_outputs(data, thetas, list(structures))
     return _cost(data, np.sum(xhat, axis=0), thetas, list(structures))
 
@@ -834,7 +840,7 @@ def _refit_if_started_in_motion(res: IdentificationResult, data: OfflineData, st
            if test is not None else "the fit over every sample failed")
     # from the first fit and, if that fails (a transient can pull the first fit into another optimum, e.g. a
     # lightly damped mode split in two while the other mode was lost), from the initial guess
-    data.free_response, data.skip = True, 0
+    data.free_response, data.skip = True, in_motion_skip(data)
     for start in ([base, thetas0] if base is not thetas0 else [thetas0]) if FREE_RESPONSE_REFIT else []:
         new = refit([np.asarray(t, float).copy() for t in start])
         usable = fit_usable(new)
@@ -921,13 +927,13 @@ def identify(u, y, rate_hz: float, structures, thetas0, *, r=None, controller: D
         return lssvf(data, structures, start)
 
     if in_motion and auto_warmup:
-        data.free_response = True
+        data.free_response, data.skip = True, in_motion_skip(data)
         res = run(thetas)
         if fit_usable(res):
             res.message += "; the record starts in motion: the free response of the model's modes projected out"
             res.extra["free_response"] = True
             return res
-        data.free_response = False      # the projected fit failed: the test and its fallbacks below
+        data.free_response, data.skip = False, 0     # the projected fit failed: the test and its fallbacks below
     res = run(thetas)
     if auto_warmup:
         res = _refit_if_started_in_motion(res, data, structures, thetas, run)
