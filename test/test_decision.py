@@ -447,6 +447,41 @@ def test_a_deviation_the_joint_check_refused_is_not_confirmed_when_the_stress_en
     assert 90.0 <= events[1].alarm_time_s <= 91.0      # with the joint support, the recursion's test concludes
 
 
+def test_a_joint_check_refuses_every_deviation_it_identifies_and_does_not_support():
+    """A joint check that runs for one mode's sake (mode 1: frequency and gain move together) also judges the other
+    deviations it identifies: mode 2's gain estimate leaking +30 % (the recursion absorbing mode 1's change, no
+    stress, mode 2 not armed) is refused by the converged fits that hold it unchanged and is never confirmed; the
+    control without joint checks confirms it."""
+    t0 = 60.0
+
+    def change(t: np.ndarray, truth: np.ndarray) -> np.ndarray:
+        truth[t >= t0, 0, 0] *= 0.95
+        truth[t >= t0, 0, 2] *= 0.7
+        truth[t >= t0 + 1.0, 1, 2] *= 1.3
+        return truth
+
+    t, modal = stream(t0 + 40.0, 46, change)
+
+    def run(joint_at: tuple[float, ...]) -> list:
+        mon, events = FaultMonitor(MEMORY), []
+        for k in range(t.size):
+            tk = float(t[k])
+            _arm_at_monitoring(mon, tk)
+            events += mon.update(tk, modal[k]).opened
+            if any(abs(tk - tj) < 1e-9 for tj in joint_at):
+                value = TRUTH.copy()
+                value[0, 0] *= 0.95
+                value[0, 2] *= 0.7
+                sup = np.zeros((2, 3), int)
+                sup[0, 0] = sup[0, 2] = -1
+                events += mon.apply_joint(tk, _verdict(tk, (t0, tk), value, sup)).opened
+        return events
+
+    assert (2, "gain") in {(e.mode, e.quantity) for e in run(())}
+    named = {(e.mode, e.quantity) for e in run(tuple(float(x) for x in t[t > t0]))}   # a check every estimate
+    assert (2, "gain") not in named and (1, "gain") in named
+
+
 def test_a_flagged_model_names_no_quantity():
     """A model the model-order check flags misfits the data: a change is split between its modes and quantities
     wrongly, and a joint fit with the same structure splits it wrongly too (a damping rise fitted as damping and

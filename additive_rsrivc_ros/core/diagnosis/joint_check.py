@@ -460,15 +460,27 @@ class JointChecker:
             return None             # the window after the change is still too short to fit
         r, u, y = r[after:], u[after:], y[after:]
         n = u.size
+        end = t
+        candidate = ref is None or not ref.converged
+        enough = max(n / 2, self.SHORTEST_WINDOW * mem * self.rate)    # of a reference candidate cut short
+        if candidate and faults.anomaly_since is not None and faults.anomaly_since > t - n / self.rate:
+            # a reference candidate that reaches into an abrupt change (the baseline completed just after one, a
+            # restart pushed its end there): only the data before the change, if half of it is
+            keep = int(round((faults.anomaly_since - (t - n / self.rate)) * self.rate))
+            if keep < enough:
+                return verdict_from_fit(t, (t - n / self.rate, t), False, np.full((len(self.structures), 3), np.nan),
+                                        np.full((3 * len(self.structures),) * 2, np.nan), value, std,
+                                        self.structures, faults.settings.min_change,
+                                        message="the window is mostly after an output anomaly: no reference")
+            r, u, y, end, n = r[:keep], u[:keep], y[:keep], t - (n - keep) / self.rate, keep
         fit = joint_fit(r if self.closed_loop else None, u, y, self.rate, self.structures, thetas0,
                         controller=self.controller, input_delay=self.delay)
-        end = t
-        if ref is None or not ref.converged:
+        if candidate:
             # a reference candidate is judged against its own output error; one whose end holds a change (a
             # baseline completed just after it) is refitted on the data before that change, if half of it is
             cut = clean_end(u, y, self.rate, self.structures, fit, self.delay) if fit.converged else None
-            if cut is not None and cut >= max(n / 2, self.SHORTEST_WINDOW * mem * self.rate):
-                r, u, y, end = r[:cut], u[:cut], y[:cut], t - (n - cut) / self.rate
+            if cut is not None and cut >= enough:
+                r, u, y, end = r[:cut], u[:cut], y[:cut], end - (n - cut) / self.rate
                 n = cut
                 fit = joint_fit(r if self.closed_loop else None, u, y, self.rate, self.structures, thetas0,
                                 controller=self.controller, input_delay=self.delay)

@@ -248,17 +248,20 @@ class JointConfirmation:
                 return out
         same = (sup != 0) & (np.sign(self.streak) == sup)
         self.streak = np.where(same, self.streak + sup, sup)
-        self._note_refusals(sup)
+        self._note_refusals(sup, verdict.identifiable)
         for i in range(self.setup.K):
             for q in range(3):
                 self._judge(t, i, q, verdict, out)
         return out
 
-    def _note_refusals(self, support: np.ndarray) -> None:
-        """Mark the deviations under test that needed this converged joint check and that it does not support."""
+    def _note_refusals(self, support: np.ndarray, identifiable: np.ndarray) -> None:
+        """Mark the deviations under test that this converged joint check does not support: those that needed it,
+        and any other it identifies (a 58 Hz mode's gain drop absorbed by the recursion into a broad 15 Hz
+        neighbour's gain, which the joint fit held unchanged, was confirmed by the recursion alone)."""
         for i, row in enumerate(self.tests):
             for q, tst in enumerate(row):
-                if tst.state == "suspect" and support[i, q] != tst.direction and self.needed(i, q):
+                if tst.state == "suspect" and support[i, q] != tst.direction and (
+                        self.needed(i, q) or bool(identifiable[i, q])):
                     self.refused[i, q] = True
 
     def forget_refusals(self) -> None:
