@@ -218,6 +218,17 @@ class JointFit(NamedTuple):
     tail_cost: float              # the largest over the window's last three quarters (a change early in it is allowed)
 
 
+def failed_fit(K: int, why: str) -> JointFit:
+    """A joint fit that judges nothing (not converged, NaN values), with the reason."""
+    return JointFit(False, np.full((K, 3), np.nan), np.full((3 * K, 3 * K), np.nan), why, math.nan, math.nan)
+
+
+def thetas_of(modal: np.ndarray, structures: Sequence[SubmodelStructure]) -> list[np.ndarray]:
+    """The submodel parameters of modal values ``(K, 3)`` (frequency, damping, gain; a rigid body's gain only)."""
+    return [guess_theta(0.0 if s.n == 0 else float(m[0]), float(m[1]), float(m[2]))
+            for m, s in zip(modal, structures, strict=True)]
+
+
 def joint_fit(r: np.ndarray | None, u: np.ndarray, y: np.ndarray, rate_hz: float,
               structures: Sequence[SubmodelStructure], thetas0: Sequence[np.ndarray], *, controller=None,
               input_delay: int = 0) -> JointFit:
@@ -227,17 +238,13 @@ def joint_fit(r: np.ndarray | None, u: np.ndarray, y: np.ndarray, rate_hz: float
     from ..identification.offline import identify
 
     K = len(structures)
-
-    def failed(why: str) -> JointFit:
-        return JointFit(False, np.full((K, 3), np.nan), np.full((3 * K, 3 * K), np.nan), why, math.nan, math.nan)
-
     try:
         res = identify(u, y, rate_hz, list(structures), [np.asarray(t, float) for t in thetas0], r=r,
                        controller=controller, input_delay=input_delay, warmup_s=None, in_motion=True)
     except (ValueError, np.linalg.LinAlgError, FloatingPointError) as exc:
-        return failed(f"joint fit failed: {str(exc).splitlines()[0][:100] if str(exc) else type(exc).__name__}")
+        return failed_fit(K, f"joint fit failed: {str(exc).splitlines()[0][:100] if str(exc) else type(exc).__name__}")
     if not res.converged or not np.all(np.isfinite(res.covariance)):
-        return failed(f"joint fit did not converge ({res.message})")
+        return failed_fit(K, f"joint fit did not converge ({res.message})")
     cov = joint_modal_covariance(res.thetas, structures, res.covariance)
     return JointFit(True, np.asarray(res.modal, dtype=float)[:, :3], cov, "converged", float(res.cost),
                     _tail_cost(u, y, rate_hz, structures, res.thetas, input_delay))
@@ -284,13 +291,20 @@ def change_start(u: np.ndarray, y: np.ndarray, rate_hz: float, structures: Seque
     costs = _block_costs(u, y, rate_hz, structures, thetas, input_delay, CHANGE_BLOCKS)
     if costs is None:
         return 0                    # blocks too short for the model order: no change can be placed
-    misfit = costs > MISFIT_RATIO * base_variance
-    n = u.size // CHANGE_BLOCKS
-    if not misfit[-1] or misfit.all():
+    first = _trailing_misfit_start(u.size, costs > MISFIT_RATIO * base_variance)
+    if first is None:
         return 0                    # no lasting change, or the window is all after it (or it lies in the first block)
-    first = int(np.flatnonzero(~misfit)[-1]) + 1
-    start = u.size - (CHANGE_BLOCKS - first - 1) * n      # the end of the first misfit block of the last run
+    start = first + u.size // CHANGE_BLOCKS                # the end of the first misfit block of the last run
     return start if u.size - start >= min_samples else None
+
+
+def _trailing_misfit_start(size: int, misfit: np.ndarray) -> int | None:
+    """Sample index where the run of misfit blocks (of ``CHANGE_BLOCKS`` equal blocks ending with the window) that
+    ends the window begins; None when the last block fits or every block misfits."""
+    if not misfit[-1] or misfit.all():
+        return None
+    last_good = int(np.flatnonzero(~misfit)[-1])
+    return size - (CHANGE_BLOCKS - last_good - 1) * (size // CHANGE_BLOCKS)
 
 
 def clean_end(u: np.ndarray, y: np.ndarray, rate_hz: float, structures: Sequence[SubmodelStructure], fit: JointFit,
@@ -300,16 +314,8 @@ def clean_end(u: np.ndarray, y: np.ndarray, rate_hz: float, structures: Sequence
     exceeds ``MISFIT_RATIO`` x the median block's. None: no such run at the end (or every block misfits)."""
     if not fit.tail_cost > MISFIT_RATIO * fit.cost:
         return None
-    thetas = [guess_theta(0.0 if s.n == 0 else float(m[0]), float(m[1]), float(m[2]))
-              for m, s in zip(fit.modal, structures, strict=True)]
-    costs = _block_costs(u, y, rate_hz, structures, thetas, input_delay, CHANGE_BLOCKS)
-    if costs is None:
-        return None
-    misfit = costs > MISFIT_RATIO * float(np.median(costs))
-    if not misfit[-1] or misfit.all():
-        return None
-    last_good = int(np.flatnonzero(~misfit)[-1])
-    return u.size - (CHANGE_BLOCKS - last_good - 1) * (u.size // CHANGE_BLOCKS)
+    costs = _block_costs(u, y, rate_hz, structures, thetas_of(fit.modal, structures), input_delay, CHANGE_BLOCKS)
+    return None if costs is None else _trailing_misfit_start(u.size, costs > MISFIT_RATIO * float(np.median(costs)))
 
 
 class RecentSamples:
@@ -452,8 +458,7 @@ class JointChecker:
         peak_std, ident = (None, None) if ref is None or not ref.converged else (ref.peak_own_std, ref.identifiable)
         base_var = math.nan if ref is None or not ref.converged else ref.residual_variance
         blend_var = base_var
-        thetas0 = [guess_theta(0.0 if s.n == 0 else float(b[0]), float(b[1]), float(b[2]))
-                   for b, s in zip(value, self.structures, strict=True)]
+        thetas0 = thetas_of(value, self.structures)
         after = change_start(u, y, self.rate, self.structures, thetas0, self.delay, base_var,
                              int(round(least * mem * self.rate)))
         if after is None:
@@ -468,10 +473,9 @@ class JointChecker:
             # restart pushed its end there): only the data before the change, if half of it is
             keep = int(round((faults.anomaly_since - (t - n / self.rate)) * self.rate))
             if keep < enough:
-                return verdict_from_fit(t, (t - n / self.rate, t), False, np.full((len(self.structures), 3), np.nan),
-                                        np.full((3 * len(self.structures),) * 2, np.nan), value, std,
-                                        self.structures, faults.settings.min_change,
-                                        message="the window is mostly after an output anomaly: no reference")
+                none = failed_fit(len(self.structures), "the window is mostly after an output anomaly: no reference")
+                return verdict_from_fit(t, (t - n / self.rate, t), False, none.modal, none.covariance, value, std,
+                                        self.structures, faults.settings.min_change, message=none.message)
             r, u, y, end, n = r[:keep], u[:keep], y[:keep], t - (n - keep) / self.rate, keep
         fit = joint_fit(r if self.closed_loop else None, u, y, self.rate, self.structures, thetas0,
                         controller=self.controller, input_delay=self.delay)

@@ -134,8 +134,8 @@ class FreeResponseRestart:
         a = basis[ok] / scale
         if np.linalg.cond(a) > MAX_CONDITION:
             return FAILED
-        c = np.linalg.lstsq(a, (y - ysim)[ok], rcond=None)[0] / scale
         e = (y - ysim)[ok]
+        c = np.linalg.lstsq(a, e, rcond=None)[0] / scale
         rest = float(np.mean((e - basis[ok] @ c) ** 2))
         noise = self.sig_acc / self.sig_w if self.sig_w > 0.0 else math.inf
         if rest > (1.0 - MIN_EXPLAINED) * float(np.mean(e ** 2)) and rest > 2.0 * noise:
