@@ -240,6 +240,8 @@ def main() -> None:
     ap.add_argument("--seed", type=int, default=0)
     ap.add_argument("--memory", type=float, nargs=2, default=(1.0, 50.0), metavar=("MIN_S", "MAX_S"))
     ap.add_argument("--bound", type=float, default=5.0, help="detection bound in memory lengths (default 5)")
+    ap.add_argument("--seeds", type=int, nargs="+", metavar="SEED",
+                    help="run exactly these seeds (e.g. the slow ones of a campaign) instead of --runs from --seed")
     ap.add_argument("--problem", choices=PROBLEMS, help="only this data problem")
     ap.add_argument("--param", action="append", metavar="NAME=VALUE",
                     help="a numeric monitor parameter for every run (repeatable), e.g. faults.fast.memory_fraction=1 "
@@ -249,7 +251,7 @@ def main() -> None:
           f"{'result':9} {'delay':>5}  why")
     delays: list[tuple[float, int, str]] = []
     counts: dict[str, int] = {}
-    for seed in range(args.seed, args.seed + args.runs):
+    for seed in args.seeds or range(args.seed, args.seed + args.runs):
         try:
             run, res, delay, why, secs = one(seed, args)
         except RuntimeError as exc:       # no stabilizing controller for this draw: not a run

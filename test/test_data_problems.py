@@ -209,6 +209,12 @@ def test_model_that_turns_loop_unstable_while_running_is_withdrawn_and_reinitial
     assert back and back[0].time_s >= 16.0 + cfg.init_duration_s - 0.2   # only after a new initialization
     assert all(np.all(np.isfinite(x.modal[:, :3])) for x in back)
     assert pipe.counters.reinitializations == 1 and pipe.counters.invalid_models == 1
+    # the new initialization is a converged fit of the new data: the tests resume after the short hold-off, not
+    # after the re-convergence hold-off (2 memory lengths) that a diverged recursion needs
+    holdoff_min, holdoff = pipe.health.settings.health_holdoff_min_s, pipe.health.holdoff_s
+    assert holdoff > 3.0 * holdoff_min
+    soon = [x for x in back if x.time_s > back[0].time_s + holdoff_min + 0.2]
+    assert soon and soon[0].time_s < back[0].time_s + holdoff / 2 and not soon[0].health["hold"]
     # what the baseline window learned before is kept (paused, or ended as a partial baseline of the healthy plant)
     assert phase_before == "learning" and pipe.faults.learner.n > 0
     if pipe.faults.baseline is not None:

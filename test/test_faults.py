@@ -308,6 +308,29 @@ def test_health_divergence_and_holdoff():
     assert "factor" in h.assess(20.0, blown).reasons[0]
 
 
+def test_a_fresh_fit_after_a_divergence_ends_its_hold_early_and_only_then():
+    """A re-initialization on new data is a converged fit: the divergence, no-valid-model and initializing issues it
+    resolves end health.holdoff_min_s after it, not the re-convergence hold-off later. A first initialization (no
+    such issue) keeps its own hold, and an issue the fit does not resolve (a stuck sensor) keeps its hold-off."""
+    h = HealthMonitor(MEMORY, reference_modal=TRUTH)
+    short = h.settings.health_holdoff_min_s
+    assert h.holdoff_s > 4.0 * short
+    h.note("reinitializing", 1.0, "estimator diverged: re-initializing on new data")
+    h.note("no_valid_model", 2.0, "estimator diverged: re-initializing on new data")
+    h.note("initializing", 2.0, "initializing: collecting data for the offline initialization")
+    h.note("stuck_sensor", 2.0, "y is stuck", mode=0)
+    h.refitted(2.0)
+    st = h.status(2.0 + 0.5 * short)
+    assert st.hold
+    st = h.status(2.0 + 1.5 * short)
+    assert not st.hold and [x.owner for x in st.holds] == ["stuck_sensor"]
+    assert h.status(1.0 + 0.9 * h.holdoff_s).holds            # the stuck sensor still holds its mode
+    first = HealthMonitor(MEMORY, reference_modal=TRUTH)
+    first.note("initializing", 2.0, "initializing: collecting data for the offline initialization")
+    first.refitted(2.0)
+    assert first.status(2.0 + 1.5 * short).hold
+
+
 def test_health_excitation_projection_residual():
     h = HealthMonitor(MEMORY, reference_modal=TRUTH)
     est = EstimatorHealth(updates=1000, projections=(0, 0), cond=(1e3,), residual_var=0.01)

@@ -53,7 +53,8 @@ class HealthMonitor:
     residual-variance jump) or *incidents* noted by the pipeline (:meth:`note`: data gap, non-finite or
     stuck sensor, out-of-order stamps, re-initialization). Each stays active for a hold-off of
     ``health.holdoff_memory_lengths`` x the longest memory after it was last seen, because the estimate
-    needs that long to re-converge.
+    needs that long to re-converge; an issue that a fresh offline initialization resolves ends sooner
+    (:meth:`refitted`).
     """
 
     ERROR_KINDS = ("divergence", "stuck_sensor", "reinitializing", "no_valid_model", "time_scale")
@@ -99,6 +100,21 @@ class HealthMonitor:
         self.active[key] = (t, message)
         self.first_seen.setdefault(key, t)
         self.counts[kind] = self.counts.get(kind, 0) + count
+
+    REFIT_KINDS = ("divergence", "no_valid_model", "reinitializing")
+    """Issues that a fresh offline initialization on new data ends (:meth:`refitted`)."""
+
+    def refitted(self, t: float) -> None:
+        """A fresh offline initialization on data after a divergence or a model that was no valid model ([RA-SRIVC]
+        Algorithm 2 step 1) succeeded at ``t``: its estimate is a converged fit of the new data, so those issues (and
+        the collection that led to it) end after ``health.holdoff_min_s`` instead of the re-convergence hold-off."""
+        keys = [k for k in self.active if k.partition(MODE_SCOPE)[0] in self.REFIT_KINDS]
+        if not keys:
+            return
+        for key in keys + [k for k in self.active if k.partition(MODE_SCOPE)[0] == "initializing"]:
+            t_seen, msg = self.active[key]
+            end = t + self.settings.health_holdoff_min_s
+            self.active[key] = (min(t_seen, end - self.hold_of(key.partition(MODE_SCOPE)[0])), msg)
 
     def clear_reference(self, modal: np.ndarray | None = None) -> None:
         """New reference for the parameter blow-up check (e.g. after a re-initialization)."""

@@ -267,6 +267,7 @@ class ModelStart:
             return
         self.host.initialized = True
         self.host.no_model = None
+        self.host.health.refitted(t_rel)
         modal = self.host.modal()
         if self.host.health.reference_modal is None and np.all(np.isfinite(modal[:, :3])):
             self.host.health.clear_reference(modal)
