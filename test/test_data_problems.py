@@ -192,16 +192,23 @@ def test_model_destabilizing_the_loop_is_never_published(bag, tmp_path, monkeypa
 def test_model_that_turns_loop_unstable_while_running_is_withdrawn_and_reinitialized(bag):
     """An estimate that C_d no longer stabilizes (gain of mode 2 x30 injected into the running estimator) is not
     published: NaN with the reason at the next report, then a fresh initialization on new data; the baseline
-    learned so far is kept."""
+    learned so far is kept; the joint check's recent samples stay the contiguous tail of the stream."""
     cfg, sig = bag
     n_cut = int(16.0 * cfg.loop_rate_hz)
     pipe, reps = _run(cfg, sig.t[:n_cut], sig.r[:n_cut], sig.u[:n_cut], sig.y[:n_cut])
     assert reps[-1].estimating and pipe.est.closed_loop_max_pole() < 1.0
     phase_before = pipe.faults.phase
     pipe.est._s["theta"][1, 2] *= 30.0
-    more = []
+    more, joint_tail = [], None
     for a in range(n_cut, sig.t.size, BLOCK):
         more += pipe.push(sig.t[a:a + BLOCK], sig.r[a:a + BLOCK], sig.u[a:a + BLOCK], sig.y[a:a + BLOCK])
+        if joint_tail is None and more and not more[0].estimating and pipe.initialized:
+            consumed = pipe.counters.samples_processed
+            joint_tail = pipe.joint_checker.recent.last(pipe.joint_checker.recent.n)[1], sig.u[:consumed]
+    # the joint check's samples run on through the re-initialization's window: contiguous, the stream's own tail
+    assert joint_tail is not None
+    held, stream = joint_tail
+    assert held.size > int(cfg.init_duration_s * cfg.loop_rate_hz) and np.array_equal(held, stream[-held.size:])
     first = more[0]
     assert not first.estimating and np.all(np.isnan(first.modal))
     assert "current model destabilizes the loop with C_d" in first.health["no_model_reason"]

@@ -11,7 +11,7 @@ from __future__ import annotations
 
 import math
 import time
-from typing import Any, Protocol
+from typing import TYPE_CHECKING, Any, Protocol
 
 import numpy as np
 
@@ -21,6 +21,9 @@ from ..identification.adequacy import ModelOrderCheck
 from ..identification.autostart import ModeSearch
 from ..vocabulary import one_line
 from .report_record import Counters, modes_text
+
+if TYPE_CHECKING:
+    from ..diagnosis.joint_check import JointChecker
 
 
 class PipelineHost(Protocol):
@@ -36,6 +39,7 @@ class PipelineHost(Protocol):
     order_check: ModelOrderCheck
     search: ModeSearch | None
     est: RecursiveEstimator | None
+    joint: JointChecker | None
     initialized: bool
     no_model: str | None
     model_max_pole: float
@@ -256,6 +260,7 @@ class ModelStart:
             self.data_start_tried = True
             if self._start_from_data(r, u, y, t_rel, failure[1]):
                 failure = self._fit_initial(r, u, y)
+        self._joint_samples_through(r, u, y, failure is None)
         if failure is not None:
             kind, why = failure
             if kind == "invalid":
@@ -273,6 +278,18 @@ class ModelStart:
             self.host.health.clear_reference(modal)
         if not start_checked:      # the automatic start's model was checked on its search window already
             self._check_initial_model(r, u, y, t_end)
+
+    def _joint_samples_through(self, r: np.ndarray, u: np.ndarray, y: np.ndarray, initialized: bool) -> None:
+        """The joint check's recent samples stay contiguous through a re-initialization: its window (fed to the
+        offline fit, not to the estimator) joins them when the fit succeeded, so a check can run on the new model
+        at once; otherwise they start again. A first initialization (no samples held yet) adds nothing."""
+        joint = self.host.joint
+        if joint is None or joint.recent.n == 0:
+            return
+        if initialized:
+            joint.add(r, u, y, float(self.host.memory_s.max()))
+        else:
+            joint.recent.clear()
 
     def _check_initial_model(self, r: np.ndarray, u: np.ndarray, y: np.ndarray, t_end: float) -> None:
         """Every initialization's model against the FRF of its own window (:func:`.adequacy.check_initial_model`, the

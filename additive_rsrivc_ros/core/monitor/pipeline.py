@@ -348,6 +348,8 @@ class MonitorPipeline:
             self.joint_checker.recent.clear()
         else:
             self.start.clear_buffer()
+            if self.joint is not None:       # held from before a re-initialization: not contiguous any more
+                self.joint.recent.clear()
             if self.finding_modes:           # the search needs contiguous data too: its window starts again
                 self.mode_search.clear()
 
