@@ -91,6 +91,39 @@ def test_a_plant_that_changed_much_during_the_break_keeps_collecting():
     assert -0.11 < f_rel[-1] < -0.07
 
 
+def test_a_plant_changed_during_the_break_shows_on_the_residual_level_from_the_first_misfit(tmp_path):
+    """While the collection's output error is the free response being fitted, health's residual level stays at its
+    level before the break; once a fit leaves more than the noise (mode 2 10 % lower), that error is an anomaly
+    and shows at once, not only when the full hold ends; a snapshot taken then keeps that."""
+    n_settle = settle_length(TRUTH, np.zeros(3, np.int64), RATE, 1)
+    a = BREAK + GAP
+    stop = a + n_settle + n_settle // 2              # the first fit at n_settle; a doubled collection lasts
+
+    def after_first_fit(theta, path=None):
+        r, u, y = _loop(stop + 3 * n_settle, noise_std=0.05, theta=theta, seed=4)
+        est = _est()
+        est.update(r[:BREAK], u[:BREAK], y[:BREAK])
+        level = est.residual_variance
+        est.mark_gap()
+        est.update(r[a:stop], u[a:stop], y[a:stop])
+        if path is not None:
+            est.save(path)
+            est.update(r[stop:], u[stop:], y[stop:])
+            back = RecursiveAdditiveSRIVC.restore(path)
+            back.update(r[stop:], u[stop:], y[stop:])
+            assert back.residual_variance == est.residual_variance
+            assert back.health.held_samples == est.health.held_samples
+        return est, level
+
+    same, level = after_first_fit(None)
+    assert same.health.hold_remaining == 0 and same.residual_variance < 2.0 * level       # fitted, resumed
+    traj = np.repeat(TRUTH[None], stop + 3 * n_settle, axis=0)
+    traj[BREAK + GAP // 2:, 1, 1] = TRUTH[1, 1] / 0.9 ** 2
+    changed, level = after_first_fit(traj)
+    assert changed.health.hold_remaining > 0 and changed.residual_variance > 2.0 * level  # still collecting
+    after_first_fit(traj, tmp_path / "state.npz")
+
+
 def test_skipped_samples_in_the_collection_leave_the_fit_exact():
     """Non-finite outputs and samples marked invalid after the break are left out of the fit, not fitted."""
     r, u, y = _loop(16000)

@@ -196,7 +196,7 @@ def test_missing_rate_under_a_namespace_names_the_params_key(ros_env, tmp_path):
         reason = ("parameter 'loop_rate_hz' is required (no params for node '/axis1/additive_rsrivc_monitor': the "
                   "YAML key must be '/**/additive_rsrivc_monitor' or '/axis1/additive_rsrivc_monitor')")
         assert lines == [f"rsrivc_monitor: {reason}"], r.stderr
-        cli.wait_for(lambda: any(m.level == Log.FATAL for m in logs), 10.0, "the fatal error on /rosout")
+        cli.wait_for(lambda: any(m.level == Log.FATAL for m in logs), 30.0, "the fatal error on /rosout")
         fatal = [m for m in logs if m.level == Log.FATAL]
         assert [(m.name, m.msg) for m in fatal] == [("axis1.additive_rsrivc_monitor", reason)]
     finally:
@@ -213,7 +213,7 @@ def test_stop_notice_reaches_rosout(ros_env):
         cli.wait_for(lambda: any("configured:" in m.msg for m in logs), 60.0, "the node's configured line")
         rc, out = stop_node(proc, "INT")
         assert rc == 0 and "rsrivc_monitor: stopping (SIGINT)" in out, out
-        cli.wait_for(lambda: any(m.msg == "stopping (SIGINT)" for m in logs), 10.0, "the stop notice on /rosout")
+        cli.wait_for(lambda: any(m.msg == "stopping (SIGINT)" for m in logs), 30.0, "the stop notice on /rosout")
         notice = [m for m in logs if m.msg == "stopping (SIGINT)"]
         assert len(notice) == 1 and notice[0].level == Log.INFO and notice[0].name == "axis1.additive_rsrivc_monitor"
     finally:

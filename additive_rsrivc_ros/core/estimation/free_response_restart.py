@@ -36,7 +36,7 @@ corrupt the fitted states) the collection is doubled, up to the full hold."""
 APPLIED, EXTEND, FAILED = "applied", "extend", "failed"
 STATE_KEY = "free_response_restart"
 """Key of a collection in progress in the estimator's snapshot (empty when none is)."""
-_HEADER = 4   # n_target, residual accumulator, its weight, last finite input before the break
+_HEADER = 5   # n_target, residual accumulator, its weight, last finite input before the break, misfit seen
 
 
 def settle_length(theta: np.ndarray, kind: np.ndarray, rate_hz: float, delay: int) -> int:
@@ -65,9 +65,10 @@ class FreeResponseRestart:
     """One collection after a break: :meth:`add` the samples, then :meth:`apply` the fit to the kernel state."""
 
     def __init__(self, n_target: int, sig_acc: float, sig_w: float, u_last: float,
-                 samples: np.ndarray | None = None) -> None:
+                 samples: np.ndarray | None = None, misfit: bool = False) -> None:
         self.n_target = int(n_target)
         self.sig_acc, self.sig_w, self.u_last = float(sig_acc), float(sig_w), float(u_last)
+        self.misfit = bool(misfit)      # a fit left more than the noise: the plant changed during the break
         self._buf = np.zeros((4, self.n_target))           # r, u, y, valid of the samples collected so far
         self._n = 0
         if samples is not None:
@@ -99,8 +100,10 @@ class FreeResponseRestart:
 
     def keep_residual_level(self, s: dict[str, np.ndarray]) -> None:
         """The residual-variance accumulator as it was at the break (the collected output error is mostly the free
-        response being fitted, not noise)."""
-        s["fst"][kn.F_SIGACC], s["fst"][kn.F_SIGW] = self.sig_acc, self.sig_w
+        response being fitted, not noise), until a fit finds more than the noise left: then the output error since
+        the break is an anomaly (the plant changed during it) and health sees it from then on, as without a fit."""
+        if not self.misfit:
+            s["fst"][kn.F_SIGACC], s["fst"][kn.F_SIGW] = self.sig_acc, self.sig_w
 
     def apply(self, s: dict[str, np.ndarray]) -> str:
         """Fit the input filters' states at the break and add their free response to the kernel state; end the
@@ -139,6 +142,7 @@ class FreeResponseRestart:
         rest = float(np.mean((e - basis[ok] @ c) ** 2))
         noise = self.sig_acc / self.sig_w if self.sig_w > 0.0 else math.inf
         if rest > (1.0 - MIN_EXPLAINED) * float(np.mean(e ** 2)) and rest > 2.0 * noise:
+            self.misfit = True
             return EXTEND if self._extend(s) else FAILED
         for i in range(K):
             s["xs"][i, kn.BU] += ends[i] @ c[2 * i:2 * i + 2]
@@ -155,15 +159,18 @@ class FreeResponseRestart:
         return True
 
     def to_array(self) -> np.ndarray:
-        head = np.array([self.n_target, self.sig_acc, self.sig_w, self.u_last])
+        head = np.array([self.n_target, self.sig_acc, self.sig_w, self.u_last, float(self.misfit)])
         return np.concatenate((head, self.samples.ravel()))
 
     @classmethod
     def from_array(cls, a: np.ndarray) -> FreeResponseRestart | None:
+        """The collection saved by :meth:`to_array` (a header of four, without the misfit flag, is read too: the
+        samples are four rows, so the two layouts differ in length modulo 4)."""
         a = np.asarray(a, dtype=float).ravel()
-        if a.size < _HEADER:
+        head = _HEADER if (a.size - _HEADER) % 4 == 0 else _HEADER - 1
+        if a.size < head:
             return None
-        return cls(int(a[0]), a[1], a[2], a[3], a[_HEADER:])
+        return cls(int(a[0]), a[1], a[2], a[3], a[head:], misfit=head == _HEADER and bool(a[4]))
 
 
 def _first_row_powers(phi: np.ndarray, n: int) -> np.ndarray:
