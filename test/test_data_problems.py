@@ -226,3 +226,27 @@ def test_model_that_turns_loop_unstable_while_running_is_withdrawn_and_reinitial
     assert phase_before == "learning" and pipe.faults.learner.n > 0
     if pipe.faults.baseline is not None:
         assert pipe.faults.baseline.value[1, 0] == pytest.approx(float(sig.truth_modes[0, 1, 0]), rel=0.01)
+
+
+def test_a_break_during_a_re_initialization_restarts_the_joint_checks_samples(bag):
+    """The joint check's samples are contiguous: a data gap while the pipeline re-initializes (no model runs) drops
+    the samples held from before it, so no check window ever spans the gap or the lost initialization window."""
+    cfg, sig = bag
+    rate = cfg.loop_rate_hz
+    n_cut = int(16.0 * rate)
+    pipe, _ = _run(cfg, sig.t[:n_cut], sig.r[:n_cut], sig.u[:n_cut], sig.y[:n_cut])
+    assert pipe.joint_checker.recent.n > 0
+    pipe.est._s["theta"][1, 2] *= 30.0                  # no valid model at the next report: re-initialization
+    gap_at, resume = n_cut + int(1.0 * rate), n_cut + int(1.5 * rate)
+    kept = np.r_[0:gap_at, resume:sig.t.size]
+    t, r, u, y = (x[kept] for x in (sig.t, sig.r, sig.u, sig.y))
+    reinitialized = False
+    for a in range(n_cut, t.size, BLOCK):
+        pipe.push(t[a:a + BLOCK], r[a:a + BLOCK], u[a:a + BLOCK], y[a:a + BLOCK])
+        reinitialized = reinitialized or not pipe.initialized
+        if reinitialized and pipe.initialized and pipe.joint_checker.recent.n > 0:
+            break
+    assert reinitialized and pipe.initialized and pipe.counters.reinitializations == 1
+    held = pipe.joint_checker.recent.last(pipe.joint_checker.recent.n)[1]
+    consumed = pipe.counters.samples_processed
+    assert held.size <= consumed - gap_at and np.array_equal(held, u[consumed - held.size:consumed])

@@ -7,7 +7,7 @@ import numpy as np
 import pytest
 
 from additive_rsrivc_ros.core.estimation import kernel as kn
-from additive_rsrivc_ros.core.estimation.free_response_restart import settle_length
+from additive_rsrivc_ros.core.estimation.free_response_restart import FreeResponseRestart, settle_length
 from additive_rsrivc_ros.core.estimation.recursive import RecursiveAdditiveSRIVC
 from additive_rsrivc_ros.core.estimation.recursive_state import hold_length
 from additive_rsrivc_ros.core.model import SubmodelStructure
@@ -122,6 +122,20 @@ def test_a_plant_changed_during_the_break_shows_on_the_residual_level_from_the_f
     changed, level = after_first_fit(traj)
     assert changed.health.hold_remaining > 0 and changed.residual_variance > 2.0 * level  # still collecting
     after_first_fit(traj, tmp_path / "state.npz")
+
+
+@pytest.mark.parametrize("collected", [0, 1, 7])
+def test_a_collection_saved_with_or_without_the_misfit_flag_reads_back(collected):
+    """The saved collection: n_target, residual level, last input, misfit flag, then four rows of samples; a layout
+    without the flag (saved before it existed) reads as no misfit seen, with its samples intact."""
+    samples = np.arange(4.0 * collected).reshape(4, collected)
+    saved = FreeResponseRestart(20, 0.5, 2.0, -1.0, samples, misfit=True)
+    back = FreeResponseRestart.from_array(saved.to_array())
+    assert back is not None and back.misfit and back.n_target == 20 and (back.sig_acc, back.sig_w) == (0.5, 2.0)
+    assert np.array_equal(back.samples, samples)
+    older = np.concatenate(([20, 0.5, 2.0, -1.0], samples.ravel()))
+    back = FreeResponseRestart.from_array(older)
+    assert back is not None and not back.misfit and back.u_last == -1.0 and np.array_equal(back.samples, samples)
 
 
 def test_skipped_samples_in_the_collection_leave_the_fit_exact():
