@@ -204,6 +204,7 @@ class FaultMonitor:
         self.joint_confirmation.judge_peak(t, np.where(quiet, peaks, np.nan))
         lead = leads(score, app, np.array([[tst.state == "fault" for tst in row] for row in self.tests]))
         arriving = self.recent.moving(t, modal, rho, memory_now, lookback=0.5)
+        travel = np.zeros((self.K, 3), dtype=bool)
         for i in range(self.K):
             w = min(1.0, dt / (2.0 * self.effective_memory_s(i)))   # S1: weight per independent sample
             if held_mode[i]:
@@ -212,7 +213,9 @@ class FaultMonitor:
                 continue
             self.fast.track(i, t, self.tests[i])
             travelling = [bool(moving[i, 0] or arriving[i, q]) for q in range(3)]
+            travel[i] = travelling
             self._step_mode(i, t, w, modal, base, sigma[i], rho[i], travelling, stress_since, int(lead[i]), out)
+        self.joint_confirmation.judge_travel(travel)
         return out
 
     def _step_mode(self, i: int, t: float, w: float, modal: np.ndarray, base: Baseline, sigma: np.ndarray,

@@ -50,6 +50,9 @@ class JointConfirmation:
         self.peak_since = np.full(setup.K, np.nan)
         # per mode and quantity: it deviates together with the mode's gain (recomputed every update)
         self.together_pending = np.zeros((setup.K, 3), dtype=bool)
+        # per mode and quantity: a damping or gain deviation under test whose estimate still travels, which the
+        # recursion confirms only once it holds still (recomputed every update)
+        self.travel_pending = np.zeros((setup.K, 3), dtype=bool)
         # the model-order check flags the model (a wrong optimum or too few modes; set every update)
         self.model_flagged = False
         # per mode and quantity: a joint check did not support the deviation under test; until that deviation ends
@@ -63,6 +66,7 @@ class JointConfirmation:
         self.streak[:] = 0
         self.coupled_pending[:] = False
         self.together_pending[:] = False
+        self.travel_pending[:] = False
         self.refused[:] = False
         self.peak_change[:] = np.nan
         self.peak_since[:] = np.nan
@@ -131,6 +135,15 @@ class JointConfirmation:
         gain_and_other = rel[:, 2] & (rel[:, 0] | rel[:, 1])
         self.together_pending[:] = (self.reference_identified & gain_and_other)[:, None] & rel
 
+    def judge_travel(self, travelling: np.ndarray) -> None:
+        """Mark the damping and gain deviations under test whose estimate still travels (``travelling``: (K, 3)
+        bool). The recursion confirms them only once they hold still, which after a large damping change takes it
+        several memory lengths; with an identified reference, two consecutive joint fits of the data after the change
+        that support the deviation confirm it sooner (the joint fit names the new level, not a swing)."""
+        suspect = np.array([[tst.state == "suspect" for tst in row] for row in self.tests], dtype=bool)
+        suspect[:, 0] = False
+        self.travel_pending[:] = self.reference_identified & suspect & np.asarray(travelling, bool)
+
     def judge_peak(self, t: float, change: np.ndarray) -> None:
         """Follow each mode's resonance-peak change at ``t`` (``change`` (K,): relevant and significant while its gain
         and damping tests are quiet, else NaN, :func:`.deviations.peak_moved`): such a mode's damping and gain need
@@ -168,7 +181,7 @@ class JointConfirmation:
     def _beyond_armed(self) -> bool:
         """A joint check is needed beyond the armed modes and the stress: a split is open somewhere, or a joint
         event is open (the checks hold and clear it). A flagged model alone needs none: no fit confirms anything."""
-        return bool(self.refused.any() or self.coupled_pending.any()
+        return bool(self.refused.any() or self.coupled_pending.any() or self.travel_pending.any()
                     or self.together_pending.any() or np.isfinite(self.peak_change).any()
                     or self._second_pending().any()) or self._joint_events_open()
 
@@ -285,7 +298,7 @@ class JointConfirmation:
             return
         if test.state == "fault" or abs(self.streak[i, q]) < 2 or not self.setup.applicable(i, q) \
                 or not (self.armed_modes[i] or self.stress.anomaly_since is not None
-                        or self._split_open(i, q)):   # the recursion alone decides
+                        or self._split_open(i, q) or self.travel_pending[i, q]):   # the recursion alone decides
             return
         ref_value, ref_std = self.basis()
         sigma = math.hypot(float(verdict.std[i, q]), float(ref_std[i, q]))
