@@ -679,3 +679,41 @@ def test_the_shortest_joint_window_follows_what_the_reference_identifies():
     assert checker.min_window(faults(np.array([1e-6, rho[0, 1] / 12, 1e-6])[None, :])) == pytest.approx(1.0)
     assert checker.min_window(faults(rho / 3)) == JointChecker.MIN_WINDOW
     assert checker.min_window(faults(rho / 1000, converged=False)) == JointChecker.MIN_WINDOW
+
+
+def test_a_travelling_damping_deviation_is_confirmed_by_consecutive_joint_supports():
+    """A +50 % damping change that the recursion's estimate takes ten seconds (four memory lengths) to cross is
+    confirmed by the recursion only once the estimate holds still; with an identified reference, two consecutive
+    joint fits of the data after the change that support it confirm it while it still travels, with the fit's
+    value. Joint fits that see no change refuse it: it is not confirmed at all."""
+    t0, ramp = 60.0, 10.0
+
+    def change(t: np.ndarray, truth: np.ndarray) -> np.ndarray:
+        truth[:, 0, 1] *= 1.0 + 0.5 * np.clip((t - t0) / ramp, 0.0, 1.0)
+        return truth
+
+    t, modal = stream(t0 + 30.0, 48, change, rel_std=np.array([0.003, 0.01, 0.01]))
+
+    def run(support: int | None) -> list:
+        mon, events = FaultMonitor(MEMORY), []
+        for k in range(t.size):
+            tk = float(t[k])
+            _arm_at_monitoring(mon, tk)
+            events += mon.update(tk, modal[k]).opened
+            # checks every quarter memory once the deviation is under test (the resonance peak's rule, which runs
+            # them while only the peak has moved, is over by then)
+            if support is not None and tk > t0 + 5.0 and round(tk / 0.6, 6).is_integer():
+                value = TRUTH.copy()
+                value[0, 1] *= 1.5 if support else 1.0
+                sup = np.zeros((2, 3), int)
+                sup[0, 1] = support
+                events += mon.apply_joint(tk, _verdict(tk, (t0 + 0.5, tk), value, sup)).opened
+        return events
+
+    alone = run(None)
+    assert [(e.mode, e.quantity, e.direction) for e in alone] == [(1, "damping", "up")]
+    assert alone[0].alarm_time_s > t0 + ramp
+    joint = run(1)
+    assert [(e.mode, e.quantity, e.direction) for e in joint] == [(1, "damping", "up")]
+    assert joint[0].alarm_time_s < t0 + 0.8 * ramp and joint[0].value == pytest.approx(1.5 * TRUTH[0, 1])
+    assert run(0) == []

@@ -4,8 +4,10 @@ deviation needs the support of the joint fit (:mod:`.joint_check`).
 The baseline window's joint fit (the reference) arms the modes with a quantity the excitation does not identify
 jointly; under advisory stress damping and gain need the joint support too; and so do the deviations of modes the
 reference shows coupled (correlated quantities) while they deviate together: the recursion's split between them
-re-converges after a change of either, so a change of one moves the other for a while. Two consecutive joint checks that
-support a change confirm it (the event carries the joint fit's value), two that no longer support it clear it.
+re-converges after a change of either, so a change of one moves the other for a while. A damping or gain deviation whose
+estimate still travels may be confirmed by the joint check too, instead of waiting for it to hold still. Two
+consecutive joint checks that support a change confirm it (the event carries the joint fit's value), two that no
+longer support it clear it.
 """
 
 from __future__ import annotations
