@@ -58,20 +58,12 @@ def campaign_run(seed: int) -> Record:
     sys.path.insert(0, str(Path(__file__).resolve().parent))
     import campaign_fault_masking as camp
 
-    from additive_rsrivc_ros.core.controller import DiscreteController
-    from additive_rsrivc_ros.sim.simulate import simulate_modes, white_noise
-
     run, params = camp.draw(seed, (0.5, 3.0), 5.0, "none")
-    rng = np.random.default_rng(seed + 10_000)
-    r = camp.excitation(run, rng)
-    ctrl = DiscreteController(tuple(params["controller.numerator"]), tuple(params["controller.denominator"]))
-    kw = dict(r=r, controller=ctrl, input_delay=params["input_delay_samples"], changes=[run.change])
-    noise_std = 0.01 * float(np.std(simulate_modes(run.modes, run.rate, **kw).y)) or 1e-6
-    sim = simulate_modes(run.modes, run.rate, noise=white_noise(r.size, noise_std, rng), **kw)
+    r, u, y, _ = camp.simulate_run(run, params, seed)
     excitation = "narrow" if run.narrow else "broad"
     change = f"m{run.change.mode + 1} {run.change.quantity} {run.change.relative_change:+.0%}"
     label = f"campaign seed {seed} --problem none ({len(run.modes)} modes, {excitation}, {change})"
-    return Record(label, MonitorConfig.from_params(params), np.arange(r.size) / run.rate, r, sim.u, sim.y,
+    return Record(label, MonitorConfig.from_params(params), np.arange(r.size) / run.rate, r, u, y,
                   run.change.start_s, run.memory_s)
 
 

@@ -211,12 +211,9 @@ def judge(run: Run, reps: list, bound: float) -> tuple[str, float | None, str]:
     return "VIOLATION", None, f"missed; verdict {verdict.level}: {verdict.text[:120]}"
 
 
-def one(seed: int, args: argparse.Namespace) -> tuple[Run, str, float | None, str, float]:
-    t0 = time.perf_counter()
-    run, params = draw(seed, tuple(args.memory), args.bound, args.problem)
-    for item in args.param or []:
-        name, _, value = item.partition("=")
-        params[name] = float(value)
+def simulate_run(run: Run, params: dict, seed: int) -> tuple[np.ndarray, np.ndarray, np.ndarray, float]:
+    """The closed loop of a drawn run before any data problem: r, u, y (output noise 1 % of the clean output's
+    std) and that noise std."""
     rng = np.random.default_rng(seed + 10_000)
     r = excitation(run, rng)
     from additive_rsrivc_ros.core.controller import DiscreteController
@@ -226,8 +223,18 @@ def one(seed: int, args: argparse.Namespace) -> tuple[Run, str, float | None, st
     noise_std = 0.01 * float(np.std(clean.y)) or 1e-6
     sim = simulate_modes(run.modes, run.rate, r=r, controller=ctrl, input_delay=params["input_delay_samples"],
                          changes=[run.change], noise=white_noise(r.size, noise_std, rng))
+    return r, sim.u, sim.y, noise_std
+
+
+def one(seed: int, args: argparse.Namespace) -> tuple[Run, str, float | None, str, float]:
+    t0 = time.perf_counter()
+    run, params = draw(seed, tuple(args.memory), args.bound, args.problem)
+    for item in args.param or []:
+        name, _, value = item.partition("=")
+        params[name] = float(value)
+    r, u, y, noise_std = simulate_run(run, params, seed)
     t = np.arange(r.size) / run.rate
-    t, rr, u, y = damage(run, t, r, sim.u, sim.y, noise_std)
+    t, rr, u, y = damage(run, t, r, u, y, noise_std)
     cfg = MonitorConfig.from_params(params)
     reps = monitor(run, cfg, t, rr, u, y)
     res, delay, why = judge(run, reps, args.bound)
